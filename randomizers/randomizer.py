@@ -1,0 +1,247 @@
+"""The engine that draws, applies, reports and restores a set of effects on one MuJoCo model.
+
+:class:`PhysicsRandomizer` knows nothing of environment APIs: ``sim2real`` wrappers call
+:meth:`~PhysicsRandomizer.begin_episode` before the environment resets, :meth:`~PhysicsRandomizer.apply`
+once the episode's model exists, and :meth:`~PhysicsRandomizer.step` before each control step.
+
+Example:
+    >>> import mujoco
+    >>> from randomizers import Damping, Mass, PhysicsRandomizer, Uniform
+    >>> model = mujoco.MjModel.from_xml_string(
+    ...     '<mujoco><worldbody><body name="arm"><joint name="hinge" damping="1"/>'
+    ...     '<geom size=".1"/></body></worldbody></mujoco>')
+    >>> data = mujoco.MjData(model)
+    >>> r = PhysicsRandomizer([Damping(scale=Uniform(0.5, 2.0)), Mass(scale=Uniform(0.8, 1.2))], seed=0)
+    >>> r.bind(model, data)
+    >>> r.begin_episode()
+    >>> r.apply()
+    >>> sorted(r.current_params)
+    ['body_mass[arm]', 'dof_damping[hinge]']
+    >>> 0.5 <= r.current_params["dof_damping[hinge]"] < 2.0
+    True
+    >>> r.restore_nominal()
+    >>> float(model.dof_damping[0])
+    1.0
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from randomizers.effects import Binding, Effect, Interval, PushBinding
+from randomizers.seeding import SeedLike, StreamFactory, normalize_seed
+
+__all__ = ["PhysicsRandomizer"]
+
+# Separates the wrap seed from a reset seed in the stream root, so (1, 2) and (1,)+(2,) differ.
+_SEPARATOR = 0x5EED5EED
+
+
+class _Slot:
+    """Mutable per-effect state that survives a rebind (composer recompiles every episode)."""
+
+    __slots__ = ("binding", "draws", "effect", "gen", "next_time", "resample", "steps")
+
+    def __init__(self, effect: Effect, gen: np.random.Generator) -> None:
+        self.effect = effect
+        self.gen = gen
+        self.binding: Any = None
+        self.draws: np.ndarray | None = None
+        self.resample = 0
+        self.steps = 0
+        self.next_time: float | None = None
+
+
+class PhysicsRandomizer:
+    """Draws effect values per episode from keyed streams, writes them, reports and restores them.
+
+    Args:
+        effects: the physics effects (``randomizers.effects``), applied in order.
+        seed: root seed (int, tuple of ints, or None for fresh entropy).
+
+    Attributes:
+        current_params: parameter address -> value in use this episode (a new dict whenever
+            values change, never mutated, so stored copies stay true).
+        events: push events of the current episode.
+        episode: index of the current episode since the last seeding (-1 before the first).
+    """
+
+    def __init__(self, effects: Iterable[Effect], seed: SeedLike = None) -> None:
+        effects = tuple(effects)
+        for i, effect in enumerate(effects):
+            if not isinstance(effect, Effect):
+                raise TypeError(
+                    f"`effects[{i}]` must be a physics effect (Friction, Mass, Damping, Armature, FrictionLoss, "
+                    f"Stiffness, ActuatorGain, Gravity, Push). Received {effect!r} of type {type(effect).__name__}."
+                )
+        self.effects = effects
+        self._wrap_seed = normalize_seed(seed)
+        self._base_root: tuple[int, ...] = StreamFactory(self._wrap_seed).root
+        self._streams = StreamFactory(self._base_root)
+        self._names = self._stream_names(effects)
+        self._slots = [_Slot(e, self._streams.generator(n)) for e, n in zip(effects, self._names, strict=True)]
+        self.model: mujoco.MjModel | None = None
+        self.data: mujoco.MjData | None = None
+        self._scratch: mujoco.MjData | None = None
+        self._set_const = False
+        self._step_slots: list[_Slot] = []
+        self.episode = -1
+        self.current_params: dict[str, float] = {}
+        self.events: tuple[dict[str, Any], ...] = ()
+
+    @staticmethod
+    def _stream_names(effects: tuple[Effect, ...]) -> list[str]:
+        seen: dict[str, int] = {}
+        names = []
+        for effect in effects:
+            key = effect.key
+            count = seen.get(key, 0)
+            seen[key] = count + 1
+            names.append(key if count == 0 else f"{key}#{count}")
+        return names
+
+    @property
+    def stream_names(self) -> tuple[str, ...]:
+        """The stream name of each effect (what :func:`randomizers.seeding.stream` needs)."""
+        return tuple(self._names)
+
+    @property
+    def root_seed(self) -> tuple[int, ...]:
+        """The root the current streams derive from."""
+        return self._streams.root
+
+    @property
+    def has_step_effects(self) -> bool:
+        """Whether :meth:`step` does anything (interval schedules or pushes)."""
+        return bool(self._step_slots)
+
+    def bind(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
+        """Resolves every effect against ``model`` and snapshots its nominal values.
+
+        Called again with a freshly compiled model (composer envs), it re-resolves against the new
+        model; the episode's draws are kept and re-applied by :meth:`apply`.
+        """
+        if model is self.model and data is self.data:
+            return
+        for slot in self._slots:
+            slot.binding = slot.effect.bind(model)
+        self.model, self.data = model, data
+        self._set_const = any(getattr(s.binding, "needs_set_const", False) for s in self._slots)
+        self._scratch = mujoco.MjData(model) if self._set_const else None
+        self._step_slots = [
+            s for s in self._slots if isinstance(s.binding, PushBinding) or isinstance(s.effect.schedule, Interval)
+        ]
+
+    def begin_episode(self, seed: SeedLike = None) -> None:
+        """Draws this episode's values (call before the environment resets).
+
+        Args:
+            seed: a reset seed; when given, streams restart from episode 0 of the root
+                ``(wrap seed, reset seed)`` so ``reset(seed=s)`` reproduces the same draws.
+        """
+        if self.model is None:
+            raise RuntimeError("PhysicsRandomizer.begin_episode() called before bind(model, data).")
+        reset_seed = normalize_seed(seed, "seed")
+        if reset_seed is not None:
+            base = self._wrap_seed if self._wrap_seed is not None else ()
+            self._streams = StreamFactory((*base, _SEPARATOR, *reset_seed))
+            self.episode = -1
+        self.episode += 1
+        for slot, name in zip(self._slots, self._names, strict=True):
+            slot.resample = 0
+            slot.steps = 0
+            slot.next_time = None
+            binding = slot.binding
+            if isinstance(binding, PushBinding):
+                self._streams.start(slot.gen, name, self.episode)
+                continue
+            if slot.effect.schedule == "startup" and slot.draws is not None:
+                continue
+            self._streams.start(slot.gen, name, 0 if slot.effect.schedule == "startup" else self.episode)
+            slot.draws = self._sample(slot)
+
+    @staticmethod
+    def _sample(slot: _Slot) -> np.ndarray:
+        binding: Binding = slot.binding
+        return np.asarray(slot.effect.distribution.sample(slot.gen, binding.draw_count()), dtype=np.float64)  # type: ignore[attr-defined]
+
+    def apply(self) -> None:
+        """Writes the episode's values into the bound model (then ``mj_setConst`` if masses moved)."""
+        params: dict[str, float] = {}
+        for slot in self._slots:
+            binding = slot.binding
+            if isinstance(binding, PushBinding):
+                binding.begin(slot.gen)
+                continue
+            if slot.draws is None:
+                raise RuntimeError("PhysicsRandomizer.apply() called before begin_episode().")
+            values = binding.values(slot.draws)
+            binding.apply(values)
+            params.update(zip(binding.addresses, values.tolist(), strict=True))
+        if self._set_const:
+            mujoco.mj_setConst(self.model, self._scratch)
+        self.current_params = params
+        self.events = ()
+
+    def step(self) -> bool:
+        """One control step of interval resamples and pushes; True when anything changed."""
+        changed = False
+        for slot in self._step_slots:
+            binding = slot.binding
+            if isinstance(binding, PushBinding):
+                if binding.step(self.data):
+                    self.events = tuple(binding.events)
+                    changed = True
+                continue
+            schedule: Interval = slot.effect.schedule  # type: ignore[assignment]
+            if schedule.steps is not None:
+                slot.steps += 1
+                due = slot.steps % schedule.steps == 0
+            else:
+                now = float(self.data.time)  # type: ignore[union-attr]
+                if slot.next_time is None:
+                    slot.next_time = now + schedule.seconds  # type: ignore[operator]
+                due = now >= slot.next_time
+                if due:
+                    slot.next_time += schedule.seconds  # type: ignore[operator]
+            if due:
+                slot.resample += 1
+                self._streams.start(slot.gen, self._names[self._slots.index(slot)], self.episode, slot.resample)
+                slot.draws = self._sample(slot)
+                values = binding.values(slot.draws)
+                binding.apply(values)
+                if binding.needs_set_const:
+                    mujoco.mj_setConst(self.model, self._scratch)
+                self.current_params = {
+                    **self.current_params,
+                    **dict(zip(binding.addresses, values.tolist(), strict=True)),
+                }
+                changed = True
+        return changed
+
+    def restore_nominal(self) -> None:
+        """Puts every touched model field (and any active push) back to its nominal value, bitwise."""
+        if self.model is None:
+            return
+        for slot in self._slots:
+            binding = slot.binding
+            if isinstance(binding, PushBinding):
+                binding.restore(self.data)
+            else:
+                binding.restore()
+        if self._set_const:
+            mujoco.mj_setConst(self.model, self._scratch)
+        self.current_params = self.nominal_params()
+
+    def nominal_params(self) -> dict[str, float]:
+        """Address -> nominal value for everything the effects touch."""
+        out: dict[str, float] = {}
+        for slot in self._slots:
+            binding = slot.binding
+            if isinstance(binding, Binding):
+                out.update(zip(binding.addresses, binding.nominal.tolist(), strict=True))
+        return out

@@ -1,0 +1,122 @@
+"""Keyed random streams: one independent generator per (seed, component, episode, resample).
+
+Streams are counter-based (Philox): the key comes from the seed and a stable hash of the
+component's name, the episode and resample index sit in the high words of the counter. So
+
+* enabling, removing or reordering one component never shifts another's draws;
+* every (seed, component, episode) draw can be reproduced in isolation with :func:`stream`;
+* moving to the next episode costs a state write (about 2 µs), not a new ``SeedSequence``.
+
+The global ``np.random`` is never touched.
+
+Example:
+    >>> import numpy as np
+    >>> s = StreamFactory(seed=0)
+    >>> g = s.generator("Friction[geoms=*]")
+    >>> s.start(g, "Friction[geoms=*]", episode=3)
+    >>> a = g.uniform(size=2)
+    >>> b = stream(0, "Friction[geoms=*]", episode=3).uniform(size=2)
+    >>> bool((a == b).all())
+    True
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Sequence
+
+import numpy as np
+
+__all__ = ["SeedLike", "StreamFactory", "component_key", "normalize_seed", "stream"]
+
+SeedLike = int | Sequence[int] | None
+
+
+def normalize_seed(seed: object, name: str = "seed") -> tuple[int, ...] | None:
+    """Validates a seed (None, a non-negative int or a sequence of them) into a tuple.
+
+    Example:
+        >>> normalize_seed(3), normalize_seed((1, 2)), normalize_seed(None)
+        ((3,), (1, 2), None)
+        >>> normalize_seed(-1)
+        Traceback (most recent call last):
+        ...
+        ValueError: `seed` must be None, a non-negative int or a sequence of them. Received -1.
+    """
+    if seed is None:
+        return None
+    items: Sequence[object] = seed if isinstance(seed, (tuple, list)) else (seed,)
+    out = []
+    for item in items:
+        if isinstance(item, bool) or not isinstance(item, (int, np.integer)) or item < 0:
+            raise ValueError(f"`{name}` must be None, a non-negative int or a sequence of them. Received {seed!r}.")
+        out.append(int(item))
+    if not out:
+        raise ValueError(f"`{name}` must be None, a non-negative int or a sequence of them. Received {seed!r}.")
+    return tuple(out)
+
+
+def component_key(name: str) -> int:
+    """A stable 32-bit key for a component name (``hash()`` is salted per process; crc32 is not)."""
+    return zlib.crc32(name.encode("utf-8"))
+
+
+def _philox_key(root: tuple[int, ...], name: str) -> np.ndarray:
+    return np.random.SeedSequence([*root, component_key(name)]).generate_state(2, np.uint64)
+
+
+def stream(seed: int | Sequence[int], name: str, episode: int, resample: int = 0) -> np.random.Generator:
+    """The generator a component named ``name`` uses in ``episode`` (the reference implementation).
+
+    Args:
+        seed: the root seed (an int or a tuple of ints, e.g. ``(wrap_seed, reset_seed)``).
+        name: the component's stable name (its ``key``).
+        episode: episode index since the last seeding (0-based).
+        resample: index of the resample within the episode (interval schedules), 0 at reset.
+    """
+    root = normalize_seed(seed)
+    assert root is not None
+    bitgen = np.random.Philox(key=_philox_key(root, name), counter=[0, 0, resample, episode])
+    return np.random.Generator(bitgen)
+
+
+class StreamFactory:
+    """Hands out reusable generators and rewinds them to the (episode, resample) block.
+
+    Args:
+        seed: root seed; ``None`` draws fresh OS entropy once (runs then differ from each other but
+            stay internally consistent).
+    """
+
+    def __init__(self, seed: SeedLike = None) -> None:
+        root = normalize_seed(seed)
+        if root is None:
+            root = (int(np.random.SeedSequence().entropy) % (2**63),)
+        self.root: tuple[int, ...] = root
+        self._keys: dict[str, np.ndarray] = {}
+
+    def generator(self, name: str) -> np.random.Generator:
+        """A generator for ``name``; call :meth:`start` before each block of draws."""
+        return np.random.Generator(np.random.Philox(key=self._key(name)))
+
+    def _key(self, name: str) -> np.ndarray:
+        key = self._keys.get(name)
+        if key is None:
+            key = self._keys[name] = _philox_key(self.root, name)
+        return key
+
+    def start(self, gen: np.random.Generator, name: str, episode: int, resample: int = 0) -> None:
+        """Rewinds ``gen`` to the first draw of ``(episode, resample)`` for component ``name``."""
+        bitgen = gen.bit_generator
+        state = {
+            "bit_generator": "Philox",
+            "state": {
+                "counter": np.array([0, 0, resample, episode], dtype=np.uint64),
+                "key": self._key(name),
+            },
+            "buffer": np.zeros(4, dtype=np.uint64),
+            "buffer_pos": 4,
+            "has_uint32": 0,
+            "uinteger": 0,
+        }
+        bitgen.state = state

@@ -1,0 +1,72 @@
+"""sim2real: make robot policies survive the jump from MuJoCo simulation to the real world.
+
+``import sim2real as s2r`` reaches everything: tasks (:func:`make`), wrapping any env
+(:func:`wrap`), and the effects of :mod:`randomizers`.
+
+Example:
+    >>> import sim2real as s2r
+    >>> env = s2r.wrap(s2r.make("sim2real/arm-reach"), s2r.Damping(scale=s2r.Uniform(0.5, 2.0)), seed=0)
+    >>> obs, info = env.reset(seed=0)
+    >>> obs.shape, sorted(info["sim2real"]["params"])[0]
+    ((16,), 'dof_damping[base_yaw]')
+"""
+
+from __future__ import annotations
+
+from sim2real._gl import select_backend
+
+select_backend()
+
+from randomizers import (  # noqa: E402 - the GL backend must be chosen before mujoco loads
+    ActuatorGain,
+    Armature,
+    Choice,
+    Constant,
+    Damping,
+    Friction,
+    FrictionLoss,
+    Gravity,
+    Interval,
+    LogUniform,
+    Mass,
+    Normal,
+    Push,
+    Stiffness,
+    TruncatedNormal,
+    Uniform,
+    load_effects,
+)
+from sim2real.adapters import DmEnvToGym  # noqa: E402
+from sim2real.physics import PhysicsHandle, find_physics  # noqa: E402
+from sim2real.tasks import TASKS, make, task_ids  # noqa: E402
+from sim2real.wrapping import make_vec, wrap  # noqa: E402
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "TASKS",
+    "ActuatorGain",
+    "Armature",
+    "Choice",
+    "Constant",
+    "Damping",
+    "DmEnvToGym",
+    "Friction",
+    "FrictionLoss",
+    "Gravity",
+    "Interval",
+    "LogUniform",
+    "Mass",
+    "Normal",
+    "PhysicsHandle",
+    "Push",
+    "Stiffness",
+    "TruncatedNormal",
+    "Uniform",
+    "find_physics",
+    "load_effects",
+    "make",
+    "make_vec",
+    "task_ids",
+    "wrap",
+]

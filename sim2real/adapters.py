@@ -1,0 +1,180 @@
+"""dm_env (dm-control suite and composer) environments as gymnasium environments.
+
+:class:`DmEnvToGym` declares float32 ``Box`` spaces, flattens dict observations in spec order
+(or keeps them as a ``Dict`` space with ``flatten=False``), honours ``reset(seed=...)`` by
+re-seeding the task's own ``RandomState`` in place, ends an episode whose physics diverged with
+``truncated=True`` and ``info["diverged"] = True`` instead of raising, and exposes the dm_env and
+its physics.
+
+Example:
+    >>> from dm_control import suite
+    >>> env = DmEnvToGym(suite.load("reacher", "easy"))
+    >>> env.observation_space.shape, env.action_space.dtype
+    ((6,), dtype('float32'))
+    >>> obs, info = env.reset(seed=0)
+    >>> obs2, _ = env.reset(seed=0)
+    >>> bool((obs == obs2).all())
+    True
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from typing import Any
+
+import dm_env
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+__all__ = ["DmEnvToGym"]
+
+
+def _random_state(env: Any) -> np.random.RandomState | None:
+    """The RandomState a dm-control env draws its episodes from (suite task or composer env)."""
+    state = getattr(env, "random_state", None)  # composer
+    if isinstance(state, np.random.RandomState):
+        return state
+    task = getattr(env, "task", None)  # suite control.Environment
+    state = getattr(task, "random", None)
+    return state if isinstance(state, np.random.RandomState) else None
+
+
+def _box(spec: Any, dtype: type = np.float32) -> spaces.Box:
+    shape = tuple(spec.shape)
+    low = np.broadcast_to(np.asarray(getattr(spec, "minimum", -np.inf), dtype=np.float64), shape)
+    high = np.broadcast_to(np.asarray(getattr(spec, "maximum", np.inf), dtype=np.float64), shape)
+    return spaces.Box(low=low.astype(dtype), high=high.astype(dtype), shape=shape, dtype=dtype)
+
+
+class DmEnvToGym(gym.Env):
+    """A gymnasium view of a ``dm_env.Environment``.
+
+    Args:
+        env: a dm-control suite or composer environment (any ``dm_env.Environment`` works; physics
+            access and seeding need dm-control).
+        flatten: concatenate the observation dict into one float32 vector (spec order). With
+            False, observations are a dict of float32 arrays under a ``spaces.Dict``.
+        render_mode: None or ``"rgb_array"``.
+        width: rendered image width in pixels.
+        height: rendered image height in pixels.
+        camera: camera name or id used by :meth:`render`.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 50}  # noqa: RUF012 - gymnasium API
+
+    def __init__(
+        self,
+        env: dm_env.Environment,
+        *,
+        flatten: bool = True,
+        render_mode: str | None = None,
+        width: int = 240,
+        height: int = 240,
+        camera: int | str = 0,
+    ) -> None:
+        if not isinstance(env, dm_env.Environment):
+            raise TypeError(f"`env` must be a dm_env.Environment. Received {type(env).__name__}.")
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"`render_mode` must be one of [None, 'rgb_array']. Received {render_mode!r}.")
+        for name, value in (("width", width), ("height", height)):
+            if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+                raise ValueError(f"`{name}` must be a positive int. Received {value!r}.")
+        self.dm_env = env
+        self.flatten = bool(flatten)
+        self.render_mode = render_mode
+        self.width, self.height, self.camera = width, height, camera
+        obs_spec = env.observation_spec()
+        if not isinstance(obs_spec, dict):
+            obs_spec = OrderedDict(observation=obs_spec)
+            self._single = True
+        else:
+            self._single = False
+        self._keys = list(obs_spec)
+        self._sizes = [int(np.prod(obs_spec[k].shape)) for k in self._keys]
+        if self.flatten:
+            self.observation_space: spaces.Space[Any] = spaces.Box(
+                -np.inf, np.inf, shape=(sum(self._sizes),), dtype=np.float32
+            )
+        else:
+            self.observation_space = spaces.Dict(
+                {k: spaces.Box(-np.inf, np.inf, shape=tuple(obs_spec[k].shape), dtype=np.float32) for k in self._keys}
+            )
+        self.action_space = _box(env.action_spec())
+        self._action_dtype = env.action_spec().dtype
+        self._buffer = np.empty(sum(self._sizes), dtype=np.float32)
+        self._slices = []
+        start = 0
+        for size in self._sizes:
+            self._slices.append(slice(start, start + size))
+            start += size
+        self._last_obs: Any = None
+        physics = getattr(env, "physics", None)
+        self.control_timestep: float | None = (
+            float(env.control_timestep()) if hasattr(env, "control_timestep") else None
+        )
+        self.n_substeps = (
+            round(self.control_timestep / float(physics.timestep()))
+            if physics is not None and self.control_timestep
+            else None
+        )
+
+    @property
+    def physics(self) -> Any:
+        """The dm-control ``Physics`` of the current episode."""
+        return self.dm_env.physics
+
+    def _observation(self, observation: Any) -> Any:
+        if self._single:
+            observation = {"observation": observation}
+        if not self.flatten:
+            return {k: np.asarray(observation[k], dtype=np.float32) for k in self._keys}
+        out = self._buffer.copy()
+        for key, sl in zip(self._keys, self._slices, strict=True):
+            out[sl] = np.ravel(observation[key])
+        return out
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
+        """Starts an episode; a ``seed`` re-seeds the task's RandomState in place first."""
+        super().reset(seed=seed)
+        if options:
+            raise ValueError(f"`options` is not supported by dm-control environments. Received {options!r}.")
+        if seed is not None:
+            state = _random_state(self.dm_env)
+            if state is None:
+                raise ValueError(
+                    f"`seed` cannot be honoured: {type(self.dm_env).__name__} exposes no RandomState "
+                    "(expected a dm-control suite task's `random` or a composer env's `random_state`)."
+                )
+            state.seed(int(np.random.SeedSequence(seed).generate_state(1)[0]))
+        timestep = self.dm_env.reset()
+        obs = self._observation(timestep.observation)
+        self._last_obs = obs
+        return obs, {}
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        """One control step; a physics divergence ends the episode (truncated) with the last good obs."""
+        from dm_control.rl.control import PhysicsError
+
+        try:
+            timestep = self.dm_env.step(np.asarray(action, dtype=self._action_dtype))
+        except PhysicsError:
+            return self._last_obs, 0.0, False, True, {"diverged": True}
+        obs = self._observation(timestep.observation)
+        self._last_obs = obs
+        terminated = truncated = False
+        if timestep.step_type == dm_env.StepType.LAST:
+            terminated = timestep.discount == 0.0
+            truncated = not terminated
+        return obs, float(timestep.reward or 0.0), terminated, truncated, {}
+
+    def render(self) -> np.ndarray | None:  # type: ignore[override]
+        """An RGB frame (``height`` x ``width`` x 3, uint8) when ``render_mode="rgb_array"``."""
+        if self.render_mode is None:
+            return None
+        return self.physics.render(height=self.height, width=self.width, camera_id=self.camera)
+
+    def close(self) -> None:
+        close = getattr(self.dm_env, "close", None)
+        if close is not None:
+            close()

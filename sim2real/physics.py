@@ -1,0 +1,138 @@
+"""Finding the MuJoCo model inside any environment.
+
+:func:`find_physics` looks through gymnasium wrappers, the dm_env adapter, dm-control suite and
+composer environments and TorchRL ``DMControlEnv``/``GymEnv``/``TransformedEnv`` for a
+``mujoco.MjModel`` and its ``MjData``.
+
+Example:
+    >>> import sim2real
+    >>> handle = sim2real.find_physics(sim2real.make("dmc/reacher-easy"))
+    >>> handle.source, handle.model.nu
+    ('dm_control.suite', 2)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import mujoco
+import numpy as np
+
+__all__ = ["DIVERGENCE_WARNINGS", "PhysicsHandle", "find_physics"]
+
+# MuJoCo resets the state and counts these when positions, velocities or accelerations blow up.
+DIVERGENCE_WARNINGS = (
+    int(mujoco.mjtWarning.mjWARN_BADQPOS),
+    int(mujoco.mjtWarning.mjWARN_BADQVEL),
+    int(mujoco.mjtWarning.mjWARN_BADQACC),
+)
+_CHILD_ATTRIBUTES = ("dm_env", "env", "_env", "base_env", "unwrapped")
+
+
+@dataclass
+class PhysicsHandle:
+    """The MuJoCo objects behind an environment.
+
+    Attributes:
+        model: the raw ``mujoco.MjModel`` (for composer envs: the current episode's).
+        data: the matching ``mujoco.MjData``.
+        source: ``"dm_control.suite"``, ``"dm_control.composer"`` or ``"gymnasium"``.
+        owner: the object the model was found on (the dm_env for dm-control).
+        warnings: a live view of ``data.warning.number`` (cheap to read every step).
+    """
+
+    model: mujoco.MjModel
+    data: mujoco.MjData
+    source: str
+    owner: Any
+    warnings: np.ndarray = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.warnings = self.data.warning.number
+
+    @property
+    def recompiles(self) -> bool:
+        """True for composer envs, whose physics is rebuilt on every reset."""
+        return self.source == "dm_control.composer"
+
+    def diverged(self) -> bool:
+        """Whether MuJoCo flagged bad positions/velocities/accelerations since the last reset."""
+        w = self.warnings
+        return bool(w[3] or w[4] or w[5])
+
+    def refresh(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
+        """Points the handle at a newly compiled model (composer)."""
+        self.model, self.data = model, data
+        self.warnings = data.warning.number
+
+    def on_recompile(self, callback: Callable[[mujoco.MjModel, mujoco.MjData], None]) -> Callable[..., None]:
+        """Registers ``callback(model, data)`` to run right after each recompile (composer only).
+
+        Returns the hook actually registered, for :meth:`remove_hook`.
+        """
+
+        def hook(physics: Any, random_state: Any) -> None:
+            model, data = physics.model.ptr, physics.data.ptr
+            self.refresh(model, data)
+            callback(model, data)
+
+        self.owner.add_extra_hook("after_compile", hook)
+        return hook
+
+    def remove_hook(self, hook: Callable[..., None]) -> None:
+        """Unregisters a hook added by :meth:`on_recompile` (no-op when already gone)."""
+        hooks = self.owner._hooks._after_compile.extra_hooks  # composer keeps no public remover
+        if hook in hooks:
+            hooks.remove(hook)
+
+
+def _dm_handle(env: Any) -> PhysicsHandle | None:
+    try:
+        from dm_control import composer
+        from dm_control.rl import control
+    except ImportError:  # pragma: no cover - dm_control is a dependency
+        return None
+    if isinstance(env, composer.Environment):
+        physics = env.physics
+        return PhysicsHandle(physics.model.ptr, physics.data.ptr, "dm_control.composer", env)
+    if isinstance(env, control.Environment):
+        physics = env.physics
+        return PhysicsHandle(physics.model.ptr, physics.data.ptr, "dm_control.suite", env)
+    return None
+
+
+def _attribute(obj: Any, name: str) -> Any:
+    try:
+        return getattr(obj, name, None)
+    except Exception:
+        return None
+
+
+def find_physics(env: Any) -> PhysicsHandle | None:
+    """The MuJoCo model and data inside ``env``, or None when there is none.
+
+    Looks at the object itself and then, breadth first, at ``dm_env``, ``env``, ``_env``,
+    ``base_env`` and ``unwrapped`` attributes (gymnasium wrappers, the sim2real dm_env adapter,
+    TorchRL wrappers and transformed envs).
+    """
+    queue = [env]
+    seen: set[int] = set()
+    while queue:
+        obj = queue.pop(0)
+        if obj is None or id(obj) in seen:
+            continue
+        seen.add(id(obj))
+        handle = _dm_handle(obj)
+        if handle is not None:
+            return handle
+        model = _attribute(obj, "model")
+        data = _attribute(obj, "data")
+        if isinstance(model, mujoco.MjModel) and isinstance(data, mujoco.MjData):
+            return PhysicsHandle(model, data, "gymnasium", obj)
+        for name in _CHILD_ATTRIBUTES:
+            child = _attribute(obj, name)
+            if child is not None and child is not obj:
+                queue.append(child)
+    return None

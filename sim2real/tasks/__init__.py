@@ -1,0 +1,176 @@
+"""Task ids and :func:`make`: dm-control suite and composer arm tasks, gymnasium MuJoCo envs, and
+the package's own ``sim2real/arm-reach``, all as gymnasium environments.
+
+Example:
+    >>> import sim2real
+    >>> env = sim2real.make("dmc/reacher-easy")
+    >>> env.observation_space.shape
+    (6,)
+    >>> sim2real.make("dmc/reacher-eazy")
+    Traceback (most recent call last):
+    ...
+    ValueError: `task_id` must be one of the ids listed by `sim2real tasks` or 'gym/<gymnasium id>'. \
+Received 'dmc/reacher-eazy'. Close matches: 'dmc/reacher-easy', 'dmc/reacher-hard', 'gym/Reacher-v5'.
+"""
+
+from __future__ import annotations
+
+import difflib
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium as gym
+
+__all__ = ["TASKS", "Task", "make", "task_ids"]
+
+
+@dataclass(frozen=True)
+class Task:
+    """A registered task: id, one-line description and the factory behind it."""
+
+    id: str
+    description: str
+    factory: Callable[..., gym.Env]
+
+
+_DM_OPTIONS = ("flatten", "render_mode", "width", "height", "camera", "time_limit")
+
+
+def _check_options(task_id: str, options: dict[str, Any], allowed: tuple[str, ...]) -> None:
+    unknown = sorted(set(options) - set(allowed))
+    if unknown:
+        raise TypeError(f"`options` for {task_id!r} must be among {list(allowed)}. Received unknown {unknown}.")
+
+
+def _split(options: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    adapter = {k: options[k] for k in ("flatten", "render_mode", "width", "height", "camera") if k in options}
+    env_kwargs = {}
+    if "time_limit" in options:
+        env_kwargs["time_limit"] = options["time_limit"]
+    return adapter, env_kwargs
+
+
+def _suite(domain: str, task: str) -> Callable[..., gym.Env]:
+    def factory(task_id: str, **options: Any) -> gym.Env:
+        from dm_control import suite
+
+        from sim2real.adapters import DmEnvToGym
+
+        _check_options(task_id, options, _DM_OPTIONS)
+        adapter, env_kwargs = _split(options)
+        return DmEnvToGym(suite.load(domain, task, environment_kwargs=env_kwargs or None), **adapter)
+
+    return factory
+
+
+def _composer(name: str) -> Callable[..., gym.Env]:
+    def factory(task_id: str, **options: Any) -> gym.Env:
+        from dm_control import manipulation
+
+        from sim2real.adapters import DmEnvToGym
+
+        _check_options(task_id, options, _DM_OPTIONS[:-1])
+        adapter, _ = _split(options)
+        return DmEnvToGym(manipulation.load(name), **adapter)
+
+    return factory
+
+
+def _arm_reach(task_id: str, **options: Any) -> gym.Env:
+    from sim2real.tasks.arm_reach import ArmReachEnv
+
+    _check_options(task_id, options, ("render_mode", "width", "height", "max_episode_steps", "success_threshold"))
+    return ArmReachEnv(**options)
+
+
+def _gym(task_id: str, **options: Any) -> gym.Env:
+    gym_id = task_id[len("gym/") :]
+    try:
+        return gym.make(gym_id, **options)
+    except gym.error.Error as err:
+        raise ValueError(f"`task_id` {task_id!r}: gymnasium cannot make {gym_id!r}: {err}") from err
+
+
+TASKS: dict[str, Task] = {
+    t.id: t
+    for t in (
+        Task(
+            "dmc/reacher-easy", "dm-control suite: 2-link planar arm reaches a large target.", _suite("reacher", "easy")
+        ),
+        Task(
+            "dmc/reacher-hard", "dm-control suite: 2-link planar arm reaches a small target.", _suite("reacher", "hard")
+        ),
+        Task(
+            "dmc/manipulator-bring_ball",
+            "dm-control suite: planar manipulator brings a ball to a target.",
+            _suite("manipulator", "bring_ball"),
+        ),
+        Task(
+            "dmc/manipulator-bring_peg",
+            "dm-control suite: planar manipulator brings a peg to a target pose.",
+            _suite("manipulator", "bring_peg"),
+        ),
+        Task(
+            "dmc/manipulator-insert_ball",
+            "dm-control suite: planar manipulator drops a ball into a basket.",
+            _suite("manipulator", "insert_ball"),
+        ),
+        Task(
+            "dmc/manipulator-insert_peg",
+            "dm-control suite: planar manipulator inserts a peg into a slot.",
+            _suite("manipulator", "insert_peg"),
+        ),
+        Task(
+            "dmc/jaco-reach_site",
+            "dm-control composer: Kinova Jaco arm moves its hand to a target site (features).",
+            _composer("reach_site_features"),
+        ),
+        Task(
+            "dmc/jaco-lift_brick",
+            "dm-control composer: Kinova Jaco arm lifts a Duplo brick (features).",
+            _composer("lift_brick_features"),
+        ),
+        Task(
+            "sim2real/arm-reach",
+            "sim2real: 5-joint arm, end-effector delta-xyz actions through damped-least-squares IK.",
+            _arm_reach,
+        ),
+        Task("gym/Reacher-v5", "gymnasium MuJoCo: 2-link planar reacher (any other gym/<id> works too).", _gym),
+        Task("gym/Pusher-v5", "gymnasium MuJoCo: 7-DoF arm pushes an object to a goal.", _gym),
+    )
+}
+
+
+def task_ids() -> list[str]:
+    """Every registered task id (``gym/<id>`` accepts any gymnasium id besides those listed)."""
+    return list(TASKS)
+
+
+def make(task_id: str, **options: Any) -> gym.Env:
+    """Creates a task as a ``gymnasium.Env``.
+
+    Args:
+        task_id: an id from :data:`TASKS` (``sim2real tasks`` lists them) or ``gym/<gymnasium id>``.
+        **options: for ``dmc/*``: ``flatten`` (default True), ``render_mode``, ``width``, ``height``,
+            ``camera`` and (suite only) ``time_limit`` in seconds; for ``gym/*``: anything
+            ``gymnasium.make`` takes; for ``sim2real/arm-reach``: the
+            :class:`~sim2real.tasks.arm_reach.ArmReachEnv` arguments.
+
+    Raises:
+        ValueError: unknown task id (close matches listed).
+        TypeError: an option the task does not take.
+    """
+    if not isinstance(task_id, str):
+        raise TypeError(f"`task_id` must be a string such as 'dmc/reacher-easy'. Received {task_id!r}.")
+    if task_id.startswith("gym/") and len(task_id) > 4:
+        return _gym(task_id, **options)
+    task = TASKS.get(task_id)
+    if task is None:
+        close = difflib.get_close_matches(task_id, list(TASKS), n=3, cutoff=0.6)
+        hint = f" Close matches: {', '.join(repr(c) for c in close)}." if close else ""
+        raise ValueError(
+            "`task_id` must be one of the ids listed by `sim2real tasks` or 'gym/<gymnasium id>'. "
+            f"Received {task_id!r}.{hint}"
+        )
+    return task.factory(task_id, **options)

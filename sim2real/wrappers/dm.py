@@ -1,0 +1,126 @@
+"""dm_env wrapper that randomises physics: :class:`RandomizePhysicsDmEnv`.
+
+dm_env timesteps carry no info dict, so the draws are on ``current_params`` (and ``diverged``).
+
+Example:
+    >>> from dm_control import suite
+    >>> from randomizers import Damping, Uniform
+    >>> env = RandomizePhysicsDmEnv(suite.load("reacher", "easy"), [Damping(scale=Uniform(0.5, 2.0))], seed=0)
+    >>> timestep = env.reset()
+    >>> sorted(env.current_params)
+    ['dof_damping[shoulder]', 'dof_damping[wrist]']
+    >>> env.close()
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import dm_env
+
+from randomizers import Effect, PhysicsRandomizer
+from randomizers.seeding import SeedLike
+from sim2real.wrappers.gym import require_physics
+
+__all__ = ["RandomizePhysicsDmEnv"]
+
+
+class RandomizePhysicsDmEnv(dm_env.Environment):
+    """Draws physics effects at each ``reset()`` of a dm-control environment.
+
+    A physics divergence ends the episode with a truncation timestep (``discount=1``, reward 0,
+    the last finite observation) and ``diverged = True``.
+
+    Args:
+        env: a dm-control suite or composer environment.
+        effects: physics effects from :mod:`randomizers`.
+        seed: root seed of the effect streams (dm_env has no per-reset seed).
+    """
+
+    def __init__(self, env: dm_env.Environment, effects: Sequence[Effect], seed: SeedLike = None) -> None:
+        if not isinstance(env, dm_env.Environment):
+            raise TypeError(f"`env` must be a dm_env.Environment. Received {type(env).__name__}.")
+        self._env = env
+        self.randomizer = PhysicsRandomizer(effects, seed)
+        self._handle = require_physics(env, self.randomizer.effects)
+        self.randomizer.bind(self._handle.model, self._handle.data)
+        self._hook = self._handle.on_recompile(self._recompiled) if self._handle.recompiles else None
+        self._step_effects = self.randomizer.has_step_effects
+        self._last_obs: Any = None
+        self._reset_next_step = True
+        self.diverged = False
+        self._closed = False
+
+    def _recompiled(self, model: Any, data: Any) -> None:
+        self.randomizer.bind(model, data)
+        self.randomizer.apply()
+
+    @property
+    def current_params(self) -> dict[str, float]:
+        """Address -> value in use this episode."""
+        return self.randomizer.current_params
+
+    @property
+    def physics(self) -> Any:
+        return self._env.physics  # type: ignore[attr-defined]
+
+    def reset(self) -> dm_env.TimeStep:
+        self.randomizer.begin_episode()
+        if self._hook is None:
+            self.randomizer.apply()
+        timestep = self._env.reset()
+        self._last_obs = timestep.observation
+        self._reset_next_step = False
+        self.diverged = False
+        return timestep
+
+    def step(self, action: Any) -> dm_env.TimeStep:
+        from dm_control.rl.control import PhysicsError
+
+        if self._reset_next_step:
+            return self.reset()
+        if self._step_effects:
+            self.randomizer.step()
+        try:
+            timestep = self._env.step(action)
+            failed = self._handle.diverged()
+        except PhysicsError:
+            failed = True
+        if failed:
+            self.diverged = True
+            self._reset_next_step = True
+            return dm_env.truncation(0.0, self._last_obs)
+        self._last_obs = timestep.observation
+        self._reset_next_step = timestep.last()
+        return timestep
+
+    def observation_spec(self) -> Any:
+        return self._env.observation_spec()
+
+    def action_spec(self) -> Any:
+        return self._env.action_spec()
+
+    def reward_spec(self) -> Any:
+        return self._env.reward_spec()
+
+    def discount_spec(self) -> Any:
+        return self._env.discount_spec()
+
+    def restore_nominal(self) -> None:
+        """Writes every touched model field back to its nominal value (bitwise)."""
+        self.randomizer.restore_nominal()
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self.restore_nominal()
+            if self._hook is not None:
+                self._handle.remove_hook(self._hook)
+        self._env.close()
+
+    def __getattr__(self, name: str) -> Any:
+        # Task-specific attributes (``task``, ``control_timestep``...) stay reachable.
+        if name.startswith("__") or name == "_env":
+            raise AttributeError(name)
+        return getattr(self._env, name)

@@ -1,0 +1,124 @@
+"""gymnasium wrapper that randomises physics: :class:`RandomizePhysics`.
+
+Example:
+    >>> import sim2real
+    >>> from randomizers import Friction, Mass, Uniform
+    >>> env = RandomizePhysics(sim2real.make("dmc/reacher-easy"),
+    ...                        [Friction(scale=Uniform(0.5, 1.5)), Mass(scale=Uniform(0.8, 1.2), bodies="arm")],
+    ...                        seed=0)
+    >>> obs, info = env.reset(seed=1)
+    >>> sorted(info["sim2real"]["params"])[:2]
+    ['body_mass[arm]', 'geom_friction[arm][0]']
+    >>> env.close()  # restores the nominal model bitwise
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import gymnasium as gym
+
+from randomizers import Effect, PhysicsRandomizer
+from randomizers.seeding import SeedLike
+from sim2real.physics import PhysicsHandle, find_physics
+
+__all__ = ["RandomizePhysics", "merge_report", "require_physics"]
+
+
+def require_physics(env: Any, effects: Sequence[Effect]) -> PhysicsHandle:
+    """The physics handle of ``env``, or a TypeError naming the env type when there is none."""
+    handle = find_physics(env)
+    if handle is None:
+        names = ", ".join(sorted({type(e).__name__ for e in effects})) or "physics effects"
+        raise TypeError(
+            f"`env` of type {type(env).__module__}.{type(env).__qualname__} has no MuJoCo model, so the "
+            f"physics effects ({names}) cannot reach it. Physics effects need a dm-control suite/composer env, "
+            "a gymnasium env with `unwrapped.model`/`unwrapped.data`, or a TorchRL DMControlEnv/GymEnv."
+        )
+    return handle
+
+
+def merge_report(info: dict[str, Any], report: dict[str, Any]) -> None:
+    """Puts ``report`` under ``info["sim2real"]``, merging with a report an inner wrapper left there."""
+    inner = info.get("sim2real")
+    if inner is None:
+        info["sim2real"] = report
+        return
+    merged = {**inner, **report}
+    merged["params"] = {**inner.get("params", {}), **report.get("params", {})}
+    merged["diverged"] = bool(inner.get("diverged")) or bool(report.get("diverged"))
+    info["sim2real"] = merged
+
+
+class RandomizePhysics(gym.Wrapper):
+    """Draws the effects' values at every reset (or on their schedule) and writes them into the
+    env's MuJoCo model; reports them in ``info["sim2real"]``.
+
+    ``info["sim2real"]`` holds ``params`` (address -> value in use), ``events`` (pushes so far),
+    ``episode`` and ``diverged``. The dicts are replaced, never mutated, so stored infos stay true.
+    A diverged simulation ends the episode with ``truncated=True``, ``diverged=True`` and the last
+    finite observation.
+
+    Args:
+        env: a gymnasium env with MuJoCo inside (see :func:`sim2real.find_physics`).
+        effects: physics effects from :mod:`randomizers`.
+        seed: root seed of the effect streams; ``reset(seed=s)`` re-roots them at ``(seed, s)``.
+    """
+
+    def __init__(self, env: gym.Env, effects: Sequence[Effect], seed: SeedLike = None) -> None:
+        super().__init__(env)
+        self.randomizer = PhysicsRandomizer(effects, seed)
+        self._handle = require_physics(env, self.randomizer.effects)
+        self.randomizer.bind(self._handle.model, self._handle.data)
+        self._hook = self._handle.on_recompile(self._recompiled) if self._handle.recompiles else None
+        self._step_effects = self.randomizer.has_step_effects
+        self._report: dict[str, Any] = {"params": {}, "events": (), "episode": -1, "diverged": False}
+        self._last_obs: Any = None
+        self._closed = False
+
+    def _recompiled(self, model: Any, data: Any) -> None:
+        self.randomizer.bind(model, data)
+        self.randomizer.apply()
+
+    @property
+    def current_params(self) -> dict[str, float]:
+        """Address -> value in use this episode."""
+        return self.randomizer.current_params
+
+    def _new_report(self, diverged: bool = False) -> dict[str, Any]:
+        r = self.randomizer
+        return {"params": r.current_params, "events": r.events, "episode": r.episode, "diverged": diverged}
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
+        self.randomizer.begin_episode(seed)
+        if self._hook is None:
+            self.randomizer.apply()
+        obs, info = self.env.reset(seed=seed, options=options)
+        self._last_obs = obs
+        self._report = self._new_report()
+        merge_report(info, self._report)
+        return obs, info
+
+    def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
+        if self._step_effects and self.randomizer.step():
+            self._report = self._new_report()
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        if self._handle.diverged() or "diverged" in info:
+            obs, truncated = self._last_obs, True
+            self._report = self._new_report(diverged=True)
+        self._last_obs = obs
+        merge_report(info, self._report)
+        return obs, reward, terminated, truncated, info
+
+    def restore_nominal(self) -> None:
+        """Writes every touched model field back to its nominal value (bitwise)."""
+        self.randomizer.restore_nominal()
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self.restore_nominal()
+            if self._hook is not None:
+                self._handle.remove_hook(self._hook)
+        super().close()

@@ -1,0 +1,138 @@
+"""``sim2real.wrap``: one call that applies effects to a gymnasium, dm_env or TorchRL environment.
+
+Example:
+    >>> import sim2real
+    >>> from randomizers import Friction, Mass, Uniform
+    >>> env = sim2real.wrap(sim2real.make("dmc/reacher-easy"),
+    ...                     Friction(scale=Uniform(0.5, 1.5)), Mass(scale=Uniform(0.8, 1.2), bodies="arm*"),
+    ...                     seed=0)
+    >>> obs, info = env.reset(seed=0)
+    >>> round(info["sim2real"]["params"]["body_mass[arm]"], 6)
+    0.048268
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Iterable
+from typing import Any
+
+import gymnasium as gym
+
+from randomizers import Effect
+from randomizers.seeding import SeedLike, normalize_seed
+
+__all__ = ["make_vec", "wrap"]
+
+
+def _flatten(effects: Iterable[Any]) -> list[Effect]:
+    out: list[Effect] = []
+    for item in effects:
+        if isinstance(item, (list, tuple)):
+            out.extend(_flatten(item))
+        elif isinstance(item, Effect):
+            out.append(item)
+        else:
+            raise TypeError(
+                "`effects` must be effects from `randomizers` (Friction, Mass, Damping, Armature, FrictionLoss, "
+                f"Stiffness, ActuatorGain, Gravity, Push) or lists of them. Received {item!r} of type "
+                f"{type(item).__name__}."
+            )
+    return out
+
+
+def _is_torchrl_env(env: Any) -> bool:
+    if "torchrl" not in sys.modules:  # never import torch just to check
+        return False
+    from torchrl.envs import EnvBase
+
+    return isinstance(env, EnvBase)
+
+
+def wrap(env: Any, *effects: Effect | Iterable[Effect], seed: SeedLike = None) -> Any:
+    """Applies ``effects`` to ``env`` and returns the same kind of environment.
+
+    Args:
+        env: a ``gymnasium.Env``, a ``dm_env.Environment`` (dm-control) or a TorchRL ``EnvBase``.
+        *effects: effects from :mod:`randomizers` (lists are flattened).
+        seed: root seed of the effect streams (int, tuple of ints or None for fresh entropy). Each
+            effect draws from its own stream keyed by (seed, effect, episode).
+
+    Returns:
+        gymnasium -> :class:`~sim2real.wrappers.RandomizePhysics`; dm_env ->
+        :class:`~sim2real.wrappers.RandomizePhysicsDmEnv`; TorchRL -> ``TransformedEnv`` with a
+        :class:`~sim2real.wrappers.RandomizePhysicsTransform` appended.
+
+    Raises:
+        TypeError: unsupported env kind, or physics effects on an env without MuJoCo.
+    """
+    flat = _flatten(effects)
+    normalize_seed(seed)
+    if isinstance(env, gym.vector.VectorEnv):
+        raise TypeError(
+            "`env` is a gymnasium VectorEnv: wrap each sub-environment instead (e.g. "
+            "`gymnasium.vector.SyncVectorEnv([lambda: sim2real.wrap(make(), ...), ...])`) or use "
+            "`sim2real.make_vec(task_id, num_envs, *effects, seed=...)`."
+        )
+    if isinstance(env, gym.Env):
+        from sim2real.wrappers.gym import RandomizePhysics
+
+        return RandomizePhysics(env, flat, seed)
+    if _is_torchrl_env(env):
+        from torchrl.envs import TransformedEnv
+
+        from sim2real.wrappers.torchrl import RandomizePhysicsTransform
+
+        transform = RandomizePhysicsTransform(flat, seed)
+        if isinstance(env, TransformedEnv):
+            env.append_transform(transform)
+            return env
+        return TransformedEnv(env, transform)
+    import dm_env
+
+    if isinstance(env, dm_env.Environment):
+        from sim2real.wrappers.dm import RandomizePhysicsDmEnv
+
+        return RandomizePhysicsDmEnv(env, flat, seed)
+    raise TypeError(
+        "`env` must be a gymnasium.Env, a dm_env.Environment (dm-control) or a TorchRL EnvBase. "
+        f"Received {type(env).__module__}.{type(env).__qualname__}."
+    )
+
+
+def make_vec(
+    task_id: str,
+    num_envs: int,
+    *effects: Effect | Iterable[Effect],
+    seed: int | None = None,
+    vectorization: str = "sync",
+    **options: Any,
+) -> gym.vector.VectorEnv:
+    """A gymnasium vector env of ``num_envs`` wrapped copies of a task; env ``i`` draws from the
+    streams rooted at ``(seed, i)``, so every sub-env gets independent draws even with
+    ``reset(seed=None)``.
+
+    Example:
+        >>> import sim2real
+        >>> from randomizers import Damping, Uniform
+        >>> envs = sim2real.make_vec("dmc/reacher-easy", 2, Damping(scale=Uniform(0.5, 2.0)), seed=0)
+        >>> obs, info = envs.reset()
+        >>> a, b = info["sim2real"]["params"]["dof_damping[shoulder]"]
+        >>> bool(a != b)
+        True
+        >>> envs.close()
+    """
+    from sim2real.tasks import make
+
+    if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
+        raise ValueError(f"`num_envs` must be an int >= 1. Received {num_envs!r}.")
+    if vectorization not in ("sync", "async"):
+        raise ValueError(f"`vectorization` must be one of ['sync', 'async']. Received {vectorization!r}.")
+    root = 0 if seed is None else seed
+    fns = [
+        (lambda i=i: wrap(make(task_id, **options), *effects, seed=(root, i)))  # type: ignore[misc]
+        for i in range(num_envs)
+    ]
+    if vectorization == "sync":
+        return gym.vector.SyncVectorEnv(fns)
+    return gym.vector.AsyncVectorEnv(fns)
