@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar, Literal
+from typing import Any, ClassVar, Literal, NamedTuple
 
 import mujoco
 import numpy as np
@@ -49,6 +49,7 @@ __all__ = [
     "Interval",
     "Mass",
     "Push",
+    "PushEvent",
     "Stiffness",
 ]
 
@@ -485,10 +486,16 @@ class Damping(_DofEffect):
     field = "dof_damping"
 
 
+class _SetConstBinding(Binding):
+    needs_set_const = True
+
+
 class Armature(_DofEffect):
-    """Rotor inertia added to each selected joint's degrees of freedom (``dof_armature``)."""
+    """Rotor inertia added to each selected joint's degrees of freedom (``dof_armature``); like
+    :class:`Mass` it changes the mass matrix, so the randomiser runs ``mj_setConst`` after it."""
 
     field = "dof_armature"
+    binding_class = _SetConstBinding
 
 
 class FrictionLoss(_DofEffect):
@@ -662,6 +669,14 @@ class Push(Effect):
         return PushBinding(self, model)
 
 
+class PushEvent(NamedTuple):
+    """One push: the control step it started, the body and the force vector (N, world frame)."""
+
+    step: int
+    body: str
+    force: tuple[float, float, float]
+
+
 class PushBinding:
     """Per-episode push schedule; ``step`` is an integer compare except on push steps."""
 
@@ -674,7 +689,7 @@ class PushBinding:
         self.next_on = -1
         self.next_off = -1
         self.active: int | None = None
-        self.events: list[dict[str, Any]] = []
+        self.events: list[PushEvent] = []
 
     def begin(self, gen: np.random.Generator) -> None:
         self.gen = gen
@@ -708,7 +723,7 @@ class PushBinding:
         data.xfrc_applied[body, :3] = force
         self.active = body
         self.next_off = self.t + self.effect.duration
-        self.events.append({"step": self.t, "body": self.body_names[k], "force": force.tolist()})
+        self.events.append(PushEvent(self.t, self.body_names[k], tuple(force.tolist())))
         return True
 
     def restore(self, data: mujoco.MjData | None) -> None:

@@ -37,6 +37,30 @@ from randomizers.seeding import SeedLike, StreamFactory, normalize_seed
 
 __all__ = ["PhysicsRandomizer"]
 
+# Fields mj_setConst derives from masses, inertias and armature (those present in this MuJoCo build
+# are snapshotted at bind and written back on restore, so restoring is bitwise even when the env
+# edited other parts of its model in between).
+SET_CONST_FIELDS = (
+    "body_subtreemass",
+    "body_invweight0",
+    "dof_invweight0",
+    "dof_M0",
+    "dof_length",
+    "tendon_invweight0",
+    "tendon_length0",
+    "actuator_acc0",
+    "actuator_length0",
+    "cam_pos0",
+    "cam_poscom0",
+    "cam_mat0",
+    "light_pos0",
+    "light_poscom0",
+    "light_dir0",
+    "geom_aabb",
+    "geom_rbound",
+    "bvh_aabb",
+)
+
 # Separates the wrap seed from a reset seed in the stream root, so (1, 2) and (1,)+(2,) differ.
 _SEPARATOR = 0x5EED5EED
 
@@ -132,6 +156,11 @@ class PhysicsRandomizer:
         self.model, self.data = model, data
         self._set_const = any(getattr(s.binding, "needs_set_const", False) for s in self._slots)
         self._scratch = mujoco.MjData(model) if self._set_const else None
+        self._derived = (
+            {name: getattr(model, name).copy() for name in SET_CONST_FIELDS if hasattr(model, name)}
+            if self._set_const
+            else {}
+        )
         self._step_slots = [
             s for s in self._slots if isinstance(s.binding, PushBinding) or isinstance(s.effect.schedule, Interval)
         ]
@@ -233,8 +262,8 @@ class PhysicsRandomizer:
                 binding.restore(self.data)
             else:
                 binding.restore()
-        if self._set_const:
-            mujoco.mj_setConst(self.model, self._scratch)
+        for name, snapshot in self._derived.items():
+            getattr(self.model, name)[...] = snapshot
         self.current_params = self.nominal_params()
 
     def nominal_params(self) -> dict[str, float]:

@@ -55,8 +55,9 @@ class RandomizePhysics(gym.Wrapper):
     """Draws the effects' values at every reset (or on their schedule) and writes them into the
     env's MuJoCo model; reports them in ``info["sim2real"]``.
 
-    ``info["sim2real"]`` holds ``params`` (address -> value in use), ``events`` (pushes so far),
-    ``episode`` and ``diverged``. The dicts are replaced, never mutated, so stored infos stay true.
+    ``info["sim2real"]`` holds ``params`` (address -> value in use), ``events`` (pushes so far, as
+    :class:`randomizers.effects.PushEvent` tuples), ``episode`` and ``diverged``; every call returns
+    fresh dicts, so stored infos stay true.
     A diverged simulation ends the episode with ``truncated=True``, ``diverged=True`` and the last
     finite observation.
 
@@ -73,7 +74,7 @@ class RandomizePhysics(gym.Wrapper):
         self.randomizer.bind(self._handle.model, self._handle.data)
         self._hook = self._handle.on_recompile(self._recompiled) if self._handle.recompiles else None
         self._step_effects = self.randomizer.has_step_effects
-        self._report: dict[str, Any] = {"params": {}, "events": (), "episode": -1, "diverged": False}
+        self._diverged = False
         self._last_obs: Any = None
         self._closed = False
 
@@ -86,9 +87,10 @@ class RandomizePhysics(gym.Wrapper):
         """Address -> value in use this episode."""
         return self.randomizer.current_params
 
-    def _new_report(self, diverged: bool = False) -> dict[str, Any]:
+    def _info(self) -> dict[str, Any]:
+        # Fresh dicts on every call: users keep infos, and gymnasium's checker rejects shared objects.
         r = self.randomizer
-        return {"params": r.current_params, "events": r.events, "episode": r.episode, "diverged": diverged}
+        return {"params": r.current_params.copy(), "events": r.events, "episode": r.episode, "diverged": self._diverged}
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
         self.randomizer.begin_episode(seed)
@@ -96,19 +98,18 @@ class RandomizePhysics(gym.Wrapper):
             self.randomizer.apply()
         obs, info = self.env.reset(seed=seed, options=options)
         self._last_obs = obs
-        self._report = self._new_report()
-        merge_report(info, self._report)
+        self._diverged = False
+        merge_report(info, self._info())
         return obs, info
 
     def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
-        if self._step_effects and self.randomizer.step():
-            self._report = self._new_report()
+        if self._step_effects:
+            self.randomizer.step()
         obs, reward, terminated, truncated, info = self.env.step(action)
         if self._handle.diverged() or "diverged" in info:
-            obs, truncated = self._last_obs, True
-            self._report = self._new_report(diverged=True)
+            obs, truncated, self._diverged = self._last_obs, True, True
         self._last_obs = obs
-        merge_report(info, self._report)
+        merge_report(info, self._info())
         return obs, reward, terminated, truncated, info
 
     def restore_nominal(self) -> None:
