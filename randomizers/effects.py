@@ -341,7 +341,7 @@ class ArrayEffect(Effect):
             if binding.nominal[worst] + low < 0:
                 raise ValueError(
                     f"`add` of {type(self).__name__} would make {binding.addresses[worst]} negative: nominal "
-                    f"{binding.nominal[worst]!r} + lowest draw {low!r} < 0. Received {self.distribution!r}."
+                    f"{float(binding.nominal[worst])!r} + lowest draw {low!r} < 0. Received {self.distribution!r}."
                 )
         return binding
 

@@ -59,7 +59,7 @@ def _suite(domain: str, task: str) -> Callable[..., gym.Env]:
 
         _check_options(task_id, options, _DM_OPTIONS)
         adapter, env_kwargs = _split(options)
-        return DmEnvToGym(suite.load(domain, task, environment_kwargs=env_kwargs or None), **adapter)
+        return DmEnvToGym(suite.load(domain, task, task_kwargs=env_kwargs or None), **adapter)
 
     return factory
 
