@@ -32,6 +32,7 @@ _OBJ = {
     "actuator": mujoco.mjtObj.mjOBJ_ACTUATOR,
     "site": mujoco.mjtObj.mjOBJ_SITE,
 }
+_PLURAL = {"body": "bodies"}
 _COUNT = {"geom": "ngeom", "body": "nbody", "joint": "njnt", "actuator": "nu", "site": "nsite"}
 
 
@@ -109,7 +110,7 @@ def select(
             hint = f" Close matches: {', '.join(repr(c) for c in close)}." if close else ""
             shown = ", ".join(repr(c) for c in candidates[:40]) + (" ..." if len(candidates) > 40 else "")
             raise ValueError(
-                f"`{argument}` pattern {pattern!r} matches no {kind} in the model.{hint} Known {kind}s: {shown}."
+                f"`{argument}` pattern {pattern!r} matches no {kind} in the model.{hint} Known {_PLURAL.get(kind, kind + 's')}: {shown}."
             )
         for i in hits:
             chosen[i] = names[i]

@@ -1,0 +1,108 @@
+"""Tests for the ``sim2real`` command line."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+import sim2real
+from sim2real.cli import main
+
+
+def test_tasks_lists_every_task_id(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["tasks"]) == 0
+    out = capsys.readouterr().out
+    for task_id, task in sim2real.TASKS.items():
+        assert task_id in out
+        assert task.description in out
+    assert "gym/<id>" in out
+
+
+def test_help_and_version_exit_zero(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["--help"]) == 0
+    out = capsys.readouterr().out
+    assert "tasks" in out and "demo" in out
+    assert main(["demo", "--help"]) == 0
+    assert "--episodes" in capsys.readouterr().out
+    assert main(["--version"]) == 0
+    assert sim2real.__version__ in capsys.readouterr().out
+
+
+def test_no_command_is_a_usage_error(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main([]) == 2
+    assert "usage: sim2real" in capsys.readouterr().err
+
+
+def test_demo_prints_both_conditions_and_is_deterministic(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["demo", "--episodes", "2", "--seed", "0"]) == 0
+    first = capsys.readouterr().out
+    assert main(["demo", "--episodes", "2", "--seed", "0"]) == 0
+    second = capsys.readouterr().out
+    assert first == second
+    lines = first.splitlines()
+    assert any(line.startswith("nominal ") for line in lines)
+    assert any(line.startswith("randomised ") for line in lines)
+    assert "success" in first
+    assert "scripted reach" in first
+    # sampled parameters of the first episodes, by address
+    assert "actuator_gain[base_yaw]" in first
+    assert "dof_damping[elbow_pitch]" in first
+    assert "ep 1 (seed 1)" in first
+
+
+def test_demo_seed_changes_the_draws(capsys: pytest.CaptureFixture[str]) -> None:
+    main(["demo", "--episodes", "1", "--seed", "0", "--quiet"])
+    a = capsys.readouterr().out
+    main(["demo", "--episodes", "1", "--seed", "1", "--quiet"])
+    b = capsys.readouterr().out
+    assert a != b
+
+
+def test_demo_with_config_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    config = tmp_path / "effects.yml"
+    config.write_text("effects:\n  - type: Damping\n    scale: [2.0, 4.0]\n    joints: elbow_pitch\n")
+    assert main(["demo", "--episodes", "1", "--config", str(config)]) == 0
+    out = capsys.readouterr().out
+    assert "Damping(scale=Uniform(low=2.0, high=4.0), joints='elbow_pitch')" in out
+    assert "dof_damping[elbow_pitch]" in out
+    assert "body_mass" not in out
+
+
+def test_demo_other_task_uses_zero_action(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["demo", "--task", "dmc/reacher-easy", "--episodes", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "zero action" in out
+    assert "n/a" in out  # dm-control reports no success flag
+
+
+def test_unknown_task_exits_2_with_message(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(ValueError) as expected:
+        sim2real.make("dmc/reacher-eazy")
+    assert main(["demo", "--task", "dmc/reacher-eazy"]) == 2
+    captured = capsys.readouterr()
+    assert str(expected.value) in captured.err
+    assert "Traceback" not in captured.err
+    assert captured.out == ""
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["demo", "--episodes", "0"], "argument --episodes: must be an int >= 1. Received '0'."),
+        (["demo", "--seed", "-1"], "argument --seed: must be an int >= 0. Received '-1'."),
+        (["demo", "--config", "missing.yaml"], "--config: `config` file 'missing.yaml' does not exist."),
+        (["nope"], "invalid choice: 'nope'"),
+    ],
+)
+def test_bad_input_exits_2(argv: list[str], message: str, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(argv) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_effects_that_do_not_fit_the_task_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    config = tmp_path / "effects.yaml"
+    config.write_text("effects:\n  - type: Mass\n    scale: 2\n    bodies: 'arm*'\n")
+    assert main(["demo", "--episodes", "1", "--config", str(config)]) == 2
+    err = capsys.readouterr().err
+    assert "'arm*' matches no body" in err
