@@ -47,7 +47,14 @@ def test_uniform_draws_stay_in_support_and_repeat(low: float, width: float, seed
 
 
 def test_equality_repr_and_config_round_trip() -> None:
-    for d in (Constant(1.0), Uniform(0, 1), LogUniform(0.1, 1), Normal(0, 1), TruncatedNormal(0, 1, -1, 1), Choice((1, 2))):
+    for d in (
+        Constant(1.0),
+        Uniform(0, 1),
+        LogUniform(0.1, 1),
+        Normal(0, 1),
+        TruncatedNormal(0, 1, -1, 1),
+        Choice((1, 2)),
+    ):
         assert d == eval(repr(d))
         assert distribution_from_config(d.to_config()) == d
 
