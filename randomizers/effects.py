@@ -158,14 +158,20 @@ class _MassBinding(Binding):
         rows = self._targets[0]
         self._rows = rows
         self._inertia_nominal = self.model.body_inertia[rows].copy()
-        nominal = self.nominal
-        self._positive = nominal > 0
+        # Scaling mass at fixed geometry scales the inertia tensor by the same ratio (uniform density);
+        # a massless body keeps its inertia.
+        positive = self.nominal > 0
+        self._inertia_per_mass = np.where(
+            positive[:, None], self._inertia_nominal / np.where(positive, self.nominal, 1.0)[:, None], 0.0
+        )
+        self._massless = np.flatnonzero(~positive)
 
     def apply(self, values: np.ndarray) -> None:
         super().apply(values)
-        # Scaling mass at fixed geometry scales the inertia tensor by the same ratio (uniform density).
-        ratio = np.divide(values, self.nominal, out=np.ones_like(values), where=self._positive)
-        self.model.body_inertia[self._rows] = self._inertia_nominal * ratio[:, None]
+        inertia = self._inertia_per_mass * values[:, None]
+        if self._massless.size:
+            inertia[self._massless] = self._inertia_nominal[self._massless]
+        self.model.body_inertia[self._rows] = inertia
 
     def restore(self) -> None:
         super().restore()

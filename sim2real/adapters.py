@@ -40,6 +40,12 @@ def _random_state(env: Any) -> np.random.RandomState | None:
     return state if isinstance(state, np.random.RandomState) else None
 
 
+def _physics_error() -> type[Exception]:
+    from dm_control.rl.control import PhysicsError
+
+    return PhysicsError
+
+
 def _box(spec: Any, dtype: type = np.float32) -> spaces.Box:
     shape = tuple(spec.shape)
     low = np.broadcast_to(np.asarray(getattr(spec, "minimum", -np.inf), dtype=np.float64), shape)
@@ -102,12 +108,7 @@ class DmEnvToGym(gym.Env):
             )
         self.action_space = _box(env.action_spec())
         self._action_dtype = env.action_spec().dtype
-        self._buffer = np.empty(sum(self._sizes), dtype=np.float32)
-        self._slices = []
-        start = 0
-        for size in self._sizes:
-            self._slices.append(slice(start, start + size))
-            start += size
+        self._physics_error = _physics_error()
         self._last_obs: Any = None
         physics = getattr(env, "physics", None)
         self.control_timestep: float | None = (
@@ -129,10 +130,7 @@ class DmEnvToGym(gym.Env):
             observation = {"observation": observation}
         if not self.flatten:
             return {k: np.asarray(observation[k], dtype=np.float32) for k in self._keys}
-        out = self._buffer.copy()
-        for key, sl in zip(self._keys, self._slices, strict=True):
-            out[sl] = np.ravel(observation[key])
-        return out
+        return np.concatenate([observation[k] for k in self._keys], axis=None, dtype=np.float32)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
         """Starts an episode; a ``seed`` re-seeds the task's RandomState in place first."""
@@ -154,11 +152,9 @@ class DmEnvToGym(gym.Env):
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
         """One control step; a physics divergence ends the episode (truncated) with the last good obs."""
-        from dm_control.rl.control import PhysicsError
-
         try:
             timestep = self.dm_env.step(np.asarray(action, dtype=self._action_dtype))
-        except PhysicsError:
+        except self._physics_error:
             return self._last_obs, 0.0, False, True, {"diverged": True}
         obs = self._observation(timestep.observation)
         self._last_obs = obs

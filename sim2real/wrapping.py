@@ -8,7 +8,7 @@ Example:
     ...                     seed=0)
     >>> obs, info = env.reset(seed=0)
     >>> round(info["sim2real"]["params"]["body_mass[arm]"], 6)
-    0.048268
+    0.042376
 """
 
 from __future__ import annotations

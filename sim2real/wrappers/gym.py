@@ -74,6 +74,9 @@ class RandomizePhysics(gym.Wrapper):
         self.randomizer.bind(self._handle.model, self._handle.data)
         self._hook = self._handle.on_recompile(self._recompiled) if self._handle.recompiles else None
         self._step_effects = self.randomizer.has_step_effects
+        # dm-control raises on divergence and the adapter reports it in info; only plain MuJoCo
+        # envs need the warning counters read every step.
+        self._read_warnings = self._handle.source == "gymnasium"
         self._diverged = False
         self._last_obs: Any = None
         self._closed = False
@@ -106,10 +109,13 @@ class RandomizePhysics(gym.Wrapper):
         if self._step_effects:
             self.randomizer.step()
         obs, reward, terminated, truncated, info = self.env.step(action)
-        if self._handle.diverged() or "diverged" in info:
+        if "diverged" in info or (self._read_warnings and self._handle.diverged()):
             obs, truncated, self._diverged = self._last_obs, True, True
         self._last_obs = obs
-        merge_report(info, self._info())
+        if "sim2real" in info:
+            merge_report(info, self._info())
+        else:
+            info["sim2real"] = self._info()
         return obs, reward, terminated, truncated, info
 
     def restore_nominal(self) -> None:
