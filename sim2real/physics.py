@@ -81,6 +81,19 @@ class PhysicsHandle:
         self.owner.add_extra_hook("after_compile", hook)
         return hook
 
+    def attach(self, randomizer: Any) -> Callable[..., None] | None:
+        """Binds a :class:`randomizers.PhysicsRandomizer` to this physics; on composer envs also
+        re-binds and applies it after every recompile. Returns the hook (None when not needed)."""
+        randomizer.bind(self.model, self.data)
+        if not self.recompiles:
+            return None
+
+        def rebind(model: mujoco.MjModel, data: mujoco.MjData) -> None:
+            randomizer.bind(model, data)
+            randomizer.apply()
+
+        return self.on_recompile(rebind)
+
     def remove_hook(self, hook: Callable[..., None]) -> None:
         """Unregisters a hook added by :meth:`on_recompile` (no-op when already gone)."""
         hooks = self.owner._hooks._after_compile.extra_hooks  # composer keeps no public remover

@@ -238,23 +238,11 @@ def test_interval_in_seconds() -> None:
     assert len(set(values)) == 3
 
 
-def test_divergence_ends_episode_without_nan() -> None:
-    env = s2r.wrap(s2r.make("gym/Reacher-v5"), s2r.ActuatorGain(set=1e14), s2r.Damping(set=0.0), seed=0)
-    obs, info = env.reset(seed=0)
+@pytest.mark.parametrize("task", ["gym/Reacher-v5", "dmc/reacher-easy"])
+def test_divergence_ends_episode_without_nan(task: str) -> None:
+    env = s2r.wrap(s2r.make(task), s2r.ActuatorGain(set=1e14), s2r.Damping(set=0.0), seed=0)
+    _, info = env.reset(seed=0)
     assert info["sim2real"]["diverged"] is False
-    for _ in range(50):
-        obs, _, _, truncated, info = env.step(np.ones(2, np.float32))
-        assert np.isfinite(obs).all()
-        if info["sim2real"]["diverged"]:
-            assert truncated
-            break
-    else:
-        pytest.fail("the simulation never diverged")
-
-
-def test_divergence_on_dm_control() -> None:
-    env = s2r.wrap(s2r.make("dmc/reacher-easy"), s2r.ActuatorGain(set=1e14), s2r.Damping(set=0.0), seed=0)
-    env.reset(seed=0)
     for _ in range(50):
         obs, _, _, truncated, info = env.step(np.ones(2, np.float32))
         assert np.isfinite(obs).all()

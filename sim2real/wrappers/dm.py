@@ -44,17 +44,12 @@ class RandomizePhysicsDmEnv(dm_env.Environment):
         self._env = env
         self.randomizer = PhysicsRandomizer(effects, seed)
         self._handle = require_physics(env, self.randomizer.effects)
-        self.randomizer.bind(self._handle.model, self._handle.data)
-        self._hook = self._handle.on_recompile(self._recompiled) if self._handle.recompiles else None
+        self._hook = self._handle.attach(self.randomizer)
         self._step_effects = self.randomizer.has_step_effects
         self._last_obs: Any = None
         self._reset_next_step = True
         self.diverged = False
         self._closed = False
-
-    def _recompiled(self, model: Any, data: Any) -> None:
-        self.randomizer.bind(model, data)
-        self.randomizer.apply()
 
     @property
     def current_params(self) -> dict[str, float]:

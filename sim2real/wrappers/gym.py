@@ -71,8 +71,7 @@ class RandomizePhysics(gym.Wrapper):
         super().__init__(env)
         self.randomizer = PhysicsRandomizer(effects, seed)
         self._handle = require_physics(env, self.randomizer.effects)
-        self.randomizer.bind(self._handle.model, self._handle.data)
-        self._hook = self._handle.on_recompile(self._recompiled) if self._handle.recompiles else None
+        self._hook = self._handle.attach(self.randomizer)
         self._step_effects = self.randomizer.has_step_effects
         # dm-control raises on divergence and the adapter reports it in info; only plain MuJoCo
         # envs need the warning counters read every step.
@@ -80,10 +79,6 @@ class RandomizePhysics(gym.Wrapper):
         self._diverged = False
         self._last_obs: Any = None
         self._closed = False
-
-    def _recompiled(self, model: Any, data: Any) -> None:
-        self.randomizer.bind(model, data)
-        self.randomizer.apply()
 
     @property
     def current_params(self) -> dict[str, float]:
