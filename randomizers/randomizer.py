@@ -68,10 +68,11 @@ _SEPARATOR = 0x5EED5EED
 class _Slot:
     """Mutable per-effect state that survives a rebind (composer recompiles every episode)."""
 
-    __slots__ = ("binding", "draws", "effect", "gen", "next_time", "resample", "steps")
+    __slots__ = ("binding", "draws", "effect", "gen", "name", "next_time", "resample", "steps")
 
-    def __init__(self, effect: Effect, gen: np.random.Generator) -> None:
+    def __init__(self, effect: Effect, name: str, gen: np.random.Generator) -> None:
         self.effect = effect
+        self.name = name
         self.gen = gen
         self.binding: Any = None
         self.draws: np.ndarray | None = None
@@ -107,7 +108,7 @@ class PhysicsRandomizer:
         self._base_root: tuple[int, ...] = StreamFactory(self._wrap_seed).root
         self._streams = StreamFactory(self._base_root)
         self._names = self._stream_names(effects)
-        self._slots = [_Slot(e, self._streams.generator(n)) for e, n in zip(effects, self._names, strict=True)]
+        self._slots = [_Slot(e, n, self._streams.generator(n)) for e, n in zip(effects, self._names, strict=True)]
         self.model: mujoco.MjModel | None = None
         self.data: mujoco.MjData | None = None
         self._scratch: mujoco.MjData | None = None
@@ -239,7 +240,7 @@ class PhysicsRandomizer:
                     slot.next_time += schedule.seconds  # type: ignore[operator]
             if due:
                 slot.resample += 1
-                self._streams.start(slot.gen, self._names[self._slots.index(slot)], self.episode, slot.resample)
+                self._streams.start(slot.gen, slot.name, self.episode, slot.resample)
                 slot.draws = self._sample(slot)
                 values = binding.values(slot.draws)
                 binding.apply(values)

@@ -94,6 +94,12 @@ class PhysicsHandle:
 
         return self.on_recompile(rebind)
 
+    def detach(self, randomizer: Any, hook: Callable[..., None] | None) -> None:
+        """Undoes :meth:`attach`: restores the nominal model bitwise and unregisters ``hook``."""
+        randomizer.restore_nominal()
+        if hook is not None:
+            self.remove_hook(hook)
+
     def remove_hook(self, hook: Callable[..., None]) -> None:
         """Unregisters a hook added by :meth:`on_recompile` (no-op when already gone)."""
         hooks = self.owner._hooks._after_compile.extra_hooks  # composer keeps no public remover

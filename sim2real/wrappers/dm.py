@@ -109,9 +109,7 @@ class RandomizePhysicsDmEnv(dm_env.Environment):
     def close(self) -> None:
         if not self._closed:
             self._closed = True
-            self.restore_nominal()
-            if self._hook is not None:
-                self._handle.remove_hook(self._hook)
+            self._handle.detach(self.randomizer, self._hook)
         self._env.close()
 
     def __getattr__(self, name: str) -> Any:

@@ -120,7 +120,5 @@ class RandomizePhysics(gym.Wrapper):
     def close(self) -> None:
         if not self._closed:
             self._closed = True
-            self.restore_nominal()
-            if self._hook is not None:
-                self._handle.remove_hook(self._hook)
+            self._handle.detach(self.randomizer, self._hook)
         super().close()
