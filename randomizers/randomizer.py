@@ -33,7 +33,7 @@ import mujoco
 import numpy as np
 
 from randomizers.effects import Binding, Effect, Interval, PushBinding
-from randomizers.seeding import SeedLike, StreamFactory, normalize_seed
+from randomizers.seeding import SeedLike, StreamFactory, normalize_seed, reseeded_root
 
 __all__ = ["PhysicsRandomizer"]
 
@@ -61,8 +61,6 @@ SET_CONST_FIELDS = (
     "bvh_aabb",
 )
 
-# Separates the wrap seed from a reset seed in the stream root, so (1, 2) and (1,)+(2,) differ.
-_SEPARATOR = 0x5EED5EED
 
 
 class _Slot:
@@ -177,8 +175,7 @@ class PhysicsRandomizer:
             raise RuntimeError("PhysicsRandomizer.begin_episode() called before bind(model, data).")
         reset_seed = normalize_seed(seed, "seed")
         if reset_seed is not None:
-            base = self._wrap_seed if self._wrap_seed is not None else ()
-            self._streams = StreamFactory((*base, _SEPARATOR, *reset_seed))
+            self._streams = StreamFactory(reseeded_root(self._wrap_seed, reset_seed))
             self.episode = -1
         self.episode += 1
         for slot, name in zip(self._slots, self._names, strict=True):

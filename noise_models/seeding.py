@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["SeedLike", "StreamFactory", "component_key", "normalize_seed", "stream"]
+__all__ = ["SEPARATOR", "SeedLike", "StreamFactory", "component_key", "normalize_seed", "reseeded_root", "stream"]
 
 SeedLike = int | Sequence[int] | None
 
@@ -60,6 +60,20 @@ def normalize_seed(seed: object, name: str = "seed") -> tuple[int, ...] | None:
 def component_key(name: str) -> int:
     """A stable 32-bit key for a component name (``hash()`` is salted per process; crc32 is not)."""
     return zlib.crc32(name.encode("utf-8"))
+
+
+# Separates the wrap seed from a reset seed in a stream root, so (1, 2) and (1,)+(2,) differ.
+SEPARATOR = 0x5EED5EED
+
+
+def reseeded_root(wrap_seed: tuple[int, ...] | None, reset_seed: tuple[int, ...]) -> tuple[int, ...]:
+    """The stream root after ``reset(seed=reset_seed)`` of a component built with ``wrap_seed``.
+
+    Example:
+        >>> reseeded_root((1,), (2,)) == (1, SEPARATOR, 2)
+        True
+    """
+    return (*(wrap_seed or ()), SEPARATOR, *reset_seed)
 
 
 _GOLDEN = 0x9E3779B97F4A7C15
