@@ -1,0 +1,610 @@
+"""Signal pipelines and the engine that runs them: :class:`ObservationNoise`, :class:`ActionNoise`,
+:class:`SignalCorruptor`.
+
+A pipeline applies its processes in order to one signal. Consecutive additive and multiplicative
+processes (Gaussian, UniformNoise, Bias, Drift, Outlier, Scale) are fused into one affine map per
+step whose noise is pre-drawn in blocks, so a typical pipeline costs one numpy add per step.
+
+:class:`SignalCorruptor` is environment-agnostic: ``sim2real`` feeds it flat observation and action
+vectors and the physics step count, and it returns what the policy sees and what the actuators get.
+
+Example:
+    >>> import numpy as np
+    >>> from noise_models import Bias, Gaussian, ObservationLatency, ObservationNoise
+    >>> from noise_models.values import Layout
+    >>> c = SignalCorruptor([ObservationNoise(Gaussian(std=0.1), Bias(0.5)), ObservationLatency(steps=2)], seed=0)
+    >>> c.bind(obs=Layout(3), action=None, timestep=0.01, substeps=1)
+    >>> c.begin_episode()
+    >>> c.current_params["obs_bias"], c.current_params["obs_latency_steps"]
+    (0.5, 2)
+    >>> first = c.first_observation(np.zeros(3))
+    >>> later = [c.observe(np.full(3, 100.0 * t), now=t) for t in (1, 2, 3)]
+    >>> [round(float(o.mean()) / 100) for o in later]   # steps 1 and 2 see the reset sample, step 3 sees step 1
+    [0, 0, 1]
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+import numpy as np
+
+from noise_models.processes import BLOCK, Compile, Part, Process
+from noise_models.seeding import SeedLike, StreamFactory, normalize_seed, reseeded_root
+from noise_models.timing import (
+    ActionLatency,
+    CommandDelay,
+    ControlJitter,
+    ObservationDelay,
+    ObservationLatency,
+    SampleAndHold,
+    TimeModel,
+    sample_and_hold_updates,
+)
+from noise_models.values import Layout, Selection, check_selection, draw, selection_repr
+
+__all__ = ["ActionNoise", "ObservationNoise", "SignalCorruptor", "SignalModel"]
+
+
+class _Noise:
+    side = ""
+    _frozen = False
+
+    def __init__(self, *processes: Process, select: Selection = None) -> None:
+        owner = type(self).__name__
+        if not processes:
+            raise ValueError(f"{owner} needs at least one process, e.g. {owner}(Gaussian(std=0.01)).")
+        for i, p in enumerate(processes):
+            if not isinstance(p, Process):
+                raise TypeError(
+                    f"`processes[{i}]` of {owner} must be a noise process (Gaussian, UniformNoise, Bias, Drift, "
+                    f"Quantize, Dropout, Stuck, Outlier, Saturate, Scale, Deadzone, Sticky). Received {p!r}."
+                )
+            if self.side not in p.sides:
+                allowed = "Deadzone and Sticky act on actions only" if self.side == "obs" else ""
+                raise ValueError(
+                    f"`processes[{i}]` of {owner} is {type(p).__name__}, which does not apply to "
+                    f"{'observations' if self.side == 'obs' else 'actions'} ({allowed}). Received {p!r}."
+                )
+        self.processes = tuple(processes)
+        self.select = check_selection(select)
+
+    def _fields(self) -> tuple[Any, ...]:
+        return (self.processes, self.select)
+
+    def __repr__(self) -> str:
+        args = [repr(p) for p in self.processes]
+        if self.select is not None:
+            args.append(f"select={self.select!r}")
+        return f"{type(self).__name__}({', '.join(args)})"
+
+    def __eq__(self, other: object) -> bool:
+        return type(other) is type(self) and self._fields() == other._fields()  # type: ignore[attr-defined]
+
+    def __hash__(self) -> int:
+        return hash(repr(self))
+
+    def __setattr__(self, key: str, value: object) -> None:
+        if self._frozen:
+            raise AttributeError(f"{type(self).__name__} is immutable; build a new one instead.")
+        super().__setattr__(key, value)
+
+    def to_config(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"type": type(self).__name__, "processes": [p.to_config() for p in self.processes]}
+        if self.select is not None:
+            out["select"] = list(self.select) if isinstance(self.select, tuple) else self.select
+        return out
+
+
+class ObservationNoise(_Noise):
+    """A pipeline of noise processes applied, in order, to what the policy observes.
+
+    Args:
+        *processes: Gaussian, UniformNoise, Bias, Drift, Quantize, Dropout, Stuck, Outlier, Saturate, Scale.
+        select: default selection for processes that have none (keys, indices or a slice).
+
+    When the declared observation space has finite bounds, the result is clipped to them so the
+    space stays truthful (dm-control and gymnasium MuJoCo observations are unbounded: no clipping).
+
+    Example:
+        >>> from noise_models import Gaussian, Quantize
+        >>> ObservationNoise(Gaussian(std=0.01), Quantize(0.001), select="position")
+        ObservationNoise(Gaussian(std=0.01), Quantize(resolution=0.001), select='position')
+    """
+
+    side = "obs"
+
+    def __init__(self, *processes: Process, select: Selection = None) -> None:
+        super().__init__(*processes, select=select)
+        object.__setattr__(self, "_frozen", True)
+
+
+class ActionNoise(_Noise):
+    """A pipeline of noise processes applied, in order, to the policy's action before the env gets it.
+
+    Args:
+        *processes: any process, including the action-only Deadzone and Sticky.
+        select: default selection (indices or a slice) for processes that have none.
+        clip: clip the result to the action space (actuators have limits), default True.
+
+    Example:
+        >>> from noise_models import Deadzone, Gaussian
+        >>> ActionNoise(Gaussian(std=0.05), Deadzone(0.01))
+        ActionNoise(Gaussian(std=0.05), Deadzone(width=0.01))
+    """
+
+    side = "action"
+
+    def __init__(self, *processes: Process, select: Selection = None, clip: bool = True) -> None:
+        super().__init__(*processes, select=select)
+        if not isinstance(clip, bool):
+            raise TypeError(f"`clip` must be a bool. Received {clip!r}.")
+        self.clip = clip
+        object.__setattr__(self, "_frozen", True)
+
+    def _fields(self) -> tuple[Any, ...]:
+        return (*super()._fields(), self.clip)
+
+    def __repr__(self) -> str:
+        text = super().__repr__()
+        return text if self.clip else text[:-1] + ", clip=False)"
+
+
+SignalModel = ObservationNoise | ActionNoise | ObservationLatency | ActionLatency | SampleAndHold | ControlJitter
+_MODEL_NAMES = "ObservationNoise, ActionNoise, ObservationLatency, ActionLatency, SampleAndHold, ControlJitter"
+
+
+# -- compiled runtime --------------------------------------------------------------------------
+
+
+class _Affine:
+    """Consecutive gain/offset/noise parts fused into ``x * G + F[r]`` with ``F`` drawn per block."""
+
+    def __init__(self, parts: list[Part], size: int, dtype: np.dtype) -> None:
+        self.parts = parts
+        self.size = size
+        self.dtype = dtype
+        self.F = np.zeros((BLOCK, size), dtype=dtype)
+        self.G: np.ndarray | None = None
+
+    def refill(self, block: int) -> None:
+        F = np.zeros((BLOCK, self.size))
+        G = np.ones(self.size)
+        for p in self.parts:
+            if p.kind == "gain":
+                F[:, p.sel] *= p.gain  # type: ignore[attr-defined]
+                G[p.sel] *= p.gain  # type: ignore[attr-defined]
+            elif p.kind == "add":
+                F[:, p.sel] += p.offset  # type: ignore[attr-defined]
+            else:
+                F[:, p.sel] += p.block(block)  # type: ignore[attr-defined]
+        self.F = F.astype(self.dtype)
+        self.G = None if bool((G == 1.0).all()) else G.astype(self.dtype)
+
+    def apply(self, x: np.ndarray, r: int) -> np.ndarray:
+        if self.G is None:
+            return x + self.F[r]
+        w = x * self.G
+        w += self.F[r]
+        return w
+
+
+class _Pipeline:
+    def __init__(
+        self,
+        noise: ObservationNoise | ActionNoise,
+        names: list[str],
+        layout: Layout,
+        dtype: np.dtype,
+        streams_ref: SignalCorruptor,
+    ) -> None:
+        self.noise = noise
+        self.names = names
+        self.layout = layout
+        self.dtype = dtype
+        self.owner = streams_ref
+        self.selects = [p.select if p.select is not None else noise.select for p in noise.processes]
+        self.indices = [layout.resolve(s, "select") for s in self.selects]
+        self.gens: list[np.random.Generator] = [streams_ref._streams.generator(n) for n in names]
+        self.stages: list[Any] = []
+        self.r = BLOCK
+        self.block = -1
+        clip = getattr(noise, "clip", True)
+        self.low = layout.low if clip else None
+        self.high = layout.high if clip else None
+
+    def regenerate(self) -> None:
+        """New generators after the streams were re-rooted (``reset(seed=...)``)."""
+        self.gens = [self.owner._streams.generator(n) for n in self.names]
+
+    def begin(self, episode: int, report: dict[str, float]) -> None:
+        streams = self.owner._streams
+        parts: list[Part] = []
+        for proc, name, gen, idx, select in zip(
+            self.noise.processes, self.names, self.gens, self.indices, self.selects, strict=True
+        ):
+            streams.start(gen, name, episode, 0)
+
+            def block_rng(b: int, gen: np.random.Generator = gen, name: str = name) -> np.random.Generator:
+                streams.start(gen, name, episode, 1 + b)
+                return gen
+
+            ctx = Compile(proc, name, self.layout, idx, gen, block_rng, report, selection_repr(select))
+            parts.append(proc.compile(ctx))
+        stages: list[Any] = []
+        for part in parts:
+            if part.kind == "op":
+                stages.append(part)
+            elif stages and isinstance(stages[-1], _Affine):
+                stages[-1].parts.append(part)
+            else:
+                stages.append(_Affine([part], self.layout.size, self.dtype))
+        self.stages = stages
+        self.first_affine = isinstance(stages[0], _Affine)
+        self.block = -1
+        self.r = BLOCK
+
+    def _refill(self) -> None:
+        self.block += 1
+        for stage in self.stages:
+            stage.refill(self.block)
+        self.r = 0
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        if self.r == BLOCK:
+            self._refill()
+        r = self.r
+        self.r = r + 1
+        if self.first_affine:
+            w = self.stages[0].apply(x, r)
+            rest = self.stages[1:]
+        else:
+            w = np.array(x, dtype=self.dtype)
+            rest = self.stages
+        for stage in rest:
+            if isinstance(stage, _Affine):
+                w = stage.apply(w, r)
+            else:
+                stage.apply(w, r)
+        if self.low is not None:
+            np.clip(w, self.low, self.high, out=w)
+        return w
+
+
+class SignalCorruptor:
+    """Runs observation/action pipelines and timing models for one environment.
+
+    Lifecycle: :meth:`bind` once (signal layouts and time base), :meth:`begin_episode` before each
+    reset, then :meth:`first_observation` on the reset observation, and per control step
+    :meth:`act`, :meth:`substeps` / :meth:`command_segments` (physics-rate action latency, from
+    inside the env's physics step) and :meth:`observe`.
+
+    Seeding follows ``randomizers``: every model has its own keyed stream (per-episode draws at
+    resample 0, per-step noise blocks at resample 1, 2, ...), ``begin_episode(seed=s)`` re-roots at
+    ``(seed, SEPARATOR, s)``.
+
+    Args:
+        models: ObservationNoise, ActionNoise, ObservationLatency, ActionLatency, SampleAndHold and
+            ControlJitter instances (at most one of each timing model).
+        seed: root seed (int, tuple of ints, or None for fresh entropy).
+
+    Attributes:
+        current_params: name -> value drawn for this episode (a new dict each episode).
+        episode: index of the current episode since the last seeding (-1 before the first).
+    """
+
+    def __init__(self, models: Iterable[SignalModel], seed: SeedLike = None) -> None:
+        models = tuple(models)
+        self.obs_noise: list[ObservationNoise] = []
+        self.action_noise: list[ActionNoise] = []
+        self.timing: dict[type, TimeModel] = {}
+        for i, m in enumerate(models):
+            if isinstance(m, ObservationNoise):
+                self.obs_noise.append(m)
+            elif isinstance(m, ActionNoise):
+                self.action_noise.append(m)
+            elif isinstance(m, (ObservationLatency, ActionLatency, SampleAndHold, ControlJitter)):
+                if type(m) in self.timing:
+                    raise ValueError(
+                        f"`models[{i}]` is a second {type(m).__name__}; give at most one of each timing model. "
+                        f"Received {self.timing[type(m)]!r} and {m!r}."
+                    )
+                self.timing[type(m)] = m
+            else:
+                raise TypeError(
+                    f"`models[{i}]` must be one of {_MODEL_NAMES}. Received {m!r} of type {type(m).__name__}."
+                )
+        self.models = models
+        self._wrap_seed = normalize_seed(seed)
+        self._streams = StreamFactory(self._wrap_seed)
+        self.obs_names = self._names("obs", self.obs_noise)
+        self.action_names = self._names("action", self.action_noise)
+        self._timing_gens = {cls: self._streams.generator(m.stream) for cls, m in self.timing.items()}
+        self.episode = -1
+        self.current_params: dict[str, float] = {}
+        self._bound = False
+
+    @staticmethod
+    def _names(side: str, pipelines: Sequence[ObservationNoise | ActionNoise]) -> list[list[str]]:
+        seen: dict[str, int] = {}
+        out = []
+        for pipe in pipelines:
+            names = []
+            for p in pipe.processes:
+                base = f"{side}_{p.name}"
+                count = seen.get(base, 0)
+                seen[base] = count + 1
+                names.append(base if count == 0 else f"{base}#{count}")
+            out.append(names)
+        return out
+
+    # -- properties ---------------------------------------------------------------------------
+    @property
+    def stream_names(self) -> tuple[str, ...]:
+        """Stream name of every process and timing model (what :func:`noise_models.stream` needs)."""
+        names = [n for group in (*self.obs_names, *self.action_names) for n in group]
+        return (*names, *(m.stream for m in self.timing.values()))
+
+    @property
+    def root_seed(self) -> tuple[int, ...]:
+        return self._streams.root
+
+    @property
+    def has_observation(self) -> bool:
+        """Whether observations change (noise, latency or sample-and-hold)."""
+        return bool(self.obs_noise) or ObservationLatency in self.timing or SampleAndHold in self.timing
+
+    @property
+    def has_action(self) -> bool:
+        return bool(self.action_noise) or ActionLatency in self.timing
+
+    @property
+    def needs_physics_hook(self) -> bool:
+        """Whether the env's physics stepping must be intercepted (physics-rate action latency, jitter)."""
+        return self.physics_time and (ActionLatency in self.timing or ControlJitter in self.timing)
+
+    # -- binding ------------------------------------------------------------------------------
+    def bind(
+        self,
+        *,
+        obs: Layout | None,
+        action: Layout | None,
+        timestep: float | None,
+        substeps: int = 1,
+        physics: bool = True,
+        obs_dtype: Any = np.float64,
+        action_dtype: Any = np.float64,
+    ) -> None:
+        """Resolves selections and the time base.
+
+        Args:
+            obs: layout of the flat observation (None if the env's observations are not a vector/dict).
+            action: layout of the flat action.
+            timestep: seconds per time step (the physics timestep with MuJoCo, else the control period).
+            substeps: physics steps per control step (1 without MuJoCo).
+            physics: whether time counts physics steps (MuJoCo found).
+
+        Raises:
+            ValueError: a selection names unknown keys/indices, a latency is longer than its buffer, or
+                a timing model needs a timestep or MuJoCo the environment does not have.
+        """
+        if (self.obs_noise or ObservationLatency in self.timing or SampleAndHold in self.timing) and obs is None:
+            raise TypeError("observation models need a Box or Dict observation space of numbers.")
+        if (self.action_noise or ActionLatency in self.timing) and action is None:
+            raise TypeError("action models need a Box action space.")
+        if ControlJitter in self.timing and not physics:
+            raise ValueError(
+                "ControlJitter changes the number of physics substeps, so it needs an env with MuJoCo inside."
+            )
+        self.physics_time = physics
+        self.timestep = timestep
+        self.nominal_substeps = int(substeps) if physics else 1
+        self.obs_layout, self.action_layout = obs, action
+        self.obs_dtype, self.action_dtype = np.dtype(obs_dtype), np.dtype(action_dtype)
+        self._obs_pipes = [
+            _Pipeline(n, names, obs, self.obs_dtype, self)  # type: ignore[arg-type]
+            for n, names in zip(self.obs_noise, self.obs_names, strict=True)
+        ]
+        self._action_pipes = [
+            _Pipeline(n, names, action, self.action_dtype, self)  # type: ignore[arg-type]
+            for n, names in zip(self.action_noise, self.action_names, strict=True)
+        ]
+        jitter = self.timing.get(ControlJitter)
+        min_substeps = self.nominal_substeps
+        if jitter is not None:
+            lo = getattr(jitter.delta, "support", (jitter.delta, jitter.delta))[0]  # type: ignore[attr-defined]
+            min_substeps = max(1, self.nominal_substeps + math.floor(float(lo) + 0.5))
+        self._scales: dict[type, float] = {}
+        self._capacity: dict[type, int] = {}
+        for cls in (ObservationLatency, ActionLatency):
+            model = self.timing.get(cls)
+            if model is None:
+                continue
+            scale = model.step_scale(timestep)  # type: ignore[attr-defined]
+            longest = model.check_capacity(scale)  # type: ignore[attr-defined]
+            self._scales[cls] = scale
+            self._capacity[cls] = longest // min_substeps + 3
+        sah = self.timing.get(SampleAndHold)
+        if sah is not None:
+            self._scales[SampleAndHold] = sah.step_scale(timestep)  # type: ignore[attr-defined]
+            self._sah_idx = obs.resolve(sah.select, "select")  # type: ignore[union-attr, attr-defined]
+        self._obs_delay = (
+            ObservationDelay(self._capacity[ObservationLatency]) if ObservationLatency in self.timing else None
+        )
+        self._cmd_delay: CommandDelay | None = None
+        if ActionLatency in self.timing:
+            size = action.size if not physics else 0  # physics-level size is set by reset_commands
+            self._cmd_delay = CommandDelay(self._capacity[ActionLatency], max(size, 1))
+        self._bound = True
+
+    # -- episodes -----------------------------------------------------------------------------
+    def begin_episode(self, seed: SeedLike = None) -> None:
+        """Draws this episode's values and clears every buffer and state."""
+        if not self._bound:
+            raise RuntimeError("SignalCorruptor.begin_episode() called before bind().")
+        reset_seed = normalize_seed(seed, "seed")
+        if reset_seed is not None:
+            self._streams = StreamFactory(reseeded_root(self._wrap_seed, reset_seed))
+            self._timing_gens = {cls: self._streams.generator(m.stream) for cls, m in self.timing.items()}
+            for pipe in (*self._obs_pipes, *self._action_pipes):
+                pipe.regenerate()
+            self.episode = -1
+        self.episode += 1
+        report: dict[str, float] = {}
+        for pipe in (*self._obs_pipes, *self._action_pipes):
+            pipe.begin(self.episode, report)
+        self._begin_timing(report)
+        self.current_params = report
+        self._control_step = 0
+        self._last_obs_time = 0
+        self._last_out: Any = None
+
+    def _timing_rng(self, cls: type, resample: int) -> np.random.Generator:
+        gen = self._timing_gens[cls]
+        self._streams.start(gen, self.timing[cls].stream, self.episode, resample)
+        return gen
+
+    def _begin_timing(self, report: dict[str, float]) -> None:
+        self._obs_latency = self._action_latency = 0
+        self._jitter_blocks: dict[type, tuple[int, np.ndarray | None]] = {}
+        for cls, prefix in ((ObservationLatency, "obs_latency"), (ActionLatency, "action_latency")):
+            model = self.timing.get(cls)
+            if model is None:
+                continue
+            steps = model.draw_steps(self._timing_rng(cls, 0), self._scales[cls])  # type: ignore[attr-defined]
+            report[f"{prefix}_steps"] = steps
+            if self.timestep is not None:
+                report[prefix] = steps * self.timestep
+            if cls is ObservationLatency:
+                self._obs_latency = steps
+            else:
+                self._action_latency = steps
+            self._jitter_blocks[cls] = (-1, None)
+        sah = self.timing.get(SampleAndHold)
+        if sah is not None:
+            rng = self._timing_rng(SampleAndHold, 0)
+            scale = self._scales[SampleAndHold]
+            period_value = sah.steps if sah.steps is not None else sah.seconds  # type: ignore[attr-defined]
+            self._sah_period = max(float(draw(period_value, rng, 1)[0]) * scale, 1e-9)
+            self._sah_phase = float(draw(sah.phase, rng, 1)[0]) * scale  # type: ignore[attr-defined]
+            report["obs_update_period_steps"] = self._sah_period
+            report["obs_update_phase_steps"] = self._sah_phase
+        if ControlJitter in self.timing:
+            self._jitter_blocks[ControlJitter] = (-1, None)
+
+    def _jitter(self, cls: type, k: int) -> int:
+        """The per-step extra delay (or substep change) number ``k`` of the episode."""
+        block, values = self._jitter_blocks[cls]
+        b, r = divmod(k, BLOCK)
+        if b != block:
+            rng = self._timing_rng(cls, 1 + b)
+            model = self.timing[cls]
+            if cls is ControlJitter:
+                values = model.block(rng, BLOCK)  # type: ignore[attr-defined]
+            else:
+                values = model.jitter_block(rng, BLOCK, self._scales[cls])  # type: ignore[attr-defined]
+            self._jitter_blocks[cls] = (b, values)
+        return 0 if values is None else int(values[r])
+
+    # -- observations -------------------------------------------------------------------------
+    def _corrupt(self, obs: np.ndarray) -> np.ndarray:
+        for pipe in self._obs_pipes:
+            obs = pipe(obs)
+        return obs
+
+    def first_observation(self, obs: np.ndarray) -> np.ndarray:
+        """Corrupts the reset observation (delivered at once, whatever the latency)."""
+        sample = self._corrupt(obs)
+        if SampleAndHold in self.timing:
+            sample = np.array(sample, dtype=self.obs_dtype)
+            self._held = sample.copy()
+        self._obs_samples = 0
+        if self._obs_delay is not None:
+            self._obs_delay.reset(sample, 0)
+        self._last_out = sample
+        return sample
+
+    def observe(self, obs: np.ndarray, now: int) -> np.ndarray:
+        """The observation the policy gets at time ``now`` (physics steps since reset) given the env's
+        fresh observation ``obs``."""
+        sample = self._corrupt(obs)
+        if SampleAndHold in self.timing:
+            if sample is obs:
+                sample = np.array(obs, dtype=self.obs_dtype)
+            if sample_and_hold_updates(self._last_obs_time, now, self._sah_period, self._sah_phase):
+                self._held = sample.copy()
+            else:
+                sample[self._sah_idx] = self._held[self._sah_idx]
+        self._last_obs_time = now
+        delay = self._obs_delay
+        if delay is not None:
+            self._obs_samples += 1
+            jitter = (
+                self._jitter(ObservationLatency, self._obs_samples) if ObservationLatency in self._jitter_blocks else 0
+            )
+            delay.push(sample, now + self._obs_latency + jitter)
+            sample = delay.read(now)
+            if sample is self._last_out:
+                sample = sample.copy()
+        self._last_out = sample
+        return sample
+
+    # -- actions --------------------------------------------------------------------------------
+    def act(self, action: np.ndarray) -> np.ndarray:
+        """The action the env gets for the policy's ``action`` (noise; and latency when time counts
+        control steps)."""
+        for pipe in self._action_pipes:
+            action = pipe(action)
+        if self._cmd_delay is not None and not self.physics_time:
+            t = self._control_step
+            jitter = self._jitter(ActionLatency, t) if ActionLatency in self._jitter_blocks else 0
+            if t == 0:
+                self._cmd_delay.reset(np.zeros(self.action_layout.size))  # type: ignore[union-attr]
+            self._cmd_delay.push(action, t + self._action_latency + jitter)
+            (command, _), *_ = self._cmd_delay.segments(t, 1)
+            action = command.astype(self.action_dtype)
+        self._control_step += 1
+        return action
+
+    def reset_commands(self, ctrl: np.ndarray) -> None:
+        """Starts the physics-rate command buffer with the actuators' command at reset."""
+        if self._cmd_delay is not None:
+            if self._cmd_delay._values.shape[1] != ctrl.size:
+                self._cmd_delay = CommandDelay(self._cmd_delay.capacity, ctrl.size)
+            self._cmd_delay.reset(ctrl)
+        self._commands_sent = 0
+
+    def substeps(self, nominal: int) -> int:
+        """Physics substeps of the control step about to run (ControlJitter), at least 1."""
+        if ControlJitter not in self.timing:
+            return nominal
+        return max(1, nominal + self._jitter(ControlJitter, self._control_step - 1))
+
+    def command_segments(self, ctrl: np.ndarray, start: int, n: int) -> list[tuple[np.ndarray, int]]:
+        """Sends ``ctrl`` at physics step ``start`` and returns the ``(command, steps)`` pieces that
+        cover physics steps ``start .. start + n - 1``."""
+        delay = self._cmd_delay
+        if delay is None:
+            return [(ctrl, n)]
+        k = self._commands_sent
+        self._commands_sent = k + 1
+        jitter = self._jitter(ActionLatency, k) if ActionLatency in self._jitter_blocks else 0
+        delay.push(ctrl, start + self._action_latency + jitter)
+        return delay.segments(start, n)
+
+    def continue_segments(self, start: int, n: int) -> list[tuple[np.ndarray, int]]:
+        """Pieces for further physics steps of the same control step (envs that step one substep at a time)."""
+        if self._cmd_delay is None:
+            raise RuntimeError("no action latency")
+        return self._cmd_delay.segments(start, n)
+
+    def max_delay_steps(self) -> int:
+        """The longest delay any latency model can produce this episode, in time steps."""
+        out = 0
+        for cls in (ObservationLatency, ActionLatency):
+            model = self.timing.get(cls)
+            if model is not None:
+                out = max(out, model.check_capacity(self._scales[cls]))  # type: ignore[attr-defined]
+        return out
