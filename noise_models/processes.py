@@ -354,9 +354,10 @@ class Drift(Process):
         if self.timescale is None:
 
             def walk(b: int) -> np.ndarray:
-                out = np.cumsum(ctx.block_rng(b).standard_normal((BLOCK, k)) * std, axis=0)
-                out += state
-                state[:] = out[-1]
+                steps = ctx.block_rng(b).standard_normal((BLOCK, k)) * std
+                total = np.cumsum(steps, axis=0)
+                out = total - steps + state  # the value before each step's increment: 0 at reset
+                state[:] = out[-1] + steps[-1]
                 return out
 
             return _Block(ctx.idx, ctx.layout.size, walk)
@@ -370,8 +371,8 @@ class Drift(Process):
             out = np.empty((BLOCK, k))
             x = state
             for i in range(BLOCK):  # a linear recursion; once per block, not per step
-                x = a * x + eps[i]
                 out[i] = x
+                x = a * x + eps[i]
             state[:] = x
             return out
 

@@ -121,6 +121,16 @@ class DmEnvToGym(gym.Env):
         )
 
     @property
+    def observation_layout(self) -> tuple[tuple[str, slice, tuple[int, ...]], ...]:
+        """``(key, slice, shape)`` of each dm-control observation inside the flat vector, so noise
+        models can select keys of a flattened observation."""
+        out, start = [], 0
+        for key, size in zip(self._keys, self._sizes, strict=True):
+            out.append((key, slice(start, start + size), (size,)))
+            start += size
+        return tuple(out)
+
+    @property
     def physics(self) -> Any:
         """The dm-control ``Physics`` of the current episode."""
         return self.dm_env.physics

@@ -100,6 +100,78 @@ class PhysicsHandle:
         if hook is not None:
             self.remove_hook(hook)
 
+    @property
+    def substeps(self) -> int | None:
+        """Physics steps per control step (None when the env does not say)."""
+        owner = self.owner
+        for name in ("_n_sub_steps", "frame_skip", "n_substeps"):
+            value = _attribute(owner, name)
+            if isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= 1:
+                return int(value)
+        return None
+
+    def intercept_step(self, stepper: Callable[[Callable[[int], None], int], None]) -> Callable[[], None]:
+        """Routes the env's physics stepping through ``stepper(run, nstep)``.
+
+        The env asks for ``nstep`` physics steps (once per control step, or once per substep on
+        composer envs); ``stepper`` decides what happens and calls ``run(k)`` to advance ``k`` steps
+        with the env's own stepping code and the current ``data.ctrl``. Returns a function that
+        removes the interception.
+
+        Raises:
+            TypeError: the env steps MuJoCo in a way that cannot be intercepted.
+        """
+        owner = self.owner
+        if self.source.startswith("dm_control"):
+
+            def install(physics: Any) -> None:
+                original = physics.step
+
+                def step(nstep: int = 1) -> None:
+                    stepper(original, nstep)
+
+                physics.step = step
+
+            install(owner.physics)
+            hook = None
+            if self.recompiles:
+                hook = self.on_recompile(lambda model, data: install(owner.physics))
+
+            def remove() -> None:
+                physics = owner.physics
+                if "step" in vars(physics):
+                    del physics.step
+                if hook is not None:
+                    self.remove_hook(hook)
+
+            return remove
+        data = self.data
+        if callable(getattr(owner, "_simulate", None)):
+            original_sim = owner._simulate
+            owner._simulate = lambda nstep: stepper(original_sim, nstep)
+        elif callable(getattr(owner, "_step_mujoco_simulation", None)):
+            original_mj = owner._step_mujoco_simulation
+
+            def simulate(ctrl: Any, n_frames: int) -> None:
+                data.ctrl[:] = ctrl
+                stepper(lambda k: original_mj(data.ctrl, k), n_frames)
+
+            owner._step_mujoco_simulation = simulate
+        else:
+            raise TypeError(
+                f"{type(owner).__module__}.{type(owner).__qualname__} steps MuJoCo without a hook sim2real can "
+                "intercept (gymnasium's MujocoEnv._step_mujoco_simulation, a `_simulate(nstep)` method, or "
+                "dm-control's Physics.step), so physics-rate action latency and ControlJitter cannot reach it. "
+                "Give the env a `_simulate(nstep)` method that calls mujoco.mj_step."
+            )
+
+        def remove_gym() -> None:
+            for name in ("_simulate", "_step_mujoco_simulation"):
+                if name in vars(owner):
+                    delattr(owner, name)
+
+        return remove_gym
+
     def remove_hook(self, hook: Callable[..., None]) -> None:
         """Unregisters a hook added by :meth:`on_recompile` (no-op when already gone)."""
         hooks = self.owner._hooks._after_compile.extra_hooks  # composer keeps no public remover

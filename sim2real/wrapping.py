@@ -1,5 +1,8 @@
 """``sim2real.wrap``: one call that applies effects to a gymnasium, dm_env or TorchRL environment.
 
+Physics effects (:mod:`randomizers`) and signal models (:mod:`noise_models`) mix freely; physics is
+randomised innermost, signals are corrupted outside it.
+
 Example:
     >>> import sim2real
     >>> from randomizers import Friction, Mass, Uniform
@@ -9,6 +12,17 @@ Example:
     >>> obs, info = env.reset(seed=0)
     >>> round(info["sim2real"]["params"]["body_mass[arm]"], 6)
     0.042376
+
+    The issue's example, noise and latency at physics rate around a dm-control task:
+
+    >>> from noise_models import ActionLatency, Bias, Gaussian, ObservationLatency, ObservationNoise
+    >>> from randomizers import Uniform
+    >>> env = sim2real.wrap(sim2real.make("dmc/reacher-easy"),
+    ...                     ObservationNoise(Gaussian(std=0.01), Bias(Uniform(-0.02, 0.02))),
+    ...                     ObservationLatency(steps=3), ActionLatency(seconds=0.02), seed=0)
+    >>> obs, info = env.reset(seed=0)
+    >>> info["sim2real"]["params"]["obs_latency"], info["sim2real"]["params"]["action_latency_steps"]
+    (0.06, 1)
 """
 
 from __future__ import annotations
@@ -19,24 +33,30 @@ from typing import Any
 
 import gymnasium as gym
 
+from noise_models.corruptor import ActionNoise, ObservationNoise
+from noise_models.timing import TimeModel
 from randomizers import Effect
 from randomizers.seeding import SeedLike, normalize_seed
 
 __all__ = ["make_vec", "wrap"]
 
 
-def _flatten(effects: Iterable[Any]) -> list[Effect]:
-    out: list[Effect] = []
+_SIGNAL_TYPES = (ObservationNoise, ActionNoise, TimeModel)
+
+
+def _flatten(effects: Iterable[Any]) -> list[Any]:
+    out: list[Any] = []
     for item in effects:
         if isinstance(item, (list, tuple)):
             out.extend(_flatten(item))
-        elif isinstance(item, Effect):
+        elif isinstance(item, (Effect, *_SIGNAL_TYPES)):
             out.append(item)
         else:
             raise TypeError(
                 "`effects` must be effects from `randomizers` (Friction, Mass, Damping, Armature, FrictionLoss, "
-                f"Stiffness, ActuatorGain, Gravity, Push) or lists of them. Received {item!r} of type "
-                f"{type(item).__name__}."
+                "Stiffness, ActuatorGain, Gravity, Push), models from `noise_models` (ObservationNoise, "
+                "ActionNoise, ObservationLatency, ActionLatency, SampleAndHold, ControlJitter) or lists of them. "
+                f"Received {item!r} of type {type(item).__name__}."
             )
     return out
 
@@ -49,24 +69,28 @@ def _is_torchrl_env(env: Any) -> bool:
     return isinstance(env, EnvBase)
 
 
-def wrap(env: Any, *effects: Effect | Iterable[Effect], seed: SeedLike = None) -> Any:
+def wrap(env: Any, *effects: Any, seed: SeedLike = None) -> Any:
     """Applies ``effects`` to ``env`` and returns the same kind of environment.
 
     Args:
         env: a ``gymnasium.Env``, a ``dm_env.Environment`` (dm-control) or a TorchRL ``EnvBase``.
-        *effects: effects from :mod:`randomizers` (lists are flattened).
-        seed: root seed of the effect streams (int, tuple of ints or None for fresh entropy). Each
-            effect draws from its own stream keyed by (seed, effect, episode).
+        *effects: physics effects from :mod:`randomizers` and signal models from :mod:`noise_models`
+            (lists are flattened).
+        seed: root seed of every stream (int, tuple of ints or None for fresh entropy). Each effect
+            and model draws from its own stream keyed by (seed, name, episode).
 
     Returns:
-        gymnasium -> :class:`~sim2real.wrappers.RandomizePhysics`; dm_env ->
-        :class:`~sim2real.wrappers.RandomizePhysicsDmEnv`; TorchRL -> ``TransformedEnv`` with a
-        :class:`~sim2real.wrappers.RandomizePhysicsTransform` appended.
+        gymnasium -> :class:`~sim2real.wrappers.RandomizePhysics` (physics) inside
+        :class:`~sim2real.wrappers.CorruptSignals` (signals); dm_env -> the ``*DmEnv`` twins; TorchRL ->
+        ``TransformedEnv`` with :class:`~sim2real.wrappers.RandomizePhysicsTransform` and
+        :class:`~sim2real.wrappers.CorruptSignalsTransform` appended. Only the layers needed are added.
 
     Raises:
         TypeError: unsupported env kind, or physics effects on an env without MuJoCo.
     """
-    flat = _flatten(effects)
+    items = _flatten(effects)
+    flat = [e for e in items if isinstance(e, Effect)]
+    signals = [e for e in items if not isinstance(e, Effect)]
     normalize_seed(seed)
     if isinstance(env, gym.vector.VectorEnv):
         raise TypeError(
@@ -76,24 +100,35 @@ def wrap(env: Any, *effects: Effect | Iterable[Effect], seed: SeedLike = None) -
         )
     if isinstance(env, gym.Env):
         from sim2real.wrappers.gym import RandomizePhysics
+        from sim2real.wrappers.signals import CorruptSignals
 
-        return RandomizePhysics(env, flat, seed)
+        if flat or not signals:
+            env = RandomizePhysics(env, flat, seed)
+        return CorruptSignals(env, signals, seed) if signals else env
     if _is_torchrl_env(env):
         from torchrl.envs import TransformedEnv
 
-        from sim2real.wrappers.torchrl import RandomizePhysicsTransform
+        from sim2real.wrappers.torchrl import CorruptSignalsTransform, RandomizePhysicsTransform
 
-        transform = RandomizePhysicsTransform(flat, seed)
-        if isinstance(env, TransformedEnv):
+        transforms: list[Any] = []
+        if flat or not signals:
+            transforms.append(RandomizePhysicsTransform(flat, seed))
+        if signals:
+            transforms.append(CorruptSignalsTransform(signals, seed))
+        if not isinstance(env, TransformedEnv):
+            env = TransformedEnv(env)
+        for transform in transforms:
             env.append_transform(transform)
-            return env
-        return TransformedEnv(env, transform)
+        return env
     import dm_env
 
     if isinstance(env, dm_env.Environment):
         from sim2real.wrappers.dm import RandomizePhysicsDmEnv
+        from sim2real.wrappers.signals import CorruptSignalsDmEnv
 
-        return RandomizePhysicsDmEnv(env, flat, seed)
+        if flat or not signals:
+            env = RandomizePhysicsDmEnv(env, flat, seed)
+        return CorruptSignalsDmEnv(env, signals, seed) if signals else env
     raise TypeError(
         "`env` must be a gymnasium.Env, a dm_env.Environment (dm-control) or a TorchRL EnvBase. "
         f"Received {type(env).__module__}.{type(env).__qualname__}."
@@ -103,7 +138,7 @@ def wrap(env: Any, *effects: Effect | Iterable[Effect], seed: SeedLike = None) -
 def make_vec(
     task_id: str,
     num_envs: int,
-    *effects: Effect | Iterable[Effect],
+    *effects: Any,
     seed: int | None = None,
     vectorization: str = "sync",
     **options: Any,

@@ -325,7 +325,7 @@ class ArmReachEnv(gym.Env[np.ndarray, np.ndarray]):
         q_target = data.qpos[self._qpos_idx] + dq
         np.clip(q_target, self._ctrl_low, self._ctrl_high, out=data.ctrl)
 
-        mujoco.mj_step(model, data, nstep=self.n_substeps)
+        self._simulate(self.n_substeps)
         # mj_step leaves positions one substep ahead of the derived kinematics; recompute
         # them so the observation, reward and next Jacobian all describe the same state.
         mujoco.mj_forward(model, data)
@@ -336,6 +336,10 @@ class ArmReachEnv(gym.Env[np.ndarray, np.ndarray]):
         truncated = self._elapsed_steps >= self.max_episode_steps
         info = {"distance": distance, "is_success": terminated}
         return self._get_obs(), -distance, terminated, truncated, info
+
+    def _simulate(self, nstep: int) -> None:
+        # The one place physics advances: sim2real's latency and jitter models intercept it here.
+        mujoco.mj_step(self.model, self.data, nstep=nstep)
 
     def render(self) -> np.ndarray | None:
         """Render the ``overview`` camera.

@@ -1,7 +1,9 @@
 """Per-API wrappers. :func:`sim2real.wrap` picks the right one; use these directly if you prefer.
 
 ``RandomizePhysics`` (gymnasium), ``RandomizePhysicsDmEnv`` (dm_env) and
-``RandomizePhysicsTransform`` (TorchRL, imported lazily so gymnasium users never load torch).
+``RandomizePhysicsTransform`` (TorchRL, imported lazily so gymnasium users never load torch) apply
+physics effects; ``CorruptSignals``, ``CorruptSignalsDmEnv`` and ``CorruptSignalsTransform`` apply
+the noise and timing models of :mod:`noise_models`.
 """
 
 from __future__ import annotations
@@ -10,13 +12,21 @@ from typing import Any
 
 from sim2real.wrappers.dm import RandomizePhysicsDmEnv
 from sim2real.wrappers.gym import RandomizePhysics
+from sim2real.wrappers.signals import CorruptSignals, CorruptSignalsDmEnv
 
-__all__ = ["RandomizePhysics", "RandomizePhysicsDmEnv", "RandomizePhysicsTransform"]
+__all__ = [
+    "CorruptSignals",
+    "CorruptSignalsDmEnv",
+    "CorruptSignalsTransform",
+    "RandomizePhysics",
+    "RandomizePhysicsDmEnv",
+    "RandomizePhysicsTransform",
+]
 
 
 def __getattr__(name: str) -> Any:
-    if name == "RandomizePhysicsTransform":
-        from sim2real.wrappers.torchrl import RandomizePhysicsTransform
+    if name in ("RandomizePhysicsTransform", "CorruptSignalsTransform"):
+        from sim2real.wrappers import torchrl
 
-        return RandomizePhysicsTransform
+        return getattr(torchrl, name)
     raise AttributeError(f"module 'sim2real.wrappers' has no attribute {name!r}")

@@ -29,10 +29,11 @@ from randomizers.seeding import SeedLike
 from sim2real.physics import PhysicsHandle
 from sim2real.wrappers.gym import require_physics
 
-__all__ = ["RandomizePhysicsTransform"]
+__all__ = ["CorruptSignalsTransform", "RandomizePhysicsTransform"]
 
 PARAMS_KEY = "sim2real_params"
 DIVERGED_KEY = "sim2real_diverged"
+SIGNAL_PARAMS_KEY = "sim2real_signal_params"
 
 
 def _no_exceptions(physics: Any) -> None:
@@ -147,3 +148,194 @@ class RandomizePhysicsTransform(Transform):
             self._handle.remove_hook(self._hook)
             self._hook = None
         super().close() if hasattr(super(), "close") else None
+
+
+class CorruptSignalsTransform(Transform):
+    """Applies noise and timing models (:mod:`noise_models`) inside a TorchRL ``TransformedEnv``:
+    observation pipelines, latency and sample-and-hold on the observation entries, action noise on
+    ``"action"``, and physics-rate action latency / control jitter inside the base env's physics step.
+
+    The per-episode draws travel in every TensorDict under ``"sim2real_signal_params"`` (float64,
+    one entry per name in :attr:`param_names`) and are on :attr:`current_params`; physics draws of a
+    :class:`RandomizePhysicsTransform` stay in ``"sim2real_params"``.
+
+    Args:
+        models: ObservationNoise, ActionNoise, ObservationLatency, ActionLatency, SampleAndHold, ControlJitter.
+        seed: root seed of the models' streams.
+        observation_keys: the entries treated as the observation (default: every floating-point
+            entry of the observation spec except ``sim2real_*``), concatenated in this order.
+
+    Example:
+        >>> from torchrl.envs import DMControlEnv, TransformedEnv
+        >>> from noise_models import Gaussian, ObservationLatency, ObservationNoise
+        >>> env = TransformedEnv(DMControlEnv("reacher", "easy"),
+        ...                      CorruptSignalsTransform([ObservationNoise(Gaussian(std=0.01)),
+        ...                                               ObservationLatency(steps=2)], seed=0))
+        >>> td = env.rollout(3)
+        >>> env.transform.current_params["obs_latency_steps"]
+        2
+        >>> env.transform.param_names[-2:], td["sim2real_signal_params"][0, -2:].tolist()
+        (('obs_latency_steps', 'obs_latency'), [2.0, 0.04])
+    """
+
+    def __init__(
+        self, models: Sequence[Any], seed: SeedLike = None, observation_keys: Sequence[str] | None = None
+    ) -> None:
+        from noise_models import SignalCorruptor
+
+        super().__init__(in_keys=[], out_keys=[])
+        self.corruptor = SignalCorruptor(models, seed)
+        self._observation_keys = None if observation_keys is None else list(observation_keys)
+        self._clock: Any = None
+        self._keys: list[str] = []
+        self._names: tuple[str, ...] = ()
+        self._params: torch.Tensor | None = None
+
+    @property
+    def current_params(self) -> dict[str, float]:
+        """Name -> value drawn for this episode."""
+        return self.corruptor.current_params
+
+    def _bound(self) -> Any:
+        if self._clock is None:
+            import numpy as np
+
+            from noise_models import Layout
+            from sim2real.wrappers.signals import SignalClock
+
+            parent = self.parent
+            if parent is None:
+                raise RuntimeError("CorruptSignalsTransform must be appended to a TransformedEnv before use.")
+            obs_spec = parent.full_observation_spec
+            if self._observation_keys is None:
+                keys = [
+                    k
+                    for k in obs_spec.keys(True, True)
+                    if isinstance(k, str) and not k.startswith("sim2real_") and obs_spec[k].dtype.is_floating_point
+                ]
+            else:
+                keys = list(self._observation_keys)
+                missing = [k for k in keys if k not in obs_spec.keys(True, True)]
+                if missing:
+                    raise ValueError(
+                        f"`observation_keys` names {missing}, which the env does not observe. Known keys: "
+                        f"{sorted(str(k) for k in obs_spec.keys(True, True))}."
+                    )
+            self._keys = keys
+            shapes = [(k, tuple(obs_spec[k].shape[len(parent.batch_size) :])) for k in keys]
+            slices, start, lows, highs = [], 0, [], []
+            for k, shape in shapes:
+                n = int(np.prod(shape))
+                slices.append((k, slice(start, start + n), shape))
+                start += n
+                low, high = _spec_bounds(obs_spec[k], n)
+                lows.append(low)
+                highs.append(high)
+            low_all, high_all = np.concatenate(lows), np.concatenate(highs)
+            finite = bool(np.isfinite(low_all).any() or np.isfinite(high_all).any())
+            obs_layout = Layout(
+                start,
+                keys=tuple(slices),
+                low=low_all if finite else None,
+                high=high_all if finite else None,
+                dict_signal=len(keys) > 1,
+            )
+            self._shapes = dict(shapes)
+            self._slices = slices
+            aspec = parent.full_action_spec["action"]
+            self._action_shape = tuple(aspec.shape[len(parent.batch_size) :])
+            n_act = int(np.prod(self._action_shape))
+            alow, ahigh = _spec_bounds(aspec, n_act)
+            afinite = bool(np.isfinite(alow).any() or np.isfinite(ahigh).any())
+            act_layout = Layout(n_act, low=alow if afinite else None, high=ahigh if afinite else None)
+            obs_dtype = _numpy_dtype(obs_spec[keys[0]].dtype) if keys else np.float64
+            self._clock = SignalClock(
+                parent.base_env, self.corruptor, obs_layout, act_layout, obs_dtype, _numpy_dtype(aspec.dtype)
+            )
+            # The names come from a throwaway draw so the spec is known before the first reset.
+            self.corruptor.begin_episode()
+            self._names = tuple(self.corruptor.current_params)
+            self.corruptor.episode = -1
+        return self._clock
+
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        """The name of each entry of ``"sim2real_signal_params"``."""
+        self._bound()
+        return self._names
+
+    def _params_tensor(self, batch: torch.Size) -> torch.Tensor:
+        if self._params is None:
+            params = self.corruptor.current_params
+            self._params = torch.tensor([float(params[n]) for n in self._names], dtype=torch.float64)
+        return self._params.expand(*batch, len(self._names)).clone()
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        self._bound()
+        observation_spec[SIGNAL_PARAMS_KEY] = Unbounded(
+            shape=(*observation_spec.shape, len(self._names)), dtype=torch.float64, device=observation_spec.device
+        )
+        return observation_spec
+
+    def _flat(self, td: TensorDictBase) -> Any:
+        import numpy as np
+
+        return np.concatenate([td.get(k).detach().cpu().numpy().reshape(-1) for k in self._keys])
+
+    def _write(self, td: TensorDictBase, vec: Any) -> None:
+        for k, sl, shape in self._slices:
+            old = td.get(k)
+            td.set(k, torch.from_numpy(vec[sl].reshape(old.shape)).to(old.dtype))
+
+    def _reset_env_preprocess(self, tensordict: TensorDictBase | None) -> TensorDictBase | None:
+        self._bound()
+        self.corruptor.begin_episode()
+        self._params = None
+        return tensordict
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        clock = self._bound()
+        clock.begin_episode()
+        if self.corruptor.has_observation:
+            self._write(tensordict_reset, self.corruptor.first_observation(self._flat(tensordict_reset)))
+        tensordict_reset.set(SIGNAL_PARAMS_KEY, self._params_tensor(tensordict_reset.batch_size))
+        return tensordict_reset
+
+    def _inv_call(self, tensordict: TensorDictBase) -> TensorDictBase:
+        clock = self._bound()
+        if self.corruptor.has_action:
+            action = tensordict.get("action")
+            out = self.corruptor.act(action.detach().cpu().numpy().reshape(-1))
+            tensordict.set("action", torch.from_numpy(out.reshape(action.shape)).to(action.dtype))
+        clock.begin_step()
+        return tensordict
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        clock = self._bound()
+        clock._in_step = False
+        if self.corruptor.has_observation:
+            self._write(next_tensordict, self.corruptor.observe(self._flat(next_tensordict), clock.now()))
+        next_tensordict.set(SIGNAL_PARAMS_KEY, self._params_tensor(next_tensordict.batch_size))
+        return next_tensordict
+
+    def close(self) -> None:
+        if self._clock is not None:
+            self._clock.close()
+            self._clock = None
+        super().close() if hasattr(super(), "close") else None
+
+
+def _spec_bounds(spec: Any, n: int) -> tuple[Any, Any]:
+    import numpy as np
+
+    space = getattr(spec, "space", None)
+    low, high = getattr(space, "low", None), getattr(space, "high", None)
+    if low is None or high is None:
+        return np.full(n, -np.inf), np.full(n, np.inf)
+    low_np = np.broadcast_to(low.detach().cpu().numpy().astype(np.float64), (n,) if low.numel() in (1, n) else low.shape)
+    high_np = np.broadcast_to(high.detach().cpu().numpy().astype(np.float64), low_np.shape)
+    return np.ravel(low_np)[-n:].copy(), np.ravel(high_np)[-n:].copy()
+
+
+def _numpy_dtype(dtype: torch.dtype) -> Any:
+    return torch.empty((), dtype=dtype).numpy().dtype

@@ -1,0 +1,421 @@
+"""Sensor and actuator imperfections around any env: :class:`CorruptSignals` (gymnasium) and
+:class:`CorruptSignalsDmEnv` (dm_env), both driven by a :class:`noise_models.SignalCorruptor`.
+
+One wrapper carries every signal model (observation/action noise pipelines, latencies,
+sample-and-hold, control jitter): they share one clock (physics steps since reset, read from
+MuJoCo's ``data.time``), and one Python layer on the hot path costs less than one per model
+(measured in ``benchmarks/bench_overhead.py``).
+
+Where the env has MuJoCo inside, time counts physics steps and ``ActionLatency`` /
+``ControlJitter`` act inside the env's physics step (dm-control ``Physics.step``, gymnasium's
+``MujocoEnv._step_mujoco_simulation``, or a ``_simulate(nstep)`` method). Without MuJoCo, time
+counts control steps, ``seconds=`` uses the env's ``dt`` when it has one, and ControlJitter is
+rejected.
+
+Declared spaces are left unchanged: observation noise is clipped to finite bounds of the
+observation space (dm-control and gymnasium MuJoCo observations are unbounded, so nothing is
+clipped there) and action noise to the action space (``ActionNoise(clip=False)`` turns that off).
+
+Example:
+    >>> import sim2real
+    >>> from noise_models import ActionLatency, Bias, Gaussian, ObservationLatency, ObservationNoise
+    >>> from randomizers import Uniform
+    >>> env = CorruptSignals(sim2real.make("dmc/reacher-easy"),
+    ...                      [ObservationNoise(Gaussian(std=0.01), Bias(Uniform(-0.02, 0.02))),
+    ...                       ObservationLatency(steps=3), ActionLatency(seconds=0.02)], seed=0)
+    >>> obs, info = env.reset(seed=0)
+    >>> params = info["sim2real"]["params"]
+    >>> params["obs_latency_steps"], params["action_latency_steps"], round(params["obs_bias[0]"], 4)
+    (3, 1, -0.0187)
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Sequence
+from typing import Any
+
+import dm_env
+import gymnasium as gym
+import numpy as np
+
+from noise_models import Layout, SignalCorruptor, SignalModel
+from noise_models.seeding import SeedLike
+from sim2real.physics import PhysicsHandle, find_physics
+
+__all__ = ["CorruptSignals", "CorruptSignalsDmEnv", "SignalClock", "box_layout"]
+
+
+def _finite_bounds(low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
+    low = np.asarray(low, dtype=np.float64).ravel()
+    high = np.asarray(high, dtype=np.float64).ravel()
+    if not (np.isfinite(low).any() or np.isfinite(high).any()):
+        return None, None
+    return low, high
+
+
+def box_layout(space: gym.spaces.Box, keys: tuple[tuple[str, slice, tuple[int, ...]], ...] = ()) -> Layout:
+    """The :class:`noise_models.Layout` of a float Box space (bounds kept for clipping)."""
+    if not np.issubdtype(space.dtype, np.floating):
+        raise TypeError(f"noise models need a float Box space. Received a Box of dtype {space.dtype}.")
+    low, high = _finite_bounds(space.low, space.high)
+    return Layout(int(np.prod(space.shape)), keys=keys, low=low, high=high)
+
+
+class _DictCodec:
+    """Flattens a dict signal to one vector (key order) and back."""
+
+    def __init__(self, shapes: Sequence[tuple[str, tuple[int, ...]]], mapping: type = dict) -> None:
+        self.keys = [k for k, _ in shapes]
+        self.shapes = dict(shapes)
+        self.mapping = mapping
+        slices, start = [], 0
+        for k, shape in shapes:
+            n = int(np.prod(shape))
+            slices.append((k, slice(start, start + n), tuple(shape)))
+            start += n
+        self.layout_keys = tuple(slices)
+        self.size = start
+
+    def flat(self, obs: Any) -> np.ndarray:
+        return np.concatenate([np.ravel(obs[k]) for k in self.keys])
+
+    def unflat(self, vec: np.ndarray, like: Any) -> Any:
+        out = self.mapping() if not isinstance(like, dict) else type(like)()
+        for k, sl, shape in self.layout_keys:
+            out[k] = vec[sl].reshape(shape)
+        return out
+
+
+class SignalClock:
+    """Connects a :class:`SignalCorruptor` to an env's physics: layouts are given by the wrapper,
+    this finds MuJoCo, sets the time base, and intercepts physics stepping when needed.
+
+    Args:
+        env: the env to find MuJoCo in (may have none).
+        corruptor: the engine (not yet bound).
+        obs: observation layout; action: action layout; dtypes of both signals.
+    """
+
+    def __init__(
+        self,
+        env: Any,
+        corruptor: SignalCorruptor,
+        obs: Layout | None,
+        action: Layout | None,
+        obs_dtype: Any,
+        action_dtype: Any,
+        handle: PhysicsHandle | None = None,
+    ) -> None:
+        self.corruptor = corruptor
+        self.handle = handle if handle is not None else find_physics(env)
+        handle = self.handle
+        if handle is not None:
+            timestep: float | None = float(handle.model.opt.timestep)
+            substeps = handle.substeps or 1
+        else:
+            timestep = _control_dt(env)
+            substeps = 1
+        self.timestep = timestep
+        self.nominal = substeps
+        corruptor.bind(
+            obs=obs,
+            action=action,
+            timestep=timestep,
+            substeps=substeps,
+            physics=handle is not None,
+            obs_dtype=obs_dtype,
+            action_dtype=action_dtype,
+        )
+        self._remove: Any = None
+        self._hook: Any = None
+        if handle is not None and handle.recompiles:
+            self._hook = handle.on_recompile(lambda model, data: None)  # keeps handle.data current
+        if corruptor.needs_physics_hook:
+            self._remove = handle.intercept_step(self._stepper)  # type: ignore[union-attr]
+        self._latency = corruptor.has_action and handle is not None
+        self._in_step = False
+        self._passed = 0
+        self._target = substeps
+        self._t0 = 0.0
+        self._control = 0
+
+    def now(self) -> int:
+        """Time since reset: physics steps with MuJoCo, else control steps."""
+        if self.handle is None:
+            return self._control
+        return round((self.handle.data.time - self._t0) / self.timestep)  # type: ignore[operator]
+
+    def begin_episode(self) -> None:
+        """Call right after the env's reset."""
+        self._control = 0
+        if self.handle is not None:
+            data = self.handle.data
+            self._t0 = float(data.time)
+            self.corruptor.reset_commands(np.array(data.ctrl))
+
+    def begin_step(self) -> None:
+        self._control += 1
+        self._passed = 0
+        self._in_step = True
+
+    def end_step(self) -> None:
+        self._in_step = False
+
+    def _stepper(self, run: Any, nstep: int) -> None:
+        if not self._in_step:  # physics stepped outside a control step (e.g. inside reset)
+            run(nstep)
+            return
+        corruptor = self.corruptor
+        first = self._passed == 0
+        if first:
+            self._target = corruptor.substeps(self.nominal)
+        nominal = self.nominal
+        before = self._passed * self._target // nominal
+        self._passed += nstep
+        k = self._passed * self._target // nominal - before
+        if k <= 0:
+            return
+        if not self._latency:
+            run(k)
+            return
+        data = self.handle.data  # type: ignore[union-attr]
+        start = self.now()
+        pieces = (
+            corruptor.command_segments(data.ctrl, start, k) if first else corruptor.continue_segments(start, k)
+        )
+        ctrl = data.ctrl
+        for command, length in pieces:
+            ctrl[:] = command
+            run(length)
+
+    def close(self) -> None:
+        if self._remove is not None:
+            self._remove()
+            self._remove = None
+        if self._hook is not None and self.handle is not None:
+            self.handle.remove_hook(self._hook)
+            self._hook = None
+
+
+def _control_dt(env: Any) -> float | None:
+    for obj in (env, getattr(env, "unwrapped", None)):
+        for name in ("dt", "control_timestep"):
+            value = getattr(obj, name, None)
+            if callable(value):
+                try:
+                    value = value()
+                except TypeError:
+                    value = None
+            if isinstance(value, (int, float)) and not isinstance(value, bool) and value > 0:
+                return float(value)
+    return None
+
+
+def _gym_signal(space: gym.Space, keys: tuple[tuple[str, slice, tuple[int, ...]], ...] = ()) -> tuple[Any, Any, Any]:
+    """(layout, codec, dtype) of a gymnasium space (codec None for a 1-D Box)."""
+    if isinstance(space, gym.spaces.Box):
+        layout = box_layout(space, keys if keys and sum(sl.stop - sl.start for _, sl, _ in keys) == int(np.prod(space.shape)) else ())
+        codec = None if len(space.shape) == 1 else space.shape
+        return layout, codec, space.dtype
+    if isinstance(space, gym.spaces.Dict):
+        parts = []
+        for k, sub in space.spaces.items():
+            if not isinstance(sub, gym.spaces.Box) or not np.issubdtype(sub.dtype, np.floating):
+                raise TypeError(f"noise models need float Box entries in a Dict space; key {k!r} is {sub!r}.")
+            parts.append((k, tuple(sub.shape)))
+        codec = _DictCodec(parts)
+        lows = np.concatenate([np.ravel(space[k].low).astype(np.float64) for k in codec.keys])
+        highs = np.concatenate([np.ravel(space[k].high).astype(np.float64) for k in codec.keys])
+        low, high = _finite_bounds(lows, highs)
+        dtype = np.result_type(*[space[k].dtype for k in codec.keys])
+        return Layout(codec.size, keys=codec.layout_keys, low=low, high=high, dict_signal=True), codec, dtype
+    return None, None, None
+
+
+class CorruptSignals(gym.Wrapper):
+    """Applies noise and timing models (:mod:`noise_models`) to a gymnasium env's observations and
+    actions; reports every per-episode draw in ``info["sim2real"]["params"]``.
+
+    Args:
+        env: any gymnasium env with Box (or Dict of Box) observations and a Box action space.
+        models: ObservationNoise, ActionNoise, ObservationLatency, ActionLatency, SampleAndHold, ControlJitter.
+        seed: root seed of the models' streams; ``reset(seed=s)`` re-roots them at ``(seed, s)``.
+    """
+
+    def __init__(self, env: gym.Env, models: Sequence[SignalModel], seed: SeedLike = None) -> None:
+        super().__init__(env)
+        self.corruptor = SignalCorruptor(models, seed)
+        keys = getattr(env.unwrapped, "observation_layout", ())
+        obs_layout, self._obs_codec, obs_dtype = _gym_signal(env.observation_space, keys)
+        act_layout, self._act_codec, act_dtype = _gym_signal(env.action_space)
+        if self.corruptor.has_action and not isinstance(env.action_space, gym.spaces.Box):
+            raise TypeError(f"action models need a Box action space. Received {env.action_space!r}.")
+        self.clock = SignalClock(env, self.corruptor, obs_layout, act_layout, obs_dtype, act_dtype)
+        self._has_obs = self.corruptor.has_observation
+        self._has_action = self.corruptor.has_action
+        self._closed = False
+
+    @property
+    def current_params(self) -> dict[str, float]:
+        """Name -> value drawn for this episode."""
+        return self.corruptor.current_params
+
+    def _obs_in(self, obs: Any) -> np.ndarray:
+        codec = self._obs_codec
+        if codec is None:
+            return obs
+        if isinstance(codec, tuple):
+            return np.reshape(obs, -1)
+        return codec.flat(obs)
+
+    def _obs_out(self, vec: np.ndarray, like: Any) -> Any:
+        codec = self._obs_codec
+        if codec is None:
+            return vec
+        if isinstance(codec, tuple):
+            return vec.reshape(codec)
+        return codec.unflat(vec, like)
+
+    def _report(self, info: dict[str, Any]) -> None:
+        report = info.get("sim2real")
+        if report is None:
+            c = self.corruptor
+            info["sim2real"] = {"params": dict(c.current_params), "episode": c.episode, "diverged": False}
+        else:  # the inner wrapper built fresh dicts for this call: extend them in place
+            report["params"].update(self.corruptor.current_params)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
+        c = self.corruptor
+        c.begin_episode(seed)
+        obs, info = self.env.reset(seed=seed, options=options)
+        self.clock.begin_episode()
+        if self._has_obs:
+            obs = self._obs_out(c.first_observation(self._obs_in(obs)), obs)
+        self._report(info)
+        return obs, info
+
+    def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
+        c = self.corruptor
+        clock = self.clock
+        if self._has_action:
+            codec = self._act_codec
+            flat = np.reshape(action, -1) if codec is not None else np.asarray(action, dtype=c.action_dtype)
+            action = c.act(flat)
+            if codec is not None:
+                action = action.reshape(codec)
+        clock.begin_step()
+        try:
+            obs, reward, terminated, truncated, info = self.env.step(action)
+        finally:
+            clock._in_step = False
+        if self._has_obs:
+            obs = self._obs_out(c.observe(self._obs_in(obs), clock.now()), obs)
+        self._report(info)
+        return obs, reward, terminated, truncated, info
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self.clock.close()
+        super().close()
+
+
+class CorruptSignalsDmEnv(dm_env.Environment):
+    """:class:`CorruptSignals` for dm_env environments (dm-control suite and composer).
+
+    dm_env timesteps carry no info dict: the draws are on :attr:`current_params`. Dict observations
+    keep their keys; report names use ``[key][j]`` (e.g. ``obs_noise_std[position][0]``).
+
+    Example:
+        >>> from dm_control import suite
+        >>> from noise_models import Gaussian, ObservationNoise
+        >>> from randomizers import Uniform
+        >>> env = CorruptSignalsDmEnv(suite.load("reacher", "easy"),
+        ...                           [ObservationNoise(Gaussian(std=Uniform(0.0, 0.1)), select="velocity")], seed=0)
+        >>> timestep = env.reset()
+        >>> sorted(env.current_params)
+        ['obs_noise_std[velocity][0]', 'obs_noise_std[velocity][1]']
+    """
+
+    def __init__(self, env: dm_env.Environment, models: Sequence[SignalModel], seed: SeedLike = None) -> None:
+        if not isinstance(env, dm_env.Environment):
+            raise TypeError(f"`env` must be a dm_env.Environment. Received {type(env).__name__}.")
+        self._env = env
+        self.corruptor = SignalCorruptor(models, seed)
+        spec = env.observation_spec()
+        self._single = not isinstance(spec, dict)
+        specs = OrderedDict(observation=spec) if self._single else spec
+        self._codec = _DictCodec([(k, tuple(s.shape)) for k, s in specs.items()], OrderedDict)
+        dtype = np.result_type(*[s.dtype for s in specs.values()])
+        obs_layout = Layout(self._codec.size, keys=self._codec.layout_keys, dict_signal=not self._single)
+        aspec = env.action_spec()
+        low, high = _finite_bounds(
+            np.broadcast_to(getattr(aspec, "minimum", -np.inf), aspec.shape),
+            np.broadcast_to(getattr(aspec, "maximum", np.inf), aspec.shape),
+        )
+        act_layout = Layout(int(np.prod(aspec.shape)), low=low, high=high)
+        self._action_shape = aspec.shape
+        self.clock = SignalClock(env, self.corruptor, obs_layout, act_layout, dtype, aspec.dtype)
+        self._has_obs = self.corruptor.has_observation
+        self._has_action = self.corruptor.has_action
+        self._closed = False
+
+    @property
+    def current_params(self) -> dict[str, float]:
+        """Name -> value drawn for this episode."""
+        return self.corruptor.current_params
+
+    def _observation(self, timestep: dm_env.TimeStep, first: bool) -> dm_env.TimeStep:
+        if not self._has_obs:
+            return timestep
+        obs = timestep.observation
+        flat = self._codec.flat({"observation": obs} if self._single else obs)
+        c = self.corruptor
+        vec = c.first_observation(flat) if first else c.observe(flat, self.clock.now())
+        out = self._codec.unflat(vec, OrderedDict())
+        return timestep._replace(observation=out["observation"] if self._single else out)
+
+    def reset(self) -> dm_env.TimeStep:
+        self.corruptor.begin_episode()
+        timestep = self._env.reset()
+        self.clock.begin_episode()
+        return self._observation(timestep, True)
+
+    def step(self, action: Any) -> dm_env.TimeStep:
+        if self._has_action:
+            action = self.corruptor.act(np.reshape(np.asarray(action, dtype=self.corruptor.action_dtype), -1))
+            action = action.reshape(self._action_shape)
+        self.clock.begin_step()
+        try:
+            timestep = self._env.step(action)
+        finally:
+            self.clock._in_step = False
+        if timestep.first():  # the env reset itself after a last step: a new episode of draws
+            self.corruptor.begin_episode()
+            self.clock.begin_episode()
+            return self._observation(timestep, True)
+        return self._observation(timestep, False)
+
+    def observation_spec(self) -> Any:
+        return self._env.observation_spec()
+
+    def action_spec(self) -> Any:
+        return self._env.action_spec()
+
+    def reward_spec(self) -> Any:
+        return self._env.reward_spec()
+
+    def discount_spec(self) -> Any:
+        return self._env.discount_spec()
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self.clock.close()
+        self._env.close()
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("__") or name == "_env":
+            raise AttributeError(name)
+        return getattr(self._env, name)
