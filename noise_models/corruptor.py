@@ -458,6 +458,7 @@ class SignalCorruptor:
         self._begin_timing(report)
         self.current_params = report
         self._control_step = 0
+        self._substep_draws = 0
         self._last_obs_time = 0
         self._last_out: Any = None
 
@@ -493,6 +494,7 @@ class SignalCorruptor:
             report["obs_update_phase_steps"] = self._sah_phase
         if ControlJitter in self.timing:
             self._jitter_blocks[ControlJitter] = (-1, None)
+            report["control_substeps_nominal"] = self.nominal_substeps
 
     def _jitter(self, cls: type, k: int) -> int:
         """The per-step extra delay (or substep change) number ``k`` of the episode."""
@@ -580,7 +582,9 @@ class SignalCorruptor:
         """Physics substeps of the control step about to run (ControlJitter), at least 1."""
         if ControlJitter not in self.timing:
             return nominal
-        return max(1, nominal + self._jitter(ControlJitter, self._control_step - 1))
+        k = self._substep_draws
+        self._substep_draws = k + 1
+        return max(1, nominal + self._jitter(ControlJitter, k))
 
     def command_segments(self, ctrl: np.ndarray, start: int, n: int) -> list[tuple[np.ndarray, int]]:
         """Sends ``ctrl`` at physics step ``start`` and returns the ``(command, steps)`` pieces that

@@ -106,7 +106,7 @@ def wrap(env: Any, *effects: Any, seed: SeedLike = None) -> Any:
             env = RandomizePhysics(env, flat, seed)
         return CorruptSignals(env, signals, seed) if signals else env
     if _is_torchrl_env(env):
-        from torchrl.envs import TransformedEnv
+        from torchrl.envs import Compose, TransformedEnv
 
         from sim2real.wrappers.torchrl import CorruptSignalsTransform, RandomizePhysicsTransform
 
@@ -116,7 +116,8 @@ def wrap(env: Any, *effects: Any, seed: SeedLike = None) -> Any:
         if signals:
             transforms.append(CorruptSignalsTransform(signals, seed))
         if not isinstance(env, TransformedEnv):
-            env = TransformedEnv(env)
+            # One transform stays reachable as ``env.transform`` itself (several become a Compose).
+            return TransformedEnv(env, transforms[0] if len(transforms) == 1 else Compose(*transforms))
         for transform in transforms:
             env.append_transform(transform)
         return env

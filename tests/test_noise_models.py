@@ -50,8 +50,12 @@ def run_obs(models: list, signal: np.ndarray | None = None, size: int = 4, steps
 
 def run_act(models: list, action: np.ndarray, steps: int = N) -> np.ndarray:
     c = SignalCorruptor(models, seed=0)
-    c.bind(obs=None, action=Layout(action.size, low=np.full(action.size, -10.0), high=np.full(action.size, 10.0)),
-           timestep=0.01, physics=False)
+    c.bind(
+        obs=None,
+        action=Layout(action.size, low=np.full(action.size, -10.0), high=np.full(action.size, 10.0)),
+        timestep=0.01,
+        physics=False,
+    )
     c.begin_episode()
     return np.array([c.act(action) for _ in range(steps)])
 
@@ -146,8 +150,9 @@ def test_outlier_rate_and_magnitude() -> None:
 
 
 def test_saturate_and_scale() -> None:
-    out, params = run_obs([ObservationNoise(Scale(gain=Uniform(0.9, 1.1)), Saturate(-1.05, 1.05))],
-                          signal=np.full(4, 1.0), steps=10)
+    out, params = run_obs(
+        [ObservationNoise(Scale(gain=Uniform(0.9, 1.1)), Saturate(-1.05, 1.05))], signal=np.full(4, 1.0), steps=10
+    )
     gains = np.array([params[f"obs_scale[{i}]"] for i in range(4)])
     assert np.allclose(out[0], np.minimum(gains, 1.05))
 
@@ -197,8 +202,13 @@ def test_seed_twin_latency_matches_bare_stream() -> None:
 def test_composed_models_do_not_shift_each_other() -> None:
     alone, _ = run_obs([ObservationNoise(Gaussian(std=0.1))], steps=500)
     both, params = run_obs(
-        [ObservationNoise(Bias(Uniform(-1, 1)), Gaussian(std=0.1)), ActionNoise(Gaussian(std=1.0)),
-         ObservationLatency(steps=Uniform(1, 4))], steps=500)
+        [
+            ObservationNoise(Bias(Uniform(-1, 1)), Gaussian(std=0.1)),
+            ActionNoise(Gaussian(std=1.0)),
+            ObservationLatency(steps=Uniform(1, 4)),
+        ],
+        steps=500,
+    )
     bias = np.array([params[f"obs_bias[{i}]"] for i in range(4)])
     lag = params["obs_latency_steps"]
     assert lag >= 1
@@ -222,8 +232,13 @@ def test_same_seed_bitwise_and_reset_seed_rerooting() -> None:
 
 
 def test_duplicate_processes_get_distinct_streams() -> None:
-    c = SignalCorruptor([ObservationNoise(Gaussian(std=Uniform(0, 1)), select=0),
-                         ObservationNoise(Gaussian(std=Uniform(0, 1)), select=1)], seed=0)
+    c = SignalCorruptor(
+        [
+            ObservationNoise(Gaussian(std=Uniform(0, 1)), select=0),
+            ObservationNoise(Gaussian(std=Uniform(0, 1)), select=1),
+        ],
+        seed=0,
+    )
     assert c.stream_names == ("obs_noise", "obs_noise#1")
 
 
@@ -233,8 +248,8 @@ def test_duplicate_processes_get_distinct_streams() -> None:
 def test_command_delay_with_jitter_keeps_newest_sent() -> None:
     d = CommandDelay(capacity=8, size=1)
     d.reset(np.zeros(1))
-    d.push(np.array([1.0]), arrival=7)   # sent first, arrives late
-    d.push(np.array([2.0]), arrival=5)   # sent later, arrives first
+    d.push(np.array([1.0]), arrival=7)  # sent first, arrives late
+    d.push(np.array([2.0]), arrival=5)  # sent later, arrives first
     pieces = [(float(c[0]), n) for c, n in d.segments(4, 6)]
     assert pieces == [(0.0, 1), (2.0, 5)]  # command 1 is never applied
 
@@ -288,27 +303,48 @@ def test_control_jitter_draws() -> None:
     ("build", "error", "message"),
     [
         (lambda: Gaussian(std=-1.0), ValueError, "`std` must be >= 0. Received -1.0."),
-        (lambda: Gaussian(std=Uniform(-1, 1)), ValueError,
-         "`std` must be >= 0, but Uniform(low=-1.0, high=1.0) can draw values in [-1, 1]. "
-         "Received Uniform(low=-1.0, high=1.0)."),
-        (lambda: Gaussian(std="big"), TypeError,
-         "`std` must be a number or a distribution with sample(rng, size) (e.g. randomizers.Uniform). "
-         "Received 'big' of type str."),
+        (
+            lambda: Gaussian(std=Uniform(-1, 1)),
+            ValueError,
+            "`std` must be >= 0, but Uniform(low=-1.0, high=1.0) can draw values in [-1, 1]. "
+            "Received Uniform(low=-1.0, high=1.0).",
+        ),
+        (
+            lambda: Gaussian(std="big"),
+            TypeError,
+            "`std` must be a number or a distribution with sample(rng, size) (e.g. randomizers.Uniform). "
+            "Received 'big' of type str.",
+        ),
         (lambda: Dropout(probability=1.5), ValueError, "`probability` must be in [0, 1]. Received 1.5."),
         (lambda: Outlier(probability=-0.1, magnitude=1), ValueError, "`probability` must be in [0, 1]. Received -0.1."),
-        (lambda: ObservationLatency(steps=5000), ValueError,
-         "`steps` (plus `jitter`) of ObservationLatency can reach 5000 steps, more than the buffer holds "
-         "(`max_steps`=1000). Raise `max_steps` or shorten the latency. Received steps=5000.0, jitter=None."),
-        (lambda: ObservationLatency(steps=Normal(3, 1)), ValueError,
-         "`steps` must be >= 0, but Normal(mean=3.0, std=1.0) can draw values in [-inf, inf]. "
-         "Received Normal(mean=3.0, std=1.0)."),
-        (lambda: ActionLatency(), ValueError,
-         "ActionLatency takes exactly one of `steps` and `seconds`. Received steps=None, seconds=None."),
-        (lambda: ObservationNoise(Sticky(0.1)), ValueError,
-         "`processes[0]` of ObservationNoise is Sticky, which does not apply to observations (Deadzone and Sticky "
-         "act on actions only). Received Sticky(probability=0.1)."),
-        (lambda: ObservationNoise(), ValueError,
-         "ObservationNoise needs at least one process, e.g. ObservationNoise(Gaussian(std=0.01))."),
+        (
+            lambda: ObservationLatency(steps=5000),
+            ValueError,
+            "`steps` (plus `jitter`) of ObservationLatency can reach 5000 steps, more than the buffer holds "
+            "(`max_steps`=1000). Raise `max_steps` or shorten the latency. Received steps=5000.0, jitter=None.",
+        ),
+        (
+            lambda: ObservationLatency(steps=Normal(3, 1)),
+            ValueError,
+            "`steps` must be >= 0, but Normal(mean=3.0, std=1.0) can draw values in [-inf, inf]. "
+            "Received Normal(mean=3.0, std=1.0).",
+        ),
+        (
+            lambda: ActionLatency(),
+            ValueError,
+            "ActionLatency takes exactly one of `steps` and `seconds`. Received steps=None, seconds=None.",
+        ),
+        (
+            lambda: ObservationNoise(Sticky(0.1)),
+            ValueError,
+            "`processes[0]` of ObservationNoise is Sticky, which does not apply to observations (Deadzone and Sticky "
+            "act on actions only). Received Sticky(probability=0.1).",
+        ),
+        (
+            lambda: ObservationNoise(),
+            ValueError,
+            "ObservationNoise needs at least one process, e.g. ObservationNoise(Gaussian(std=0.01)).",
+        ),
     ],
 )
 def test_bad_input_messages(build, error, message) -> None:  # type: ignore[no-untyped-def]

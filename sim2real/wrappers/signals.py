@@ -12,6 +12,9 @@ Where the env has MuJoCo inside, time counts physics steps and ``ActionLatency``
 counts control steps, ``seconds=`` uses the env's ``dt`` when it has one, and ControlJitter is
 rejected.
 
+Reports: the per-episode draws join ``info["sim2real"]["params"]``; with ControlJitter,
+``info["sim2real"]["substeps"]`` holds the physics substeps of the control step just taken.
+
 Declared spaces are left unchanged: observation noise is clipped to finite bounds of the
 observation space (dm-control and gymnasium MuJoCo observations are unbounded, so nothing is
 clipped there) and action noise to the action space (``ActionNoise(clip=False)`` turns that off).
@@ -181,9 +184,7 @@ class SignalClock:
             return
         data = self.handle.data  # type: ignore[union-attr]
         start = self.now()
-        pieces = (
-            corruptor.command_segments(data.ctrl, start, k) if first else corruptor.continue_segments(start, k)
-        )
+        pieces = corruptor.command_segments(data.ctrl, start, k) if first else corruptor.continue_segments(start, k)
         ctrl = data.ctrl
         for command, length in pieces:
             ctrl[:] = command
@@ -215,7 +216,9 @@ def _control_dt(env: Any) -> float | None:
 def _gym_signal(space: gym.Space, keys: tuple[tuple[str, slice, tuple[int, ...]], ...] = ()) -> tuple[Any, Any, Any]:
     """(layout, codec, dtype) of a gymnasium space (codec None for a 1-D Box)."""
     if isinstance(space, gym.spaces.Box):
-        layout = box_layout(space, keys if keys and sum(sl.stop - sl.start for _, sl, _ in keys) == int(np.prod(space.shape)) else ())
+        layout = box_layout(
+            space, keys if keys and sum(sl.stop - sl.start for _, sl, _ in keys) == int(np.prod(space.shape)) else ()
+        )
         codec = None if len(space.shape) == 1 else space.shape
         return layout, codec, space.dtype
     if isinstance(space, gym.spaces.Dict):
@@ -254,6 +257,9 @@ class CorruptSignals(gym.Wrapper):
         self.clock = SignalClock(env, self.corruptor, obs_layout, act_layout, obs_dtype, act_dtype)
         self._has_obs = self.corruptor.has_observation
         self._has_action = self.corruptor.has_action
+        self._jitter = self.corruptor.needs_physics_hook and any(
+            type(m).__name__ == "ControlJitter" for m in self.corruptor.models
+        )
         self._closed = False
 
     @property
@@ -281,9 +287,11 @@ class CorruptSignals(gym.Wrapper):
         report = info.get("sim2real")
         if report is None:
             c = self.corruptor
-            info["sim2real"] = {"params": dict(c.current_params), "episode": c.episode, "diverged": False}
+            info["sim2real"] = report = {"params": dict(c.current_params), "episode": c.episode, "diverged": False}
         else:  # the inner wrapper built fresh dicts for this call: extend them in place
             report["params"].update(self.corruptor.current_params)
+        if self._jitter:
+            report["substeps"] = self.clock._target  # this control step's draw
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
         c = self.corruptor
@@ -357,6 +365,7 @@ class CorruptSignalsDmEnv(dm_env.Environment):
         act_layout = Layout(int(np.prod(aspec.shape)), low=low, high=high)
         self._action_shape = aspec.shape
         self.clock = SignalClock(env, self.corruptor, obs_layout, act_layout, dtype, aspec.dtype)
+        self._reset_next_step = True
         self._has_obs = self.corruptor.has_observation
         self._has_action = self.corruptor.has_action
         self._closed = False
@@ -380,9 +389,12 @@ class CorruptSignalsDmEnv(dm_env.Environment):
         self.corruptor.begin_episode()
         timestep = self._env.reset()
         self.clock.begin_episode()
+        self._reset_next_step = False
         return self._observation(timestep, True)
 
     def step(self, action: Any) -> dm_env.TimeStep:
+        if self._reset_next_step:
+            return self.reset()
         if self._has_action:
             action = self.corruptor.act(np.reshape(np.asarray(action, dtype=self.corruptor.action_dtype), -1))
             action = action.reshape(self._action_shape)
@@ -395,6 +407,7 @@ class CorruptSignalsDmEnv(dm_env.Environment):
             self.corruptor.begin_episode()
             self.clock.begin_episode()
             return self._observation(timestep, True)
+        self._reset_next_step = timestep.last()
         return self._observation(timestep, False)
 
     def observation_spec(self) -> Any:

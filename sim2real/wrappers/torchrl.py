@@ -332,7 +332,9 @@ def _spec_bounds(spec: Any, n: int) -> tuple[Any, Any]:
     low, high = getattr(space, "low", None), getattr(space, "high", None)
     if low is None or high is None:
         return np.full(n, -np.inf), np.full(n, np.inf)
-    low_np = np.broadcast_to(low.detach().cpu().numpy().astype(np.float64), (n,) if low.numel() in (1, n) else low.shape)
+    low_np = np.broadcast_to(
+        low.detach().cpu().numpy().astype(np.float64), (n,) if low.numel() in (1, n) else low.shape
+    )
     high_np = np.broadcast_to(high.detach().cpu().numpy().astype(np.float64), low_np.shape)
     return np.ravel(low_np)[-n:].copy(), np.ravel(high_np)[-n:].copy()
 
