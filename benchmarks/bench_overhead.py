@@ -1,4 +1,4 @@
-"""Overhead of physics randomisation on the hot path (issue #2).
+"""Overhead of physics randomisation (issue #2) and of the full sim-to-real stack (issue #3) on the hot path.
 
 Measures in one run, side by side:
 
@@ -18,6 +18,12 @@ Measures in one run, side by side:
    task's model, timing ``begin_episode(); apply()`` (Mass and Armature make ``apply`` run
    ``mj_setConst``), with ``begin_episode`` alone, ``apply`` alone and ``mj_setConst`` alone for
    context, and the seeded variant ``begin_episode(seed=k); apply()`` that ``reset(seed=k)`` runs.
+3. The full stack of issue #3 over the raw env, interleaved the same way: physics DR at reset
+   (:func:`make_stack_physics`) + an observation noise pipeline (Gaussian + per-episode Bias) + action
+   noise + ``ObservationLatency(steps=3)`` + ``ActionLatency(seconds=0.02)`` at physics rate. Its
+   raw+params arm again separates the perturbed physics from the wrappers' own step code. On
+   manipulator a second stack uses ``ActionLatency(steps=5)``, which lands mid control step and
+   makes every step run in two physics segments.
 
 Usage:
     .venv/bin/python benchmarks/bench_overhead.py            # full run
@@ -47,6 +53,7 @@ from randomizers import PhysicsRandomizer
 
 STEP_RATIO_GOAL = 0.97
 RESAMPLE_US_GOAL = 50.0
+STACK_GOALS = {"reacher-easy": 0.90, "manipulator-bring_ball": 0.97}
 DEFAULT_TASKS = ("reacher-easy", "manipulator-bring_ball")
 
 
@@ -61,6 +68,30 @@ def make_effects() -> list[Any]:
         s2r.FrictionLoss(add=u(0.0, 0.01)),
         s2r.ActuatorGain(scale=u(0.9, 1.1)),
         s2r.Gravity(scale=u(0.95, 1.05), axes="z"),
+    ]
+
+
+def make_stack_physics() -> list[Any]:
+    """Physics DR of the full-stack benchmark: reset-schedule effects that leave the solver's work
+    unchanged (FrictionLoss, which adds constraint rows, is measured in section [1])."""
+    u = s2r.Uniform
+    return [
+        s2r.Friction(scale=u(0.5, 1.5)),
+        s2r.Mass(scale=u(0.8, 1.2), bodies="*"),
+        s2r.Damping(scale=u(0.5, 2.0)),
+        s2r.ActuatorGain(scale=u(0.9, 1.1)),
+    ]
+
+
+def make_signal_models(action_latency: Any = None) -> list[Any]:
+    """The noise and latency models of the full-stack benchmark (the issue's example plus action noise)."""
+    from noise_models import ActionLatency, ActionNoise, Bias, Gaussian, ObservationLatency, ObservationNoise
+
+    return [
+        ObservationNoise(Gaussian(std=0.01), Bias(s2r.Uniform(-0.02, 0.02))),
+        ActionNoise(Gaussian(std=0.05)),
+        ObservationLatency(steps=3),
+        action_latency if action_latency is not None else ActionLatency(seconds=0.02),
     ]
 
 
@@ -116,7 +147,14 @@ def time_steps(env: Any, actions: np.ndarray, steps: int, before_reset: Callable
     return steps / elapsed
 
 
-def bench_steps(tasks: list[str], steps: int, repeats: int, warmup: int) -> dict[str, dict[str, Any]]:
+def bench_steps(
+    tasks: list[str],
+    steps: int,
+    repeats: int,
+    warmup: int,
+    effects: Callable[[], list[Any]] = make_effects,
+    signals: Callable[[], list[Any]] | None = None,
+) -> dict[str, dict[str, Any]]:
     """Interleaved step throughput of the raw, wrapped and raw+params arms of each task.
 
     raw+params is the raw env whose model gets the wrapped env's per-episode values at each reset
@@ -128,11 +166,12 @@ def bench_steps(tasks: list[str], steps: int, repeats: int, warmup: int) -> dict
     results: dict[str, dict[str, Any]] = {}
     for name in tasks:
         tid = task_id(name)
-        arms: dict[str, Any] = {"raw": s2r.make(tid), "wrapped": s2r.wrap(s2r.make(tid), make_effects(), seed=0)}
+        extra = signals() if signals is not None else []
+        arms: dict[str, Any] = {"raw": s2r.make(tid), "wrapped": s2r.wrap(s2r.make(tid), effects(), *extra, seed=0)}
         arms["raw+params"] = s2r.make(tid)
         handle = s2r.find_physics(arms["raw+params"])
         assert handle is not None
-        twin = PhysicsRandomizer(make_effects(), seed=0)
+        twin = PhysicsRandomizer(effects(), seed=0)
         twin.bind(handle.model, handle.data)
 
         def apply_twin(episode: int, twin: PhysicsRandomizer = twin) -> None:
@@ -172,7 +211,7 @@ def bench_steps(tasks: list[str], steps: int, repeats: int, warmup: int) -> dict
             "raw_us": 1e6 / med["raw"],
             "physics_us": 1e6 / med["raw+params"] - 1e6 / med["raw"],
             "wrapper_us": 1e6 / med["wrapped"] - 1e6 / med["raw+params"],
-            "n_params": len(arms["wrapped"].randomizer.current_params),
+            "n_params": len(twin.current_params),
         }
         for env in arms.values():
             env.close()
@@ -287,6 +326,33 @@ def main() -> None:
         " are its parts; seeded = begin_episode(seed=k); apply() with a new k each time, what reset(seed=k) costs)"
     )
 
+    print("\n[3] full stack (issue #3): physics DR at reset + obs noise + action noise + obs/action latency")
+    print("stack physics:", ", ".join(repr(e) for e in make_stack_physics()))
+    print("stack signals:", ", ".join(repr(m) for m in make_signal_models()))
+    stack = bench_steps(args.tasks, steps, repeats, warmup, make_stack_physics, make_signal_models)
+    mid: dict[str, dict[str, Any]] = {}
+    if "manipulator-bring_ball" in args.tasks:
+        from noise_models import ActionLatency
+
+        print("stack variant: ActionLatency(steps=5), mid control step on manipulator (10 substeps)")
+        mid = bench_steps(
+            ["manipulator-bring_ball"],
+            steps,
+            repeats,
+            warmup,
+            make_stack_physics,
+            lambda: make_signal_models(ActionLatency(steps=5)),
+        )
+    print(f"\n{'task':<32}{'raw':>8}{'stack':>8}{'raw+par':>9}{'stack/raw':>10}{'goal':>6}{'wrappers':>9}{'+wrap µs':>9}")
+    for label, group in (("", stack), (" (latency mid-step)", mid)):
+        for name, r in group.items():
+            goal = STACK_GOALS.get(name, STEP_RATIO_GOAL)
+            print(
+                f"{name + label:<32}{r['raw']:>8.0f}{r['wrapped']:>8.0f}{r['raw+params']:>9.0f}{r['ratio']:>10.3f}"
+                f"{goal:>6.2f}{r['wrapper_ratio']:>9.3f}{r['wrapper_us']:>9.2f}"
+            )
+    print("(stack/raw = median of per-repeat ratios; wrappers = stack/raw+params, the wrappers' own step code)")
+
     worst_resample = max(r["resample"] for r in res.values())
     ok_steps = all(r["ratio"] >= STEP_RATIO_GOAL for r in step_res.values())
     ok_resample = worst_resample <= RESAMPLE_US_GOAL
@@ -297,6 +363,14 @@ def main() -> None:
     print(
         f"RESULT {ratios} resample_us={worst_resample:.1f} ({resample}) wrapper_only_ratio({wrapper}) "
         f"(goals: >={STEP_RATIO_GOAL}, <={RESAMPLE_US_GOAL:g}) {verdict}"
+    )
+    ok_stack = all(r["ratio"] >= STACK_GOALS.get(n, STEP_RATIO_GOAL) for n, r in stack.items())
+    stack_text = " ".join(f"{n}={r['ratio']:.3f}" for n, r in stack.items())
+    stack_wrapper = " ".join(f"{n}={r['wrapper_ratio']:.3f}" for n, r in stack.items())
+    mid_text = " ".join(f"{n}={r['ratio']:.3f}" for n, r in mid.items())
+    print(
+        f"RESULT_STACK stack_ratio({stack_text}) wrappers_only({stack_wrapper}) mid_step_latency({mid_text}) "
+        f"(goals: {', '.join(f'{n}>={g}' for n, g in STACK_GOALS.items())}) {'PASS' if ok_stack else 'MISS'}"
     )
 
 

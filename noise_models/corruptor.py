@@ -159,6 +159,12 @@ _MODEL_NAMES = "ObservationNoise, ActionNoise, ObservationLatency, ActionLatency
 # -- compiled runtime --------------------------------------------------------------------------
 
 
+try:  # the clip ufunc itself: np.clip's Python dispatch costs more than the clipping
+    from numpy._core.umath import clip as _clip
+except ImportError:  # pragma: no cover - numpy < 2
+    from numpy.core.umath import clip as _clip  # type: ignore[no-redef]
+
+
 class _Affine:
     """Consecutive gain/offset/noise parts fused into ``x * G + F[r]`` with ``F`` drawn per block."""
 
@@ -181,13 +187,14 @@ class _Affine:
             else:
                 F[:, p.sel] += p.block(block)  # type: ignore[attr-defined]
         self.F = F.astype(self.dtype)
+        self.rows = list(self.F)  # row views made once per block, not per step
         self.G = None if bool((G == 1.0).all()) else G.astype(self.dtype)
 
     def apply(self, x: np.ndarray, r: int) -> np.ndarray:
         if self.G is None:
-            return x + self.F[r]
+            return x + self.rows[r]
         w = x * self.G
-        w += self.F[r]
+        w += self.rows[r]
         return w
 
 
@@ -211,9 +218,10 @@ class _Pipeline:
         self.stages: list[Any] = []
         self.r = BLOCK
         self.block = -1
-        clip = getattr(noise, "clip", True)
-        self.low = layout.low if clip else None
-        self.high = layout.high if clip else None
+        clip = getattr(noise, "clip", True) and layout.low is not None
+        # Bounds in the signal's dtype: mixed-dtype ufuncs take numpy's slow casting path.
+        self.low = np.asarray(layout.low, dtype=dtype) if clip else None
+        self.high = np.asarray(layout.high, dtype=dtype) if clip else None
 
     def regenerate(self) -> None:
         """New generators after the streams were re-rooted (``reset(seed=...)``)."""
@@ -243,20 +251,29 @@ class _Pipeline:
                 stages.append(_Affine([part], self.layout.size, self.dtype))
         self.stages = stages
         self.first_affine = isinstance(stages[0], _Affine)
+        self.simple = False  # decided after the first refill, when the gain is known
         self.block = -1
         self.r = BLOCK
+
+    def _decide(self) -> None:
+        stage = self.stages[0]
+        self.simple = self.first_affine and len(self.stages) == 1 and self.low is None and stage.G is None
 
     def _refill(self) -> None:
         self.block += 1
         for stage in self.stages:
             stage.refill(self.block)
         self.r = 0
+        self._decide()
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
-        if self.r == BLOCK:
-            self._refill()
         r = self.r
+        if r == BLOCK:
+            self._refill()
+            r = 0
         self.r = r + 1
+        if self.simple:  # one fused affine stage, nothing to clip: one add per step
+            return x + self.stages[0].rows[r]
         if self.first_affine:
             w = self.stages[0].apply(x, r)
             rest = self.stages[1:]
@@ -269,7 +286,7 @@ class _Pipeline:
             else:
                 stage.apply(w, r)
         if self.low is not None:
-            np.clip(w, self.low, self.high, out=w)
+            _clip(w, self.low, self.high, out=w)
         return w
 
 
@@ -457,6 +474,10 @@ class SignalCorruptor:
             pipe.begin(self.episode, report)
         self._begin_timing(report)
         self.current_params = report
+        self._sah = SampleAndHold in self.timing
+        self._plain = not self.observation_needs_time
+        self._obs_jitter = ObservationLatency in self._jitter_blocks
+        self._act_jitter = ActionLatency in self._jitter_blocks
         self._control_step = 0
         self._substep_draws = 0
         self._last_obs_time = 0
@@ -482,7 +503,8 @@ class SignalCorruptor:
                 self._obs_latency = steps
             else:
                 self._action_latency = steps
-            self._jitter_blocks[cls] = (-1, None)
+            if model.jitter is not None:  # type: ignore[attr-defined]
+                self._jitter_blocks[cls] = (-1, None)
         sah = self.timing.get(SampleAndHold)
         if sah is not None:
             rng = self._timing_rng(SampleAndHold, 0)
@@ -510,6 +532,11 @@ class SignalCorruptor:
             self._jitter_blocks[cls] = (b, values)
         return 0 if values is None else int(values[r])
 
+    @property
+    def observation_needs_time(self) -> bool:
+        """Whether :meth:`observe` uses ``now`` (latency or sample-and-hold); if not, callers may pass 0."""
+        return ObservationLatency in self.timing or SampleAndHold in self.timing
+
     # -- observations -------------------------------------------------------------------------
     def _corrupt(self, obs: np.ndarray) -> np.ndarray:
         for pipe in self._obs_pipes:
@@ -528,29 +555,33 @@ class SignalCorruptor:
         self._last_out = sample
         return sample
 
-    def observe(self, obs: np.ndarray, now: int) -> np.ndarray:
+    def observe(self, obs: np.ndarray, now: int = 0) -> np.ndarray:
         """The observation the policy gets at time ``now`` (physics steps since reset) given the env's
         fresh observation ``obs``."""
-        sample = self._corrupt(obs)
-        if SampleAndHold in self.timing:
+        sample = obs
+        for pipe in self._obs_pipes:
+            sample = pipe(sample)
+        if self._plain:
+            return sample
+        if self._sah:
             if sample is obs:
                 sample = np.array(obs, dtype=self.obs_dtype)
             if sample_and_hold_updates(self._last_obs_time, now, self._sah_period, self._sah_phase):
                 self._held = sample.copy()
             else:
                 sample[self._sah_idx] = self._held[self._sah_idx]
-        self._last_obs_time = now
+            self._last_obs_time = now
         delay = self._obs_delay
         if delay is not None:
             self._obs_samples += 1
-            jitter = (
-                self._jitter(ObservationLatency, self._obs_samples) if ObservationLatency in self._jitter_blocks else 0
-            )
-            delay.push(sample, now + self._obs_latency + jitter)
+            arrival = now + self._obs_latency
+            if self._obs_jitter:
+                arrival += self._jitter(ObservationLatency, self._obs_samples)
+            delay.push(sample, arrival)
             sample = delay.read(now)
             if sample is self._last_out:
                 sample = sample.copy()
-        self._last_out = sample
+            self._last_out = sample
         return sample
 
     # -- actions --------------------------------------------------------------------------------
@@ -594,8 +625,10 @@ class SignalCorruptor:
             return [(ctrl, n)]
         k = self._commands_sent
         self._commands_sent = k + 1
-        jitter = self._jitter(ActionLatency, k) if ActionLatency in self._jitter_blocks else 0
-        delay.push(ctrl, start + self._action_latency + jitter)
+        arrival = start + self._action_latency
+        if self._act_jitter:
+            arrival += self._jitter(ActionLatency, k)
+        delay.push(ctrl, arrival)
         return delay.segments(start, n)
 
     def continue_segments(self, start: int, n: int) -> list[tuple[np.ndarray, int]]:

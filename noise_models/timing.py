@@ -363,7 +363,14 @@ class CommandDelay:
         current = self._current
         pos = start
         out: list[tuple[np.ndarray, int]] = []
-        due = [(arrivals[j % cap], j) for j in range(current + 1, self._count) if arrivals[j % cap] < end]
+        count = self._count
+        if count == current + 1 or (count == current + 2 and arrivals[(current + 1) % cap] <= start):
+            # The common case (fixed latency): at most one new command, arriving by ``start``.
+            if count == current + 2:
+                current += 1
+                self._current = current
+            return [(values[current % cap], n)]
+        due = [(arrivals[j % cap], j) for j in range(current + 1, count) if arrivals[j % cap] < end]
         if len(due) > 1:
             due.sort()  # only with jitter can arrivals leave send order
         # In arrival order, a newer command replaces the current one from its arrival on; one that

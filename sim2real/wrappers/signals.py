@@ -137,6 +137,7 @@ class SignalClock:
         if corruptor.needs_physics_hook:
             self._remove = handle.intercept_step(self._stepper)  # type: ignore[union-attr]
         self._latency = corruptor.has_action and handle is not None
+        self._fixed = self._latency and not any(type(m).__name__ == "ControlJitter" for m in corruptor.models)
         self._in_step = False
         self._passed = 0
         self._target = substeps
@@ -168,6 +169,19 @@ class SignalClock:
     def _stepper(self, run: Any, nstep: int) -> None:
         if not self._in_step:  # physics stepped outside a control step (e.g. inside reset)
             run(nstep)
+            return
+        if self._fixed:  # latency without control jitter: the substeps asked for are the substeps run
+            data = self.handle.data  # type: ignore[union-attr]
+            start = round((data.time - self._t0) / self.timestep)  # type: ignore[operator]
+            if self._passed == 0:
+                pieces = self.corruptor.command_segments(data.ctrl, start, nstep)
+            else:
+                pieces = self.corruptor.continue_segments(start, nstep)
+            self._passed += nstep
+            ctrl = data.ctrl
+            for command, length in pieces:
+                ctrl[:] = command
+                run(length)
             return
         corruptor = self.corruptor
         first = self._passed == 0
@@ -257,6 +271,7 @@ class CorruptSignals(gym.Wrapper):
         self.clock = SignalClock(env, self.corruptor, obs_layout, act_layout, obs_dtype, act_dtype)
         self._has_obs = self.corruptor.has_observation
         self._has_action = self.corruptor.has_action
+        self._obs_time = self.corruptor.observation_needs_time
         self._jitter = self.corruptor.needs_physics_hook and any(
             type(m).__name__ == "ControlJitter" for m in self.corruptor.models
         )
@@ -295,6 +310,7 @@ class CorruptSignals(gym.Wrapper):
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
         c = self.corruptor
+        self.clock._in_step = False  # in case the last step raised
         c.begin_episode(seed)
         obs, info = self.env.reset(seed=seed, options=options)
         self.clock.begin_episode()
@@ -308,17 +324,21 @@ class CorruptSignals(gym.Wrapper):
         clock = self.clock
         if self._has_action:
             codec = self._act_codec
-            flat = np.reshape(action, -1) if codec is not None else np.asarray(action, dtype=c.action_dtype)
-            action = c.act(flat)
-            if codec is not None:
-                action = action.reshape(codec)
-        clock.begin_step()
-        try:
-            obs, reward, terminated, truncated, info = self.env.step(action)
-        finally:
-            clock._in_step = False
+            if codec is None:
+                action = c.act(action if type(action) is np.ndarray else np.asarray(action, dtype=c.action_dtype))
+            else:
+                action = c.act(np.reshape(action, -1)).reshape(codec)
+        clock._control += 1
+        clock._passed = 0
+        clock._in_step = True
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        clock._in_step = False
         if self._has_obs:
-            obs = self._obs_out(c.observe(self._obs_in(obs), clock.now()), obs)
+            now = clock.now() if self._obs_time else 0
+            if self._obs_codec is None:
+                obs = c.observe(obs, now)
+            else:
+                obs = self._obs_out(c.observe(self._obs_in(obs), now), obs)
         self._report(info)
         return obs, reward, terminated, truncated, info
 

@@ -283,7 +283,7 @@ class CorruptSignalsTransform(Transform):
         return np.concatenate([td.get(k).detach().cpu().numpy().reshape(-1) for k in self._keys])
 
     def _write(self, td: TensorDictBase, vec: Any) -> None:
-        for k, sl, shape in self._slices:
+        for k, sl, _shape in self._slices:
             old = td.get(k)
             td.set(k, torch.from_numpy(vec[sl].reshape(old.shape)).to(old.dtype))
 
