@@ -1,4 +1,4 @@
-"""MuJoCo model-side randomisation: distributions, parameter addresses, physics effects, schedules.
+"""MuJoCo model-side randomisation: distributions, parameter addresses, physics and visual effects, schedules.
 
 Operates on a compiled ``mujoco.MjModel`` and never on environments (``sim2real`` wraps those).
 Depends only on numpy, scipy, mujoco and PyYAML; never imports ``sysid`` or ``sim2real``.
@@ -42,6 +42,16 @@ from randomizers.effects import (
 )
 from randomizers.randomizer import PhysicsRandomizer
 from randomizers.seeding import StreamFactory, stream
+from randomizers.visual import (
+    CameraFovy,
+    CameraPose,
+    GeomColor,
+    Light,
+    MaterialColor,
+    Product,
+    Texture,
+    add_texture_uploader,
+)
 
 __all__ = [
     "EFFECT_TYPES",
@@ -49,6 +59,8 @@ __all__ = [
     "Address",
     "Armature",
     "Binding",
+    "CameraFovy",
+    "CameraPose",
     "Choice",
     "Constant",
     "Damping",
@@ -56,18 +68,24 @@ __all__ = [
     "Effect",
     "Friction",
     "FrictionLoss",
+    "GeomColor",
     "Gravity",
     "Interval",
+    "Light",
     "LogUniform",
     "Mass",
+    "MaterialColor",
     "Normal",
     "PhysicsRandomizer",
+    "Product",
     "Push",
     "Sampler",
     "Stiffness",
     "StreamFactory",
+    "Texture",
     "TruncatedNormal",
     "Uniform",
+    "add_texture_uploader",
     "as_distribution",
     "distribution_from_config",
     "dump_effects",

@@ -45,14 +45,28 @@ from randomizers.effects import (
     Push,
     Stiffness,
 )
+from randomizers.visual import VISUAL_EFFECTS
 
 __all__ = ["EFFECT_TYPES", "dump_effects", "effect_to_config", "load_effects"]
 
 EFFECT_TYPES: dict[str, type[Effect]] = {
     cls.__name__: cls
-    for cls in (Friction, Mass, Damping, Armature, FrictionLoss, Stiffness, ActuatorGain, Gravity, Push)
+    for cls in (
+        *(Friction, Mass, Damping, Armature, FrictionLoss, Stiffness, ActuatorGain, Gravity, Push),
+        *VISUAL_EFFECTS,
+    )
 }
-_DISTRIBUTION_ARGS = {"scale", "add", "set", "force", "interval"}
+_DISTRIBUTION_ARGS = {"scale", "add", "set", "force", "interval", "rgb1", "rgb2", "roll"}
+
+
+def _distributions_from_config(value: object, where: str) -> Any:
+    """A distribution, or (visual effects) a list with one per channel: ``[[0, 1], 0.5, {type: ...}]``."""
+    per_channel = isinstance(value, (list, tuple)) and (
+        len(value) != 2 or any(isinstance(v, (list, tuple, Mapping)) for v in value)
+    )
+    if per_channel:
+        return tuple(distribution_from_config(v, f"{where}[{i}]") for i, v in enumerate(value))  # type: ignore[union-attr]
+    return distribution_from_config(value, where)
 
 
 def _schedule_from_config(value: object, where: str) -> Any:
@@ -106,7 +120,7 @@ def load_effects(source: str | os.PathLike[str] | Mapping[str, Any]) -> list[Eff
             if name == "type":
                 continue
             if name in _DISTRIBUTION_ARGS:
-                kwargs[name] = distribution_from_config(value, f"{key}.{name}")
+                kwargs[name] = _distributions_from_config(value, f"{key}.{name}")
             elif name == "schedule":
                 kwargs[name] = _schedule_from_config(value, f"{key}.schedule")
             else:
@@ -127,6 +141,8 @@ def effect_to_config(effect: Effect) -> dict[str, Any]:
     for name, value in effect._fields().items():
         if isinstance(value, Distribution):
             out[name] = value.to_config()
+        elif isinstance(value, tuple) and value and all(isinstance(v, Distribution) for v in value):
+            out[name] = [v.to_config() for v in value]
         elif isinstance(value, Interval):
             out[name] = {"interval": {k: v for k, v in vars(value).items() if v is not None}}
         else:

@@ -98,8 +98,9 @@ class PhysicsRandomizer:
         for i, effect in enumerate(effects):
             if not isinstance(effect, Effect):
                 raise TypeError(
-                    f"`effects[{i}]` must be a physics effect (Friction, Mass, Damping, Armature, FrictionLoss, "
-                    f"Stiffness, ActuatorGain, Gravity, Push). Received {effect!r} of type {type(effect).__name__}."
+                    f"`effects[{i}]` must be a physics or visual effect (Friction, Mass, Damping, Armature, "
+                    "FrictionLoss, Stiffness, ActuatorGain, Gravity, Push, GeomColor, MaterialColor, Texture, Light, "
+                    f"CameraPose, CameraFovy). Received {effect!r} of type {type(effect).__name__}."
                 )
         self.effects = effects
         self._wrap_seed = normalize_seed(seed)

@@ -1,4 +1,4 @@
-"""The ``sim2real`` command line: ``sim2real tasks`` and ``sim2real demo``.
+"""The ``sim2real`` command line: ``sim2real tasks``, ``sim2real demo`` and ``sim2real visualize``.
 
 Exit codes: 0 on success, 2 on a usage error or bad input (unknown task, bad config), with the
 message on stderr and no traceback.
@@ -118,6 +118,24 @@ def _build_parser() -> argparse.ArgumentParser:
         ),
     )
     demo.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    visualize = sub.add_parser(
+        "visualize",
+        help="render N randomised frames of a task into one PNG contact sheet",
+        description=(
+            "Render the first frame of N episodes of TASK (reset seeds SEED..SEED+N-1) with the effects of "
+            "--config applied, as a grid in one PNG (written atomically). Without --config the nominal task is shown."
+        ),
+    )
+    visualize.add_argument("task", help="task id (see `sim2real tasks`)")
+    visualize.add_argument("--config", metavar="EFFECTS.yaml", help="YAML file of effects (randomizers.load_effects)")
+    visualize.add_argument("--n", type=_int_at_least(1), default=16, help="number of frames (default: %(default)s)")
+    visualize.add_argument("--out", default="sheet.png", help="output PNG path (default: %(default)s)")
+    visualize.add_argument("--seed", type=_int_at_least(0), default=0, help="root seed (default: %(default)s)")
+    visualize.add_argument(
+        "--size", type=_int_at_least(8), default=84, help="frame side in pixels (default: %(default)s)"
+    )
+    visualize.add_argument("--camera", help="camera name or id (default: the model's first camera)")
     return parser
 
 
@@ -277,6 +295,25 @@ def _cmd_demo(args: argparse.Namespace, out: TextIO) -> int:
     return 0
 
 
+# ---------------------------------------------------------------------------------- visualize
+
+
+def _cmd_visualize(args: argparse.Namespace, out: TextIO) -> int:
+    effects = _load_demo_effects(args.config) if args.config is not None else []
+    camera: int | str | None = args.camera
+    if isinstance(camera, str) and camera.lstrip("-").isdigit():
+        camera = int(camera)
+    try:
+        sheet = sim2real.contact_sheet(
+            args.task, effects, n=args.n, seed=args.seed, size=(args.size, args.size), camera=camera, out=args.out
+        )
+    except (TypeError, ValueError, FileNotFoundError) as err:
+        raise _UsageError(str(err)) from err
+    h, w = sheet.image.shape[:2]
+    print(f"wrote {sheet.path} ({args.n} frames of {args.task}, {len(effects)} effect(s), {w}x{h} px)", file=out)
+    return 0
+
+
 # ---------------------------------------------------------------------------------- entry point
 
 
@@ -300,6 +337,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "tasks":
             return _cmd_tasks(sys.stdout)
+        if args.command == "visualize":
+            return _cmd_visualize(args, sys.stdout)
         return _cmd_demo(args, sys.stdout)
     except _UsageError as err:
         print(f"sim2real {args.command}: error: {err}", file=sys.stderr)

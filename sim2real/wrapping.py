@@ -54,7 +54,8 @@ def _flatten(effects: Iterable[Any]) -> list[Any]:
         else:
             raise TypeError(
                 "`effects` must be effects from `randomizers` (Friction, Mass, Damping, Armature, FrictionLoss, "
-                "Stiffness, ActuatorGain, Gravity, Push), models from `noise_models` (ObservationNoise, "
+                "Stiffness, ActuatorGain, Gravity, Push, GeomColor, MaterialColor, Texture, Light, CameraPose, "
+                "CameraFovy), models from `noise_models` (ObservationNoise, "
                 "ActionNoise, ObservationLatency, ActionLatency, SampleAndHold, ControlJitter) or lists of them. "
                 f"Received {item!r} of type {type(item).__name__}."
             )
@@ -92,6 +93,11 @@ def wrap(env: Any, *effects: Any, seed: SeedLike = None) -> Any:
     flat = [e for e in items if isinstance(e, Effect)]
     signals = [e for e in items if not isinstance(e, Effect)]
     normalize_seed(seed)
+    if any(type(e).__name__ == "Texture" for e in flat):
+        # Texture edits must reach every live render context, also of envs not built by make().
+        from sim2real.pixels import track_render_contexts
+
+        track_render_contexts(env)
     if isinstance(env, gym.vector.VectorEnv):
         raise TypeError(
             "`env` is a gymnasium VectorEnv: wrap each sub-environment instead (e.g. "

@@ -132,7 +132,7 @@ effects:
     [
         (
             "effects:\n  - type: Fiction\n    scale: 1.0\n",
-            "{f}: effects[0].type must be one of ['ActuatorGain', 'Armature', 'Damping', 'Friction', 'FrictionLoss', 'Gravity', 'Mass', 'Push', 'Stiffness']. Received 'Fiction'.",
+            "{f}: effects[0].type must be one of ['ActuatorGain', 'Armature', 'CameraFovy', 'CameraPose', 'Damping', 'Friction', 'FrictionLoss', 'GeomColor', 'Gravity', 'Light', 'Mass', 'MaterialColor', 'Push', 'Stiffness', 'Texture']. Received 'Fiction'.",
         ),
         (
             "effects:\n  - type: Mass\n    scale: [-1.0, 2.0]\n",
@@ -240,7 +240,7 @@ def test_add_that_would_go_negative_is_rejected_at_wrap() -> None:
         (
             lambda: s2r.wrap(s2r.make("dmc/reacher-easy"), "Damping"),
             TypeError,
-            "`effects` must be effects from `randomizers` (Friction, Mass, Damping, Armature, FrictionLoss, Stiffness, ActuatorGain, Gravity, Push), models from `noise_models` (ObservationNoise, ActionNoise, ObservationLatency, ActionLatency, SampleAndHold, ControlJitter) or lists of them. Received 'Damping' of type str.",
+            "`effects` must be effects from `randomizers` (Friction, Mass, Damping, Armature, FrictionLoss, Stiffness, ActuatorGain, Gravity, Push, GeomColor, MaterialColor, Texture, Light, CameraPose, CameraFovy), models from `noise_models` (ObservationNoise, ActionNoise, ObservationLatency, ActionLatency, SampleAndHold, ControlJitter) or lists of them. Received 'Damping' of type str.",
         ),
         (
             lambda: s2r.wrap(s2r.make("dmc/reacher-easy"), seed=-3),

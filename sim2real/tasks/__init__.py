@@ -147,11 +147,15 @@ def task_ids() -> list[str]:
     return list(TASKS)
 
 
-def make(task_id: str, **options: Any) -> gym.Env:
+def make(task_id: str, *, pixels: bool = False, **options: Any) -> gym.Env:
     """Creates a task as a ``gymnasium.Env``.
 
     Args:
         task_id: an id from :data:`TASKS` (``sim2real tasks`` lists them) or ``gym/<gymnasium id>``.
+        pixels: image observations: the env is wrapped in :class:`~sim2real.pixels.PixelObservation`,
+            which then takes the options ``size`` (``(height, width)``, default ``(84, 84)``),
+            ``camera`` (name or id; default the model's first camera) and ``pixels_only`` (default
+            True; False gives a dict of ``"state"`` and ``"pixels"``).
         **options: for ``dmc/*``: ``flatten`` (default True), ``render_mode``, ``width``, ``height``,
             ``camera`` and (suite only) ``time_limit`` in seconds; for ``gym/*``: anything
             ``gymnasium.make`` takes; for ``sim2real/arm-reach``: the
@@ -160,7 +164,27 @@ def make(task_id: str, **options: Any) -> gym.Env:
     Raises:
         ValueError: unknown task id (close matches listed).
         TypeError: an option the task does not take.
+
+    Example:
+        >>> import sim2real
+        >>> sim2real.make("sim2real/arm-reach", pixels=True, size=(64, 48)).observation_space.shape
+        (64, 48, 3)
     """
+    from sim2real.pixels import PixelObservation, track_render_contexts
+
+    if not isinstance(pixels, bool):
+        raise TypeError(f"`pixels` must be a bool. Received {pixels!r}.")
+    if not pixels:
+        if "size" in options or "pixels_only" in options:
+            raise TypeError(f"`size` and `pixels_only` apply with pixels=True only. Received {sorted(options)}.")
+        env = _make(task_id, **options)
+        track_render_contexts(env)  # texture resamples reach the env's own renderers
+        return env
+    view = {k: options.pop(k) for k in ("size", "camera", "pixels_only") if k in options}
+    return PixelObservation(_make(task_id, **options), **view)
+
+
+def _make(task_id: str, **options: Any) -> gym.Env:
     if not isinstance(task_id, str):
         raise TypeError(f"`task_id` must be a string such as 'dmc/reacher-easy'. Received {task_id!r}.")
     if task_id.startswith("gym/") and len(task_id) > 4:
