@@ -478,6 +478,23 @@ class SignalCorruptor:
         self._plain = not self.observation_needs_time
         self._obs_jitter = ObservationLatency in self._jitter_blocks
         self._act_jitter = ActionLatency in self._jitter_blocks
+        # With a fixed latency and a fixed control period, samples arrive in order at fixed lags.
+        n = self.nominal_substeps
+        regular = ControlJitter not in self.timing
+        self._obs_lag = (
+            -(-self._obs_latency // n)
+            if ObservationLatency in self.timing and regular and not self._obs_jitter
+            else None
+        )
+        self.command_lag = (
+            self._action_latency // n
+            if ActionLatency in self.timing
+            and regular
+            and not self._act_jitter
+            and self.physics_time
+            and self._action_latency % n == 0
+            else None
+        )
         self._control_step = 0
         self._substep_draws = 0
         self._last_obs_time = 0
@@ -552,6 +569,8 @@ class SignalCorruptor:
         self._obs_samples = 0
         if self._obs_delay is not None:
             self._obs_delay.reset(sample, 0)
+            if self._obs_lag is not None:
+                self._obs_ring = [sample] * (self._obs_lag + 1)
         self._last_out = sample
         return sample
 
@@ -571,6 +590,18 @@ class SignalCorruptor:
             else:
                 sample[self._sah_idx] = self._held[self._sah_idx]
             self._last_obs_time = now
+        lag = self._obs_lag
+        if lag is not None:
+            # Fixed latency, fixed control period: the sample of ``lag`` control steps ago, from a ring
+            # of references (the same answer as the arrival-ordered delay line, with less work).
+            k = self._obs_samples + 1
+            self._obs_samples = k
+            ring = self._obs_ring
+            size = lag + 1
+            ring[k % size] = sample
+            if k > lag:
+                return ring[(k - lag) % size]
+            return ring[(k - lag) % size].copy()  # the reset sample, delivered again
         delay = self._obs_delay
         if delay is not None:
             self._obs_samples += 1
@@ -607,6 +638,9 @@ class SignalCorruptor:
             if self._cmd_delay._values.shape[1] != ctrl.size:
                 self._cmd_delay = CommandDelay(self._cmd_delay.capacity, ctrl.size)
             self._cmd_delay.reset(ctrl)
+            if self.command_lag is not None:
+                # Fixed whole-control-step latency: a ring of lag + 1 commands, all the reset command at first.
+                self.command_ring = np.tile(np.asarray(ctrl, dtype=np.float64), (self.command_lag + 1, 1))
         self._commands_sent = 0
 
     def substeps(self, nominal: int) -> int:

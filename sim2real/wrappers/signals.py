@@ -137,6 +137,8 @@ class SignalClock:
         if corruptor.needs_physics_hook:
             self._remove = handle.intercept_step(self._stepper)  # type: ignore[union-attr]
         self._latency = corruptor.has_action and handle is not None
+        # Composer steps one substep at a time and its hooks may rewrite ctrl between substeps.
+        self._whole_steps = handle is not None and not handle.recompiles
         self._fixed = self._latency and not any(type(m).__name__ == "ControlJitter" for m in corruptor.models)
         self._in_step = False
         self._passed = 0
@@ -168,6 +170,20 @@ class SignalClock:
 
     def _stepper(self, run: Any, nstep: int) -> None:
         if not self._in_step:  # physics stepped outside a control step (e.g. inside reset)
+            run(nstep)
+            return
+        lag = self.corruptor.command_lag
+        if lag is not None and self._whole_steps:
+            # Latency of whole control steps: apply the command sent ``lag`` control steps ago.
+            if self._passed == 0:
+                ctrl = self.handle.data.ctrl  # type: ignore[union-attr]
+                k = self.corruptor._commands_sent
+                self.corruptor._commands_sent = k + 1
+                ring = self.corruptor.command_ring
+                size = lag + 1
+                ring[k % size] = ctrl
+                ctrl[:] = ring[(k + 1) % size]
+            self._passed += nstep
             run(nstep)
             return
         if self._fixed:  # latency without control jitter: the substeps asked for are the substeps run
