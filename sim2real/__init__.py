@@ -1,7 +1,7 @@
 """sim2real: make robot policies survive the jump from MuJoCo simulation to the real world.
 
 ``import sim2real as s2r`` reaches everything: tasks (:func:`make`), wrapping any env
-(:func:`wrap`), and the effects of :mod:`randomizers`.
+(:func:`wrap`), the effects of :mod:`randomizers` and the noise and latency models of :mod:`noise_models`.
 
 Example:
     >>> import sim2real as s2r
@@ -17,6 +17,26 @@ from sim2real._gl import select_backend
 
 select_backend()
 
+from noise_models import (  # noqa: E402
+    ActionLatency,
+    ActionNoise,
+    Bias,
+    ControlJitter,
+    Deadzone,
+    Drift,
+    Dropout,
+    Gaussian,
+    ObservationLatency,
+    ObservationNoise,
+    Outlier,
+    Quantize,
+    SampleAndHold,
+    Saturate,
+    Scale,
+    Sticky,
+    Stuck,
+    UniformNoise,
+)
 from randomizers import (  # noqa: E402 - the GL backend must be chosen before mujoco loads
     ActuatorGain,
     Armature,
@@ -52,17 +72,25 @@ __version__ = "0.1.0"
 
 __all__ = [
     "TASKS",
+    "ActionLatency",
+    "ActionNoise",
     "ActuatorGain",
     "Armature",
+    "Bias",
     "CameraFovy",
     "CameraPose",
     "Choice",
     "Constant",
     "ContactSheet",
+    "ControlJitter",
     "Damping",
+    "Deadzone",
     "DmEnvToGym",
+    "Drift",
+    "Dropout",
     "Friction",
     "FrictionLoss",
+    "Gaussian",
     "GeomColor",
     "Gravity",
     "Interval",
@@ -71,13 +99,23 @@ __all__ = [
     "Mass",
     "MaterialColor",
     "Normal",
+    "ObservationLatency",
+    "ObservationNoise",
+    "Outlier",
     "PhysicsHandle",
     "PixelObservation",
     "Push",
+    "Quantize",
+    "SampleAndHold",
+    "Saturate",
+    "Scale",
+    "Sticky",
     "Stiffness",
+    "Stuck",
     "Texture",
     "TruncatedNormal",
     "Uniform",
+    "UniformNoise",
     "contact_sheet",
     "find_physics",
     "load_effects",
