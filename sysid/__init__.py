@@ -1,9 +1,78 @@
 """System identification from logged trajectories (issue #5).
 
-Fits the same parameter addresses that :mod:`randomizers` perturbs. Empty until issue #5 lands;
-nothing here pretends to work before then.
+Fits the same parameter addresses that :mod:`randomizers` perturbs, from trajectory logs that this
+package owns (:mod:`sysid.logs`). Depends on randomizers, noise_models, numpy, scipy and mujoco; never on
+``sim2real``.
+
+Example:
+    >>> import sysid
+    >>> "TrajectoryLog" in sysid.__all__
+    True
 """
 
 from __future__ import annotations
 
-__all__: list[str] = []
+from sysid.design import DesignResult, candidate_grid, design_experiment, fisher_information, parameter_space
+from sysid.excitation import (
+    EXCITATIONS,
+    PRBS,
+    ActuatorLimits,
+    Chirp,
+    ExcitationPolicy,
+    Multisine,
+    RandomSteps,
+    as_limits,
+    make_excitation,
+)
+from sysid.fit import DEFAULT_LATENCY_RANGE, fit
+from sysid.logs import (
+    OPTIONAL_KEYS,
+    REQUIRED_KEYS,
+    LogError,
+    TrajectoryLog,
+    channel_names,
+    load_csv,
+    load_log,
+    record_log,
+    save_log,
+    validate_log,
+)
+from sysid.online import OnlineEstimator, OnlineResult, estimate_noise_std, estimate_online
+from sysid.params import EFFECT_FIELDS, ParameterSpace
+from sysid.result import FitResult
+
+__all__ = [
+    "DEFAULT_LATENCY_RANGE",
+    "EFFECT_FIELDS",
+    "EXCITATIONS",
+    "OPTIONAL_KEYS",
+    "PRBS",
+    "REQUIRED_KEYS",
+    "ActuatorLimits",
+    "Chirp",
+    "DesignResult",
+    "ExcitationPolicy",
+    "FitResult",
+    "LogError",
+    "Multisine",
+    "OnlineEstimator",
+    "OnlineResult",
+    "ParameterSpace",
+    "RandomSteps",
+    "TrajectoryLog",
+    "as_limits",
+    "candidate_grid",
+    "channel_names",
+    "design_experiment",
+    "estimate_noise_std",
+    "estimate_online",
+    "fisher_information",
+    "fit",
+    "load_csv",
+    "load_log",
+    "make_excitation",
+    "parameter_space",
+    "record_log",
+    "save_log",
+    "validate_log",
+]

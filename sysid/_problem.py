@@ -1,0 +1,315 @@
+"""The simulation-error least-squares problem behind :func:`sysid.fit` (internal).
+
+A log is cut into shooting segments. Every segment starts from an anchor state (the logged state, or a
+fitted nuisance initial state) and is rolled out open loop through ``mujoco.rollout`` under the logged
+commands, delayed by the action latency. One rollout call carries every (parameter set x segment) pair,
+so the residual of B parameter sets, or a whole finite-difference Jacobian, costs one batched,
+multi-threaded call.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+from dataclasses import dataclass
+
+import mujoco
+import mujoco.rollout
+import numpy as np
+
+from sysid.logs import TrajectoryLog, channel_names
+from sysid.params import ModelPool, ParameterSpace
+
+__all__ = ["Problem", "Segments", "make_segments"]
+
+_SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
+
+
+@dataclass(frozen=True)
+class Segments:
+    """Shooting segments: anchor row, rows covered, and the episode each belongs to (all shape (S,))."""
+
+    start: np.ndarray
+    length: np.ndarray
+    episode_start: np.ndarray
+    episode_stop: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return int(self.start.shape[0])
+
+
+def make_segments(ranges: list[tuple[int, int, int, int]], horizon: int | None, fitted_anchor: bool) -> Segments:
+    """Cuts row ranges ``(first, stop, episode_start, episode_stop)`` into segments of ``horizon`` rows.
+
+    With logged anchors a segment anchored at row ``a`` predicts rows ``a+1 .. a+n`` (the next segment
+    re-anchors at ``a+n``); with fitted anchors it covers rows ``a .. a+n-1``.
+    """
+    start, length, e0, e1 = [], [], [], []
+    for first, stop, ep_start, ep_stop in ranges:
+        span = (stop - 1 - first) if not fitted_anchor else (stop - first)
+        if span < 1:
+            continue
+        step = span if horizon is None else horizon
+        count = max(1, round(span / step))
+        edges = np.linspace(0, span, count + 1).round().astype(int)
+        for lo, hi in itertools.pairwise(edges):
+            if hi > lo:
+                start.append(first + lo)
+                length.append(hi - lo)
+                e0.append(ep_start)
+                e1.append(ep_stop)
+    as_int = lambda v: np.asarray(v, dtype=np.intp)  # noqa: E731
+    return Segments(as_int(start), as_int(length), as_int(e0), as_int(e1))
+
+
+class Problem:
+    """Weighted simulation-error residuals of a log under a parameter space.
+
+    Args:
+        log: the trajectory log (validated against ``model``).
+        model: the model (never modified; copies are written).
+        space: the fitted parameters.
+        segments: shooting segments.
+        signals: which measured signals enter the residual (``"qpos"``, ``"qvel"``, ``"sensordata"``).
+        fitted_anchor: initial states are nuisance parameters (True) or the logged states (False).
+        obs_margin: sensor rows with segment index below this are skipped (room for observation latency).
+        nthread: rollout threads.
+    """
+
+    def __init__(
+        self,
+        log: TrajectoryLog,
+        model: mujoco.MjModel,
+        space: ParameterSpace,
+        segments: Segments,
+        signals: tuple[str, ...],
+        fitted_anchor: bool,
+        obs_margin: int,
+        nthread: int | None,
+        pool: ModelPool | None = None,
+    ) -> None:
+        self.log = log
+        self.model = model
+        self.space = space
+        self.seg = segments
+        self.fitted_anchor = fitted_anchor
+        self.n_sub = log.n_substeps
+        self.nq, self.nv, self.na = model.nq, model.nv, model.na
+        self.nx = self.nq + self.nv
+        self.pool = pool or ModelPool(model, space)
+        self.nthread = max(1, nthread or os.cpu_count() or 1)
+        self._datas = [mujoco.MjData(model) for _ in range(self.nthread)]
+        self.L = int(segments.length.max())
+        names = channel_names(model)
+        # Measured channels: state channels (qpos, qvel columns) and sensor channels.
+        state_cols: list[int] = []
+        self.channels: list[str] = []
+        if "qpos" in signals:
+            state_cols += list(range(self.nq))
+            self.channels += names["qpos"]
+        if "qvel" in signals:
+            state_cols += [self.nq + i for i in range(self.nv)]
+            self.channels += names["qvel"]
+        self.state_cols = np.asarray(state_cols, dtype=np.intp)
+        self.use_sensors = "sensordata" in signals and log.sensordata is not None and model.nsensordata > 0
+        if self.use_sensors:
+            self.channels += names["sensordata"]
+        self.n_state_ch = len(state_cols)
+        self.n_sens_ch = model.nsensordata if self.use_sensors else 0
+        logged_state = np.concatenate([log.qpos, log.qvel], axis=1)
+        self.logged_state = logged_state
+        # Gather indices for state residuals: (segment, index within the segment, absolute row).
+        seg_s, j_s = [], []
+        for s in range(segments.count):
+            n = int(segments.length[s])
+            js = np.arange(0, n) if fitted_anchor else np.arange(1, n + 1)
+            seg_s.append(np.full(js.size, s))
+            j_s.append(js)
+        self.s_seg = np.concatenate(seg_s)
+        self.s_j = np.concatenate(j_s)
+        self.s_row = segments.start[self.s_seg] + self.s_j
+        self.y_state = (
+            logged_state[self.s_row][:, self.state_cols] if self.n_state_ch else np.zeros((self.s_row.size, 0))
+        )
+        seg_y, j_y = [], []
+        for s in range(segments.count):
+            js = np.arange(obs_margin, int(segments.length[s]))
+            seg_y.append(np.full(js.size, s))
+            j_y.append(js)
+        self.y_seg = np.concatenate(seg_y) if self.use_sensors else np.zeros(0, np.intp)
+        self.y_j = np.concatenate(j_y) if self.use_sensors else np.zeros(0, np.intp)
+        self.y_row = segments.start[self.y_seg] + self.y_j
+        self.y_sens = log.sensordata[self.y_row] if self.use_sensors else np.zeros((0, 0))  # type: ignore[index]
+        self.n_res = self.s_row.size * self.n_state_ch + self.y_row.size * self.n_sens_ch
+        self.weights = np.ones(self.n_state_ch + self.n_sens_ch)
+        # Template full-physics state (mocap, plugin state, ... from the model's defaults).
+        data = mujoco.MjData(model)
+        self.nstate = mujoco.mj_stateSize(model, _SPEC)
+        self._template = np.empty(self.nstate)
+        mujoco.mj_getState(model, data, self._template, _SPEC)
+        self._controls: dict[int, np.ndarray] = {}
+
+    # ------------------------------------------------------------------ rollout plumbing
+    def anchors(self) -> np.ndarray:
+        """(S, nx) logged states at the segment anchors."""
+        return self.logged_state[self.seg.start].copy()
+
+    def _initial_states(self, x0: np.ndarray) -> np.ndarray:
+        states = np.tile(self._template, (x0.shape[0], 1))
+        states[:, 0] = self.log.time[self.seg.start]
+        states[:, 1 : 1 + self.nx] = x0
+        if self.na and self.log.act is not None:
+            states[:, 1 + self.nx : 1 + self.nx + self.na] = self.log.act[self.seg.start]
+        return states
+
+    def controls(self, delay: int) -> np.ndarray:
+        """(S, L*n_sub, nu) physics-step commands under an action delay of ``delay`` physics steps."""
+        cached = self._controls.get(delay)
+        if cached is not None:
+            return cached
+        n_sub, seg = self.n_sub, self.seg
+        steps = np.arange(self.L * n_sub)
+        absolute = seg.start[:, None] * n_sub + steps[None, :]
+        source = np.floor_divide(absolute - delay, n_sub)
+        source = np.clip(source, seg.episode_start[:, None], seg.episode_stop[:, None] - 1)
+        out = np.ascontiguousarray(self.log.ctrl[source])
+        self._controls[delay] = out
+        return out
+
+    def rollout(
+        self, models: list[mujoco.MjModel], states: np.ndarray, controls: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Rolls out rows; returns predicted states (R, L+1, nx) and sensors (R, L, ns) at control rows."""
+        nstep = self.L * self.n_sub
+        state_out, sensor_out = mujoco.rollout.rollout(
+            models, self._datas, states, controls, nstep=nstep, persistent_pool=False
+        )
+        pred = np.empty((states.shape[0], self.L + 1, self.nx))
+        pred[:, 0] = states[:, 1 : 1 + self.nx]
+        pred[:, 1:] = state_out[:, self.n_sub - 1 :: self.n_sub, 1 : 1 + self.nx]
+        sens = sensor_out[:, :: self.n_sub] if self.use_sensors else np.zeros((states.shape[0], self.L, 0))
+        return pred, sens
+
+    def simulate(self, values: np.ndarray, delay: int, x0: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Predictions for B parameter sets: states (B, S, L+1, nx), sensors (B, S, L, ns)."""
+        values = np.atleast_2d(values)
+        b, s = values.shape[0], self.seg.count
+        models = self.pool.models_for(values)
+        rows_models = [m for m in models for _ in range(s)]
+        x0 = self.anchors() if x0 is None else x0
+        states = np.tile(self._initial_states(x0), (b, 1))
+        controls = np.tile(self.controls(delay), (b, 1, 1))
+        pred, sens = self.rollout(rows_models, states, controls)
+        return pred.reshape(b, s, self.L + 1, self.nx), sens.reshape(b, s, self.L, -1)
+
+    # ------------------------------------------------------------------ residuals
+    def raw_residuals(self, pred: np.ndarray, sens: np.ndarray, obs_delay: int) -> tuple[np.ndarray, np.ndarray]:
+        """Unweighted prediction errors: states (B, Ns, Cs) and sensors (B, Ny, Cy)."""
+        r_state = pred[:, self.s_seg, self.s_j][..., self.state_cols] - self.y_state
+        if self.use_sensors:
+            r_sens = sens[:, self.y_seg, self.y_j - obs_delay] - self.y_sens
+        else:
+            r_sens = np.zeros((pred.shape[0], 0, 0))
+        return r_state, r_sens
+
+    def weighted(self, r_state: np.ndarray, r_sens: np.ndarray) -> np.ndarray:
+        """(B, N) residual vectors weighted by 1/sigma per channel."""
+        w = self.weights
+        parts = [(r_state * w[: self.n_state_ch]).reshape(r_state.shape[0], -1)]
+        if self.use_sensors:
+            parts.append((r_sens * w[self.n_state_ch :]).reshape(r_sens.shape[0], -1))
+        return np.concatenate(parts, axis=1)
+
+    def residuals(self, values: np.ndarray, delay: int, obs_delay: int, x0: np.ndarray | None = None) -> np.ndarray:
+        """(B, N) weighted residuals of B parameter sets."""
+        pred, sens = self.simulate(values, delay, x0)
+        return self.weighted(*self.raw_residuals(pred, sens, obs_delay))
+
+    def jacobian(
+        self,
+        values: np.ndarray,
+        delay: int,
+        obs_delay: int,
+        x0: np.ndarray | None,
+        steps: np.ndarray,
+        fit_x0: bool,
+        fit_params: bool = True,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Residual (N,) and forward-difference Jacobian (N, P [+ S*nx]) in one batched rollout."""
+        p, s, nx = self.space.size, self.seg.count, self.nx
+        x0 = self.anchors() if x0 is None else x0
+        sets = [values]
+        if fit_params:
+            sets += [values + np.eye(p)[i] * steps[i] for i in range(p)]
+        table = np.vstack(sets)
+        models = self.pool.models_for(table)
+        row_models = [m for m in models for _ in range(s)]
+        base_states = self._initial_states(x0)
+        states = [np.tile(base_states, (table.shape[0], 1))]
+        controls = [np.tile(self.controls(delay), (table.shape[0], 1, 1))]
+        x_steps = np.zeros(nx)
+        if fit_x0:
+            scale = np.maximum(np.abs(x0).max(axis=0), 1e-2)
+            x_steps = 1e-6 * scale
+            pert = np.repeat(base_states, nx, axis=0)  # row s*nx + i perturbs state i of segment s
+            pert[:, 1 : 1 + nx] += np.tile(np.diag(x_steps), (s, 1))
+            states.append(pert)
+            controls.append(np.repeat(self.controls(delay), nx, axis=0))
+            row_models += [models[0]] * (s * nx)
+        pred, sens = self.rollout(row_models, np.vstack(states), np.concatenate(controls))
+        n_sets = table.shape[0]
+        main_pred = pred[: n_sets * s].reshape(n_sets, s, self.L + 1, nx)
+        main_sens = sens[: n_sets * s].reshape(n_sets, s, self.L, -1)
+        res = self.weighted(*self.raw_residuals(main_pred, main_sens, obs_delay))
+        r0 = res[0]
+        columns = []
+        if fit_params:
+            columns.append(((res[1:] - r0) / steps[:, None]).T)
+        if fit_x0:
+            xp = pred[n_sets * s :].reshape(s, nx, self.L + 1, nx)
+            xs = sens[n_sets * s :].reshape(s, nx, self.L, -1)
+            block = np.zeros((r0.size, s * nx))
+            for k in range(s):
+                p_k = np.repeat(main_pred[:1], nx, axis=0)
+                s_k = np.repeat(main_sens[:1], nx, axis=0)
+                p_k[:, k] = xp[k]
+                s_k[:, k] = xs[k]
+                r_k = self.weighted(*self.raw_residuals(p_k, s_k, obs_delay))
+                block[:, k * nx : (k + 1) * nx] = ((r_k - r0) / x_steps[:, None]).T
+            columns.append(block)
+        return r0, np.concatenate(columns, axis=1) if columns else np.zeros((r0.size, 0))
+
+    # ------------------------------------------------------------------ channel bookkeeping
+    def channel_of_residual(self) -> np.ndarray:
+        """(N,) channel index of every entry of the weighted residual vector."""
+        parts = [np.tile(np.arange(self.n_state_ch), self.s_row.size)]
+        if self.use_sensors:
+            parts.append(self.n_state_ch + np.tile(np.arange(self.n_sens_ch), self.y_row.size))
+        return np.concatenate(parts)
+
+    def channel_errors(self, r_state: np.ndarray, r_sens: np.ndarray) -> list[np.ndarray]:
+        """Per channel, the unweighted errors of one parameter set, in row order."""
+        out = [r_state[0, :, c] for c in range(self.n_state_ch)]
+        if self.use_sensors:
+            out += [r_sens[0, :, c] for c in range(self.n_sens_ch)]
+        return out
+
+    def channel_measurements(self) -> list[np.ndarray]:
+        """Per channel, the measured values entering the residual, in row order."""
+        out = [self.y_state[:, c] for c in range(self.n_state_ch)]
+        if self.use_sensors:
+            out += [self.y_sens[:, c] for c in range(self.n_sens_ch)]
+        return out
+
+    def channel_rows(self) -> list[np.ndarray]:
+        out = [self.s_row] * self.n_state_ch
+        if self.use_sensors:
+            out += [self.y_row] * self.n_sens_ch
+        return out
+
+    def channel_segments(self) -> list[np.ndarray]:
+        out = [self.s_seg] * self.n_state_ch
+        if self.use_sensors:
+            out += [self.y_seg] * self.n_sens_ch
+        return out

@@ -1,0 +1,674 @@
+"""Trajectory logs: the ``.npz`` format sysid fits from, its loaders, validation and a recorder.
+
+A log is a time series sampled at the control rate. Row ``t`` holds the measured state at ``time[t]``
+and the control command issued at that instant (held for one control step):
+
+============  ============  ========================================================================
+key           shape         meaning (units)
+============  ============  ========================================================================
+time          (T,)          seconds; strictly increasing within each episode
+qpos          (T, nq)       joint positions (rad for hinges, m for slides; quaternions unitless)
+qvel          (T, nv)       joint velocities (rad/s, m/s)
+ctrl          (T, nu)       actuator commands in the actuator's own units (N·m, rad for servos, ...)
+sensordata    (T, ns)       optional; MuJoCo sensor readings at the state of row ``t``
+obs           (T, ...)      optional; whatever the policy observed (free-form, not used by the fit)
+episode       (T,)          optional; integer episode index, non-decreasing; episodes start afresh
+act           (T, na)       optional; actuator activations (only for models with ``na > 0``)
+meta          ()            JSON string: ``task``, ``timestep`` (s), ``control_timestep`` (s),
+                            ``joint_names``, ``actuator_names``, ``sensor_names`` and, for
+                            simulated logs, ``true_params`` ({address: value}) and
+                            ``true_latency_steps`` ({"action": k, "obs": k})
+============  ============  ========================================================================
+
+Every loader validates and raises :class:`LogError` (a ``ValueError``) naming the key, what is allowed
+and what was received. :func:`save_log` writes a temporary file and renames it, so a crash never leaves a
+half-written log.
+
+Example:
+    >>> import mujoco, numpy as np, tempfile, os
+    >>> model = mujoco.MjModel.from_xml_string(
+    ...     '<mujoco><worldbody><body><joint name="hinge" damping="0.1"/>'
+    ...     '<geom size=".1" pos="0 0 -.2"/></body></worldbody>'
+    ...     '<actuator><motor name="m" joint="hinge"/></actuator></mujoco>')
+    >>> ctrl = np.zeros((50, 1)); ctrl[10:20] = 0.5
+    >>> log = record_log(model, ctrl, n_substeps=5, task="pendulum")
+    >>> log.qpos.shape, log.meta["control_timestep"]
+    ((50, 1), 0.01)
+    >>> path = os.path.join(tempfile.mkdtemp(), "log.npz")
+    >>> save_log(log, path)
+    >>> load_log(path, model=model).qpos.shape
+    (50, 1)
+"""
+
+from __future__ import annotations
+
+import csv
+import difflib
+import fnmatch
+import itertools
+import json
+import math
+import os
+import tempfile
+import zipfile
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import mujoco.rollout
+import numpy as np
+
+__all__ = [
+    "OPTIONAL_KEYS",
+    "REQUIRED_KEYS",
+    "LogError",
+    "TrajectoryLog",
+    "channel_names",
+    "load_csv",
+    "load_log",
+    "record_log",
+    "save_log",
+    "validate_log",
+]
+
+#: Keys every ``.npz`` log must hold.
+REQUIRED_KEYS: tuple[str, ...] = ("time", "qpos", "qvel", "ctrl", "meta")
+#: Keys a log may hold.
+OPTIONAL_KEYS: tuple[str, ...] = ("sensordata", "obs", "episode", "act")
+_META_REQUIRED = ("timestep", "control_timestep")
+
+
+class LogError(ValueError):
+    """A trajectory log (file, arrays or CSV) is malformed or does not fit the model."""
+
+
+def _as_array(value: Any, key: str) -> np.ndarray:
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as err:
+        raise LogError(f"`{key}` must be a numeric array. Received {type(value).__name__}: {err}.") from err
+
+
+@dataclass(frozen=True, eq=False)
+class TrajectoryLog:
+    """A logged trajectory (one or several episodes) at the control rate.
+
+    Attributes:
+        time: (T,) seconds.
+        qpos: (T, nq) measured joint positions.
+        qvel: (T, nv) measured joint velocities.
+        ctrl: (T, nu) commands issued at ``time[t]`` and held for one control step.
+        sensordata: (T, ns) sensor readings, or None.
+        obs: (T, ...) policy observations, or None (not used by the fit).
+        episode: (T,) integer episode index (non-decreasing), or None for a single episode.
+        act: (T, na) actuator activations, or None.
+        meta: ``task``, ``timestep``, ``control_timestep``, ``joint_names``, ``actuator_names``,
+            ``sensor_names``, optionally ``true_params`` and ``true_latency_steps``.
+
+    Construction validates shapes, finiteness and time order (see :func:`validate_log`); arrays are
+    stored read-only.
+    """
+
+    time: np.ndarray
+    qpos: np.ndarray
+    qvel: np.ndarray
+    ctrl: np.ndarray
+    sensordata: np.ndarray | None = None
+    obs: np.ndarray | None = None
+    episode: np.ndarray | None = None
+    act: np.ndarray | None = None
+    meta: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for key in ("time", "qpos", "qvel", "ctrl", "sensordata", "act"):
+            value = getattr(self, key)
+            if value is None:
+                if key in REQUIRED_KEYS:
+                    raise LogError(f"`{key}` is required in a trajectory log. Received None.")
+                continue
+            array = _as_array(value, key).copy()
+            array.flags.writeable = False
+            object.__setattr__(self, key, array)
+        if self.obs is not None:
+            obs = np.array(self.obs)
+            obs.flags.writeable = False
+            object.__setattr__(self, "obs", obs)
+        if self.episode is not None:
+            raw = np.asarray(self.episode)
+            if raw.dtype.kind == "f" and np.all(np.isfinite(raw)) and np.all(raw == np.round(raw)):
+                raw = raw.astype(np.int64)
+            if raw.dtype.kind not in "iu":
+                raise LogError(f"`episode` must hold integer episode indices. Received dtype {raw.dtype}.")
+            episode = raw.astype(np.int64).copy()
+            episode.flags.writeable = False
+            object.__setattr__(self, "episode", episode)
+        if not isinstance(self.meta, Mapping):
+            raise LogError(f"`meta` must be a mapping (JSON object). Received {type(self.meta).__name__}.")
+        object.__setattr__(self, "meta", dict(self.meta))
+        validate_log(self)
+
+    @property
+    def num_steps(self) -> int:
+        """Rows T."""
+        return int(self.time.shape[0])
+
+    @property
+    def timestep(self) -> float:
+        """Physics timestep in seconds (``meta["timestep"]``)."""
+        return float(self.meta["timestep"])
+
+    @property
+    def control_timestep(self) -> float:
+        """Control period in seconds (``meta["control_timestep"]``)."""
+        return float(self.meta["control_timestep"])
+
+    @property
+    def n_substeps(self) -> int:
+        """Physics steps per control step."""
+        return max(1, round(self.control_timestep / self.timestep))
+
+    def episode_bounds(self) -> list[tuple[int, int]]:
+        """``[(start, stop), ...]`` row ranges of each episode, in order."""
+        if self.episode is None:
+            return [(0, self.num_steps)]
+        cuts = np.flatnonzero(np.diff(self.episode) != 0) + 1
+        edges = [0, *cuts.tolist(), self.num_steps]
+        return [(int(a), int(b)) for a, b in itertools.pairwise(edges)]
+
+    def select_rows(self, rows: slice | np.ndarray) -> TrajectoryLog:
+        """A new log holding only ``rows`` (same meta)."""
+
+        def pick(a: np.ndarray | None) -> np.ndarray | None:
+            return None if a is None else a[rows]
+
+        return replace(
+            self,
+            time=self.time[rows],
+            qpos=self.qpos[rows],
+            qvel=self.qvel[rows],
+            ctrl=self.ctrl[rows],
+            sensordata=pick(self.sensordata),
+            obs=pick(self.obs),
+            episode=pick(self.episode),
+            act=pick(self.act),
+        )
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """The ``.npz`` payload: every present key, ``meta`` as a JSON string."""
+        out: dict[str, np.ndarray] = {"time": self.time, "qpos": self.qpos, "qvel": self.qvel, "ctrl": self.ctrl}
+        for key in OPTIONAL_KEYS:
+            value = getattr(self, key)
+            if value is not None:
+                out[key] = value
+        out["meta"] = np.array(json.dumps(_jsonable(self.meta), sort_keys=True))
+        return out
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, Mapping):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def _first_bad(array: np.ndarray) -> str:
+    flat = np.flatnonzero(~np.isfinite(array.reshape(array.shape[0], -1)))
+    count = int(flat.size)
+    if array.ndim == 1:
+        row = int(flat[0])
+        return f"{count} non-finite value(s), first at row {row}: {float(array[row])!r}"
+    cols = int(np.prod(array.shape[1:]))
+    row, col = divmod(int(flat[0]), cols)
+    return f"{count} non-finite value(s), first at row {row}, column {col}: {float(array.reshape(array.shape[0], -1)[row, col])!r}"
+
+
+def validate_log(log: TrajectoryLog, model: mujoco.MjModel | None = None) -> TrajectoryLog:
+    """Checks shapes, finiteness, time order and meta; with ``model``, also nq/nv/nu/nsensordata.
+
+    Args:
+        log: the log to check.
+        model: when given, the log's widths must match this model's.
+
+    Returns:
+        ``log`` unchanged, for chaining.
+
+    Raises:
+        LogError: the first problem found, naming the key, what is allowed and what was received.
+
+    Example:
+        >>> import numpy as np
+        >>> meta = {"timestep": 0.01, "control_timestep": 0.01}
+        >>> TrajectoryLog(time=[0.0, 0.02, 0.01], qpos=np.zeros((3, 1)), qvel=np.zeros((3, 1)),
+        ...               ctrl=np.zeros((3, 1)), meta=meta)
+        Traceback (most recent call last):
+        ...
+        sysid.logs.LogError: `time` must be strictly increasing within each episode. Received time[2]=0.01 \
+after time[1]=0.02.
+    """
+    time = log.time
+    if time.ndim != 1 or time.shape[0] < 2:
+        raise LogError(f"`time` must have shape (T,) with T >= 2. Received shape {time.shape}.")
+    steps = time.shape[0]
+    for key in ("qpos", "qvel", "ctrl", "sensordata", "act"):
+        array = getattr(log, key)
+        if array is None:
+            continue
+        if array.ndim != 2 or array.shape[0] != steps:
+            width = {"qpos": "nq", "qvel": "nv", "ctrl": "nu", "sensordata": "ns", "act": "na"}[key]
+            raise LogError(
+                f"`{key}` must have shape (T, {width}) with T = len(time) = {steps}. Received shape {array.shape}."
+            )
+    if log.obs is not None and (log.obs.ndim < 1 or log.obs.shape[0] != steps):
+        raise LogError(f"`obs` must have shape (T, ...) with T = len(time) = {steps}. Received shape {log.obs.shape}.")
+    if log.episode is not None:
+        if log.episode.shape != (steps,):
+            raise LogError(
+                f"`episode` must have shape (T,) with T = len(time) = {steps}. Received shape {log.episode.shape}."
+            )
+        back = np.flatnonzero(np.diff(log.episode) < 0)
+        if back.size:
+            i = int(back[0]) + 1
+            raise LogError(
+                "`episode` must be non-decreasing (rows of one episode are contiguous). "
+                f"Received episode[{i}]={int(log.episode[i])} after episode[{i - 1}]={int(log.episode[i - 1])}."
+            )
+    for key in ("time", "qpos", "qvel", "ctrl", "sensordata", "act"):
+        array = getattr(log, key)
+        if array is not None and not np.all(np.isfinite(array)):
+            raise LogError(f"`{key}` must be finite (no NaN or inf). Received {_first_bad(array)}.")
+    same_episode = np.ones(steps - 1, dtype=bool) if log.episode is None else np.diff(log.episode) == 0
+    bad = np.flatnonzero((np.diff(time) <= 0) & same_episode)
+    if bad.size:
+        i = int(bad[0]) + 1
+        raise LogError(
+            f"`time` must be strictly increasing within each episode. Received time[{i}]={float(time[i])!r} "
+            f"after time[{i - 1}]={float(time[i - 1])!r}."
+        )
+    meta = log.meta
+    for key in _META_REQUIRED:
+        value = meta.get(key)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+            raise LogError(f"`meta['{key}']` must be a positive number of seconds. Received {value!r}.")
+    ratio = meta["control_timestep"] / meta["timestep"]
+    if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6 * ratio:
+        raise LogError(
+            "`meta['control_timestep']` must be a whole multiple (>= 1) of `meta['timestep']`. "
+            f"Received control_timestep={meta['control_timestep']!r}, timestep={meta['timestep']!r}."
+        )
+    if model is not None:
+        _check_model(log, model)
+    return log
+
+
+def _check_model(log: TrajectoryLog, model: mujoco.MjModel) -> None:
+    widths = {"qpos": ("nq", model.nq), "qvel": ("nv", model.nv), "ctrl": ("nu", model.nu)}
+    widths["sensordata"] = ("nsensordata", model.nsensordata)
+    widths["act"] = ("na", model.na)
+    for key, (name, expected) in widths.items():
+        array = getattr(log, key)
+        if array is not None and array.shape[1] != expected:
+            raise LogError(
+                f"`{key}` must have {name}={expected} columns to match the model. Received {array.shape[1]} columns "
+                f"(shape {array.shape})."
+            )
+    timestep = float(model.opt.timestep)
+    if abs(log.timestep - timestep) > 1e-9 * timestep:
+        raise LogError(
+            f"`meta['timestep']` must equal the model's opt.timestep={timestep!r}. Received {log.timestep!r}."
+        )
+
+
+def save_log(log: TrajectoryLog, path: str | os.PathLike[str]) -> None:
+    """Writes ``log`` as an uncompressed ``.npz`` atomically (temporary file in the same folder, then rename).
+
+    Args:
+        log: the log.
+        path: destination; ``.npz`` is appended by numpy if missing, so give it explicitly.
+    """
+    if not isinstance(log, TrajectoryLog):
+        raise TypeError(f"`log` must be a TrajectoryLog. Received {type(log).__name__}.")
+    target = Path(path)
+    if target.suffix != ".npz":
+        raise ValueError(f"`path` must end in '.npz'. Received {str(path)!r}.")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            np.savez(handle, **log.to_arrays())
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, target)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def load_log(path: str | os.PathLike[str], model: mujoco.MjModel | None = None) -> TrajectoryLog:
+    """Reads and validates a ``.npz`` log.
+
+    Args:
+        path: the file.
+        model: when given, the log must match its nq, nv, nu (and nsensordata, na, timestep).
+
+    Raises:
+        FileNotFoundError: no such file.
+        LogError: truncated/corrupt file, missing key, wrong shape, NaN/inf, non-monotonic time, bad meta,
+            or widths that do not match ``model``.
+    """
+    where = str(path)
+    if not Path(path).is_file():
+        raise FileNotFoundError(f"`path` {where!r} does not exist.")
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            arrays = {key: npz[key] for key in npz.files}
+    except (zipfile.BadZipFile, EOFError, OSError, ValueError) as err:
+        size = Path(path).stat().st_size
+        raise LogError(
+            f"`path` {where!r} must be a complete .npz trajectory log. Received a truncated or corrupt file "
+            f"({size} bytes; {type(err).__name__}: {err})."
+        ) from err
+    missing = [k for k in REQUIRED_KEYS if k not in arrays]
+    if missing:
+        raise LogError(
+            f"`{missing[0]}` is missing from {where!r}; a log needs keys {', '.join(REQUIRED_KEYS)}. "
+            f"Received keys {', '.join(sorted(arrays)) or 'none'}."
+        )
+    unknown = sorted(set(arrays) - set(REQUIRED_KEYS) - set(OPTIONAL_KEYS))
+    if unknown:
+        raise LogError(
+            f"{where!r} holds unknown key(s) {', '.join(unknown)}; allowed are "
+            f"{', '.join(REQUIRED_KEYS + OPTIONAL_KEYS)}."
+        )
+    try:
+        meta = json.loads(str(arrays.pop("meta")))
+    except json.JSONDecodeError as err:
+        raise LogError(f"`meta` must be a JSON string. Received text that does not parse: {err}.") from err
+    try:
+        log = TrajectoryLog(**arrays, meta=meta)
+    except LogError as err:
+        raise LogError(f"{where}: {err}") from err
+    if model is not None:
+        try:
+            _check_model(log, model)
+        except LogError as err:
+            raise LogError(f"{where}: {err}") from err
+    return log
+
+
+def _resolve_columns(spec: str | Sequence[str], header: list[str], key: str, where: str) -> list[int]:
+    patterns = [spec] if isinstance(spec, str) else list(spec)
+    if not patterns or not all(isinstance(p, str) for p in patterns):
+        raise LogError(f"`columns['{key}']` must be a column name, a pattern or a list of them. Received {spec!r}.")
+    out: list[int] = []
+    for pattern in patterns:
+        hits = [i for i, name in enumerate(header) if fnmatch.fnmatchcase(name, pattern)]
+        if not hits:
+            close = difflib.get_close_matches(pattern, header, n=3, cutoff=0.5)
+            hint = f" Close matches: {', '.join(repr(c) for c in close)}." if close else ""
+            raise LogError(
+                f"`columns['{key}']` names column {pattern!r}, which {where} does not have.{hint} "
+                f"Received columns: {', '.join(repr(h) for h in header)}."
+            )
+        out.extend(hits)
+    return out
+
+
+def load_csv(
+    path: str | os.PathLike[str],
+    columns: Mapping[str, str | Sequence[str]],
+    meta: Mapping[str, Any],
+    model: mujoco.MjModel | None = None,
+    delimiter: str = ",",
+) -> TrajectoryLog:
+    """Imports a real-robot CSV log (one header row) through a column mapping.
+
+    Args:
+        path: the CSV file.
+        columns: log key -> CSV column name(s) or fnmatch patterns, in order, e.g.
+            ``{"time": "t", "qpos": ["j0_pos", "j1_pos"], "qvel": "j*_vel", "ctrl": ["u0", "u1"]}``.
+            Keys ``time``, ``qpos``, ``qvel`` and ``ctrl`` are required; ``sensordata``, ``episode`` and
+            ``act`` are optional.
+        meta: at least ``timestep`` and ``control_timestep`` (seconds); ``task`` and names are kept.
+        model: when given, the widths must match it.
+        delimiter: the CSV field separator.
+
+    Raises:
+        LogError: a mapped column is missing (close matches listed), a cell is not a number, or the
+            resulting log is invalid.
+
+    Example:
+        >>> import os, tempfile
+        >>> path = os.path.join(tempfile.mkdtemp(), "robot.csv")
+        >>> _ = open(path, "w").write("t,q,dq,u\\n0,0,0,1\\n0.01,0,0.1,1\\n0.02,0.001,0.2,0\\n")
+        >>> log = load_csv(path, {"time": "t", "qpos": "q", "qvel": "dq", "ctrl": "u"},
+        ...                meta={"timestep": 0.01, "control_timestep": 0.01})
+        >>> log.qvel[:, 0].tolist()
+        [0.0, 0.1, 0.2]
+    """
+    where = repr(str(path))
+    if not Path(path).is_file():
+        raise FileNotFoundError(f"`path` {where} does not exist.")
+    if not isinstance(columns, Mapping):
+        raise LogError(f"`columns` must map log keys to CSV column names. Received {type(columns).__name__}.")
+    allowed = ("time", "qpos", "qvel", "ctrl", "sensordata", "episode", "act")
+    unknown = [k for k in columns if k not in allowed]
+    missing = [k for k in ("time", "qpos", "qvel", "ctrl") if k not in columns]
+    if unknown or missing:
+        raise LogError(
+            f"`columns` must map the keys time, qpos, qvel, ctrl (and optionally sensordata, episode, act). "
+            f"Received keys {sorted(columns)} (missing {missing}, unknown {unknown})."
+        )
+    with open(path, newline="") as handle:
+        rows = list(csv.reader(handle, delimiter=delimiter))
+    if len(rows) < 3:
+        raise LogError(f"`path` {where} must hold a header row and at least 2 data rows. Received {len(rows)} row(s).")
+    header = [h.strip() for h in rows[0]]
+    body = rows[1:]
+    for i, row in enumerate(body):
+        if len(row) != len(header):
+            raise LogError(
+                f"`path` {where} row {i + 2} must have {len(header)} fields like the header. Received {len(row)} "
+                "(truncated file?)."
+            )
+    try:
+        table = np.array([[float(x) if x.strip() else math.nan for x in row] for row in body], dtype=np.float64)
+    except ValueError as err:
+        raise LogError(f"`path` {where} must hold only numbers below the header. Received {err}.") from err
+    arrays: dict[str, np.ndarray] = {}
+    for key, spec in columns.items():
+        idx = _resolve_columns(spec, header, key, f"CSV file {where}")
+        data = table[:, idx]
+        arrays[key] = data[:, 0] if key in ("time", "episode") else data
+    if "episode" in arrays and np.all(np.isfinite(arrays["episode"])):
+        arrays["episode"] = arrays["episode"].astype(np.int64)
+    log = TrajectoryLog(**arrays, meta=dict(meta))
+    if model is not None:
+        _check_model(log, model)
+    return log
+
+
+def channel_names(model: mujoco.MjModel) -> dict[str, list[str]]:
+    """Names of the columns of ``qpos``, ``qvel``, ``ctrl`` and ``sensordata`` for ``model``.
+
+    Hinge/slide joints give ``qpos[name]``; multi-dimensional joints and sensors get ``[k]`` suffixes.
+
+    Example:
+        >>> import mujoco
+        >>> m = mujoco.MjModel.from_xml_string('<mujoco><worldbody><body><joint name="j"/><geom size=".1"/>'
+        ...     '</body></worldbody><sensor><jointpos name="p" joint="j"/></sensor></mujoco>')
+        >>> channel_names(m)["sensordata"]
+        ['p']
+    """
+    qpos: list[str] = []
+    qvel: list[str] = []
+    nq_of = {mujoco.mjtJoint.mjJNT_FREE: 7, mujoco.mjtJoint.mjJNT_BALL: 4}
+    nv_of = {mujoco.mjtJoint.mjJNT_FREE: 6, mujoco.mjtJoint.mjJNT_BALL: 3}
+    for j in range(model.njnt):
+        name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or f"#{j}"
+        kq = nq_of.get(model.jnt_type[j], 1)
+        kv = nv_of.get(model.jnt_type[j], 1)
+        qpos += [f"qpos[{name}]"] if kq == 1 else [f"qpos[{name}][{k}]" for k in range(kq)]
+        qvel += [f"qvel[{name}]"] if kv == 1 else [f"qvel[{name}][{k}]" for k in range(kv)]
+    ctrl = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, i) or f"#{i}" for i in range(model.nu)]
+    sensors: list[str] = []
+    for s in range(model.nsensor):
+        name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_SENSOR, s) or f"sensor#{s}"
+        dim = int(model.sensor_dim[s])
+        sensors += [name] if dim == 1 else [f"{name}[{k}]" for k in range(dim)]
+    return {"qpos": qpos, "qvel": qvel, "ctrl": [f"ctrl[{c}]" for c in ctrl], "sensordata": sensors}
+
+
+def _noise_for(noise_std: float | Mapping[str, float] | None, key: str) -> float:
+    if noise_std is None:
+        return 0.0
+    value = noise_std.get(key, 0.0) if isinstance(noise_std, Mapping) else noise_std
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+        raise ValueError(f"`noise_std` for {key!r} must be a finite number >= 0. Received {value!r}.")
+    return float(value)
+
+
+def record_log(
+    model: mujoco.MjModel,
+    ctrl: np.ndarray,
+    *,
+    n_substeps: int = 1,
+    initial_qpos: np.ndarray | None = None,
+    initial_qvel: np.ndarray | None = None,
+    action_latency: int = 0,
+    obs_latency: int = 0,
+    noise_std: float | Mapping[str, float] | None = None,
+    rng: np.random.Generator | None = None,
+    task: str = "",
+    true_params: Mapping[str, float] | None = None,
+    nthread: int | None = None,
+) -> TrajectoryLog:
+    """Simulates ``model`` open loop under ``ctrl`` (through ``mujoco.rollout``) and logs it.
+
+    The physics sees ``ctrl[t - action_latency]`` during control step ``t`` (``ctrl[0]`` before the log
+    starts); ``sensordata[t]`` is the reading of the state ``obs_latency`` control steps earlier (the first
+    reading repeats before that). Gaussian noise of ``noise_std`` is added to ``qpos``, ``qvel`` and
+    ``sensordata`` after that (``ctrl`` is logged as commanded, without noise).
+
+    Args:
+        model: the model to simulate (not modified).
+        ctrl: (T, nu) for one episode or (E, T, nu) for E episodes of equal length.
+        n_substeps: physics steps per control step; ``control_timestep = n_substeps * opt.timestep``.
+        initial_qpos: (nq,) or (E, nq); defaults to ``model.qpos0``.
+        initial_qvel: (nv,) or (E, nv); defaults to zeros.
+        action_latency: whole control steps between command and actuation (>= 0).
+        obs_latency: whole control steps by which ``sensordata`` lags the state (>= 0).
+        noise_std: one sigma for every measured channel or ``{"qpos": s, "qvel": s, "sensordata": s}``.
+        rng: the Generator for the noise (required when any sigma is > 0).
+        task: stored in ``meta["task"]``.
+        true_params: stored in ``meta["true_params"]`` (ground truth for tests and benchmarks).
+        nthread: rollout threads (default ``os.cpu_count()``).
+
+    Returns:
+        A validated :class:`TrajectoryLog` with ``episode`` set when E > 1.
+    """
+    if not isinstance(model, mujoco.MjModel):
+        raise TypeError(f"`model` must be a mujoco.MjModel. Received {type(model).__name__}.")
+    controls = np.asarray(ctrl, dtype=np.float64)
+    if controls.ndim == 2:
+        controls = controls[None]
+    if controls.ndim != 3 or controls.shape[2] != model.nu or controls.shape[1] < 2:
+        raise ValueError(
+            f"`ctrl` must have shape (T, nu) or (E, T, nu) with nu={model.nu} and T >= 2. Received shape "
+            f"{np.shape(ctrl)}."
+        )
+    if not np.all(np.isfinite(controls)):
+        raise ValueError("`ctrl` must be finite. Received NaN or inf.")
+    for name, value in (("n_substeps", n_substeps), ("action_latency", action_latency), ("obs_latency", obs_latency)):
+        low = 1 if name == "n_substeps" else 0
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+            raise ValueError(f"`{name}` must be an int >= {low}. Received {value!r}.")
+    episodes, steps, _ = controls.shape
+    sigmas = {key: _noise_for(noise_std, key) for key in ("qpos", "qvel", "sensordata")}
+    if any(s > 0 for s in sigmas.values()) and not isinstance(rng, np.random.Generator):
+        raise ValueError(f"`rng` must be a numpy Generator when `noise_std` > 0. Received {rng!r}.")
+
+    def initial(value: np.ndarray | None, default: np.ndarray, name: str) -> np.ndarray:
+        if value is None:
+            return np.tile(default, (episodes, 1))
+        array = np.asarray(value, dtype=np.float64)
+        array = np.tile(array, (episodes, 1)) if array.ndim == 1 else array
+        if array.shape != (episodes, default.shape[0]):
+            raise ValueError(
+                f"`{name}` must have shape ({default.shape[0]},) or ({episodes}, {default.shape[0]}). "
+                f"Received shape {np.shape(value)}."
+            )
+        return array
+
+    qpos0 = initial(initial_qpos, model.qpos0.copy(), "initial_qpos")
+    qvel0 = initial(initial_qvel, np.zeros(model.nv), "initial_qvel")
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    data = mujoco.MjData(model)
+    states = np.empty((episodes, mujoco.mj_stateSize(model, spec)))
+    for e in range(episodes):
+        mujoco.mj_resetData(model, data)
+        data.qpos[:] = qpos0[e]
+        data.qvel[:] = qvel0[e]
+        mujoco.mj_getState(model, data, states[e], spec)
+    # The physics sees the command issued ``action_latency`` control steps earlier (held from ctrl[0]).
+    source = np.clip(np.arange(steps) - action_latency, 0, None)
+    applied = np.repeat(controls[:, source], n_substeps, axis=1)
+    threads = nthread or os.cpu_count() or 1
+    datas = [mujoco.MjData(model) for _ in range(min(threads, episodes))]
+    nstep = steps * n_substeps
+    state_out, sensor_out = mujoco.rollout.rollout(model, datas, states, applied, nstep=nstep)
+    # rollout returns the state after each physics step; row t of the log is the state before step t.
+    trajectory = np.concatenate([states[:, None], state_out[:, n_substeps - 1 : -1 : n_substeps]], axis=1)
+    offset = 1  # mjSTATE_TIME comes first
+    qpos = trajectory[:, :, offset : offset + model.nq].copy()
+    qvel = trajectory[:, :, offset + model.nq : offset + model.nq + model.nv].copy()
+    time = trajectory[:, :, 0].copy()
+    sensordata = None
+    if model.nsensordata:
+        # rollout's sensordata of step n is evaluated at the state before step n.
+        sensordata = sensor_out[:, ::n_substeps].copy()
+        lagged = np.clip(np.arange(steps) - obs_latency, 0, None)
+        sensordata = sensordata[:, lagged]
+    act = None
+    if model.na:
+        start = offset + model.nq + model.nv
+        act = trajectory[:, :, start : start + model.na].copy()
+    measured = {"qpos": qpos, "qvel": qvel, "sensordata": sensordata}
+    for key, sigma in sigmas.items():
+        if sigma > 0 and measured[key] is not None:
+            assert rng is not None
+            measured[key] = measured[key] + rng.normal(0.0, sigma, size=measured[key].shape)
+    names = channel_names(model)
+    meta: dict[str, Any] = {
+        "task": task,
+        "timestep": float(model.opt.timestep),
+        "control_timestep": float(model.opt.timestep) * n_substeps,
+        "joint_names": [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or f"#{j}" for j in range(model.njnt)],
+        "actuator_names": [n[5:-1] for n in names["ctrl"]],
+        "sensor_names": names["sensordata"],
+        "true_latency_steps": {"action": int(action_latency), "obs": int(obs_latency)},
+        "noise_std": sigmas,
+    }
+    if true_params is not None:
+        meta["true_params"] = {str(k): float(v) for k, v in true_params.items()}
+
+    def flat(a: np.ndarray | None) -> np.ndarray | None:
+        return None if a is None else a.reshape(episodes * steps, *a.shape[2:])
+
+    return TrajectoryLog(
+        time=flat(time),  # type: ignore[arg-type]
+        qpos=flat(measured["qpos"]),  # type: ignore[arg-type]
+        qvel=flat(measured["qvel"]),  # type: ignore[arg-type]
+        ctrl=flat(controls),  # type: ignore[arg-type]
+        sensordata=flat(measured["sensordata"]),
+        episode=np.repeat(np.arange(episodes), steps) if episodes > 1 else None,
+        act=flat(act),
+        meta=meta,
+    )
