@@ -1,4 +1,4 @@
-"""The ``sim2real`` command line: ``sim2real tasks``, ``sim2real demo`` and ``sim2real visualize``.
+"""The ``sim2real`` command line: ``tasks``, ``demo``, ``visualize``, ``record`` and ``sysid fit``.
 
 Exit codes: 0 on success, 2 on a usage error or bad input (unknown task, bad config), with the
 message on stderr and no traceback.
@@ -136,6 +136,60 @@ def _build_parser() -> argparse.ArgumentParser:
         "--size", type=_int_at_least(8), default=84, help="frame side in pixels (default: %(default)s)"
     )
     visualize.add_argument("--camera", help="camera name or id (default: the model's first camera)")
+
+    record = sub.add_parser(
+        "record",
+        help="record an excitation log (.npz) for system identification",
+        description=(
+            "Run an excitation signal open loop on TASK's model (perturbed by --set, with action latency and sensor "
+            "noise) and write a trajectory log (.npz, written atomically) that `sim2real sysid fit` reads. The true "
+            "values of the perturbed parameters and the latencies are stored in the log's meta."
+        ),
+    )
+    record.add_argument("--task", default=ARM_REACH, help="task id (default: %(default)s)")
+    record.add_argument(
+        "--set",
+        dest="sets",
+        action="append",
+        default=[],
+        metavar="ADDRESS=VALUE",
+        help="perturbation: 'dof_damping[*]=*1.3' (scale), '+0.1' (add) or '=0.5' (set); repeatable",
+    )
+    record.add_argument("--policy", default="multisine", help="random, multisine, chirp or prbs (default: %(default)s)")
+    record.add_argument("--episodes", type=_int_at_least(1), default=4, help="episodes (default: %(default)s)")
+    record.add_argument(
+        "--steps", type=_int_at_least(2), default=200, help="control steps per episode (default: %(default)s)"
+    )
+    record.add_argument("--seed", type=_int_at_least(0), default=0, help="root seed (default: %(default)s)")
+    record.add_argument("--obs-noise", type=float, default=0.0, help="sensor noise std on qpos/qvel/sensordata")
+    record.add_argument("--latency", type=_int_at_least(0), default=0, help="action latency in control steps")
+    record.add_argument("--obs-latency", type=_int_at_least(0), default=0, help="sensor latency in control steps")
+    record.add_argument("--amplitude", type=float, default=0.5, help="fraction of each actuator's half-range")
+    record.add_argument("--out", required=True, help="output .npz path")
+
+    sysid_parser = sub.add_parser("sysid", help="system identification (`sim2real sysid fit LOG ...`)")
+    sysid_sub = sysid_parser.add_subparsers(dest="sysid_command", title="sysid commands")
+    fit = sysid_sub.add_parser(
+        "fit",
+        help="fit parameters (and latency) of a task's model to a trajectory log",
+        description=(
+            "Fit the addressed parameters of TASK's model to LOG (.npz from `sim2real record`, or a CSV converted with "
+            "sysid.load_csv) and write the estimates, standard errors, 95%% intervals, Cramér-Rao bounds, noise levels, "
+            "fit percentages and identifiability warnings as JSON."
+        ),
+    )
+    fit.add_argument("log", help="trajectory log (.npz)")
+    fit.add_argument("--task", required=True, help="task id whose model is fitted")
+    fit.add_argument(
+        "--params", required=True, help="comma-separated addresses, e.g. 'dof_damping[*],geom_friction[*][0]'"
+    )
+    fit.add_argument("--latency", action="store_true", help="also estimate the action latency")
+    fit.add_argument("--out", default="result.json", help="JSON output (default: %(default)s)")
+    fit.add_argument("--report", help="also write an HTML page with the summary and the fit figure")
+    fit.add_argument(
+        "--seed", type=_int_at_least(0), default=0, help="seed of the global search (default: %(default)s)"
+    )
+    fit.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
 
 
@@ -314,6 +368,99 @@ def _cmd_visualize(args: argparse.Namespace, out: TextIO) -> int:
     return 0
 
 
+# ---------------------------------------------------------------------------------- record / sysid
+
+
+def _cmd_record(args: argparse.Namespace, out: TextIO) -> int:
+    import sysid
+    from sim2real.recording import record
+
+    try:
+        log = record(
+            args.task,
+            sets=args.sets,
+            policy=args.policy,
+            episodes=args.episodes,
+            steps=args.steps,
+            seed=args.seed,
+            obs_noise=args.obs_noise,
+            latency=args.latency,
+            obs_latency=args.obs_latency,
+            amplitude=args.amplitude,
+        )
+        sysid.save_log(log, args.out)
+    except (TypeError, ValueError) as err:
+        raise _UsageError(str(err)) from err
+    print(
+        f"wrote {args.out}: {log.num_steps} rows ({args.episodes} episode(s) of {args.task}, policy {args.policy}); "
+        f"true params {log.meta.get('true_params', {})}",
+        file=out,
+    )
+    return 0
+
+
+def _atomic_text(path: str, text: str) -> None:
+    import tempfile
+
+    folder = os.path.dirname(os.path.abspath(path))
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=os.path.basename(path))
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _fit_report_html(result: Any, task: str, log_path: str) -> str:
+    import base64
+    import html
+    import io
+
+    buffer = io.BytesIO()
+    result.plot().savefig(buffer, format="png", dpi=80)
+    image = base64.b64encode(buffer.getvalue()).decode("ascii")
+    warnings = "".join(f"<li>{html.escape(w)}</li>" for w in result.warnings) or "<li>none</li>"
+    return (
+        "<!doctype html><html><head><meta charset='utf-8'><title>sysid fit</title></head><body>"
+        f"<h1>System identification: {html.escape(task)}</h1><p>log: {html.escape(log_path)}</p>"
+        f"<pre>{html.escape(result.summary())}</pre><h2>Warnings</h2><ul>{warnings}</ul>"
+        f"<h2>Fit and residuals</h2><img alt='fit' src='data:image/png;base64,{image}'></body></html>"
+    )
+
+
+def _cmd_sysid(args: argparse.Namespace, out: TextIO) -> int:
+    import sysid
+    from sim2real.tasks import make
+
+    if args.sysid_command != "fit":
+        raise _UsageError("choose a sysid command: `sim2real sysid fit LOG --task TASK --params ...`")
+    try:
+        env = make(args.task)
+        handle = sim2real.find_physics(env)
+        if handle is None:
+            raise ValueError(f"task {args.task!r} has no MuJoCo model")
+        log = sysid.load_log(args.log, model=handle.model)
+        params = [p.strip() for p in args.params.split(",") if p.strip()]
+        result = sysid.fit(
+            log, handle.model, params, latency=True if args.latency else None, seed=args.seed, progress=not args.quiet
+        )
+        env.close()
+    except FileNotFoundError as err:
+        raise _UsageError(f"cannot read the log: {err}") from err
+    except (TypeError, ValueError) as err:  # LogError is a ValueError
+        raise _UsageError(str(err)) from err
+    result.to_json(args.out)
+    if args.report:
+        _atomic_text(args.report, _fit_report_html(result, args.task, args.log))
+    print(result.summary(), file=out)
+    print(f"wrote {args.out}" + (f" and {args.report}" if args.report else ""), file=out)
+    return 0
+
+
 # ---------------------------------------------------------------------------------- entry point
 
 
@@ -339,6 +486,10 @@ def main(argv: list[str] | None = None) -> int:
             return _cmd_tasks(sys.stdout)
         if args.command == "visualize":
             return _cmd_visualize(args, sys.stdout)
+        if args.command == "record":
+            return _cmd_record(args, sys.stdout)
+        if args.command == "sysid":
+            return _cmd_sysid(args, sys.stdout)
         return _cmd_demo(args, sys.stdout)
     except _UsageError as err:
         print(f"sim2real {args.command}: error: {err}", file=sys.stderr)

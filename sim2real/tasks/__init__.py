@@ -147,7 +147,7 @@ def task_ids() -> list[str]:
     return list(TASKS)
 
 
-def make(task_id: str, *, pixels: bool = False, **options: Any) -> gym.Env:
+def make(task_id: str, *, pixels: bool = False, params: Any = None, **options: Any) -> gym.Env:
     """Creates a task as a ``gymnasium.Env``.
 
     Args:
@@ -156,6 +156,8 @@ def make(task_id: str, *, pixels: bool = False, **options: Any) -> gym.Env:
             which then takes the options ``size`` (``(height, width)``, default ``(84, 84)``),
             ``camera`` (name or id; default the model's first camera) and ``pixels_only`` (default
             True; False gives a dict of ``"state"`` and ``"pixels"``).
+        params: a calibration: a :class:`sysid.FitResult` or ``{address: value}``, written into the model
+            (it becomes the nominal model that later randomisation is relative to).
         **options: for ``dmc/*``: ``flatten`` (default True), ``render_mode``, ``width``, ``height``,
             ``camera`` and (suite only) ``time_limit`` in seconds; for ``gym/*``: anything
             ``gymnasium.make`` takes; for ``sim2real/arm-reach``: the
@@ -179,9 +181,14 @@ def make(task_id: str, *, pixels: bool = False, **options: Any) -> gym.Env:
             raise TypeError(f"`size` and `pixels_only` apply with pixels=True only. Received {sorted(options)}.")
         env = _make(task_id, **options)
         track_render_contexts(env)  # texture resamples reach the env's own renderers
-        return env
-    view = {k: options.pop(k) for k in ("size", "camera", "pixels_only") if k in options}
-    return PixelObservation(_make(task_id, **options), **view)
+    else:
+        view = {k: options.pop(k) for k in ("size", "camera", "pixels_only") if k in options}
+        env = PixelObservation(_make(task_id, **options), **view)
+    if params is not None:
+        from sim2real.recording import calibrate
+
+        calibrate(env, params)
+    return env
 
 
 def _make(task_id: str, **options: Any) -> gym.Env:

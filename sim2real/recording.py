@@ -1,0 +1,324 @@
+"""Recording trajectory logs for system identification, and calibrated environments.
+
+* :func:`parse_set` turns ``'dof_damping[*]=*1.3'`` (scale), ``'+0.1'`` (add) or ``'=0.5'`` (set) into an effect.
+* :func:`record` runs an excitation policy open loop on a task's model (optionally perturbed, with action
+  latency and sensor noise) and returns a :class:`sysid.TrajectoryLog` — what ``sim2real record`` writes.
+* :class:`RecordTrajectory` records any gymnasium MuJoCo env step by step (closed loop, any policy).
+* :func:`calibrate` writes fitted values (a :class:`sysid.FitResult` or ``{address: value}``) into an env's model;
+  ``sim2real.make(task, params=result)`` uses it.
+
+Example:
+    >>> import sim2real as s2r
+    >>> parse_set("dof_damping[*]=*1.3")
+    Damping(scale=Constant(value=1.3), joints='*')
+    >>> log = record("dmc/reacher-easy", sets=["dof_damping[*]=*1.5"], policy="multisine", episodes=2, steps=50, seed=0)
+    >>> log.qpos.shape, round(log.meta["true_params"]["dof_damping[shoulder]"], 6)
+    ((100, 2), 0.015)
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+
+from randomizers import Effect, PhysicsRandomizer
+from randomizers.addressing import Address
+from sim2real.physics import PhysicsHandle, find_physics
+
+__all__ = ["RecordTrajectory", "calibrate", "parse_set", "record"]
+
+_SET = re.compile(r"^\s*(?P<address>[^=\s]+)\s*=\s*(?P<op>[*+]?)\s*(?P<value>[-+0-9.eE]+)\s*$")
+_OPS = {"*": "scale", "+": "add", "": "set"}
+_FRICTION_AXES = ("sliding", "torsional", "rolling")
+
+
+def parse_set(text: str) -> Effect:
+    """An effect from ``ADDRESS=*X`` (scale), ``ADDRESS=+X`` (add) or ``ADDRESS=X`` (set).
+
+    Example:
+        >>> parse_set("geom_friction[finger*][0]=0.8")
+        Friction(set=Constant(value=0.8), geoms='finger*')
+        >>> parse_set("dof_damping=*2")
+        Traceback (most recent call last):
+        ...
+        ValueError: `--set` must look like 'dof_damping[*]=*1.3' (scale), 'dof_damping[*]=+0.1' (add) or \
+'dof_damping[*]=0.5' (set). Received 'dof_damping=*2'.
+    """
+    from sysid.params import EFFECT_FIELDS
+
+    match = _SET.match(text) if isinstance(text, str) else None
+    address = None
+    if match is not None:
+        try:
+            address = Address.parse(match["address"])
+            value = float(match["value"])
+        except ValueError:
+            address = None
+    if match is None or address is None:
+        raise ValueError(
+            "`--set` must look like 'dof_damping[*]=*1.3' (scale), 'dof_damping[*]=+0.1' (add) or "
+            f"'dof_damping[*]=0.5' (set). Received {text!r}."
+        )
+    cls = EFFECT_FIELDS.get(address.field)
+    if cls is None:
+        raise ValueError(
+            f"`--set` field must be one of {sorted(EFFECT_FIELDS)}. Received {address.field!r} in {text!r}."
+        )
+    kwargs: dict[str, Any] = {_OPS[match["op"]]: value}
+    if address.field == "gravity":
+        kwargs["axes"] = "xyz" if address.element == "*" else address.element
+    else:
+        kwargs[cls.selector] = address.element  # type: ignore[attr-defined]
+    if address.field == "geom_friction":
+        kwargs["axis"] = _FRICTION_AXES[address.index or 0]
+    return cls(**kwargs)
+
+
+def calibrate(env: Any, params: Any) -> Any:
+    """Writes fitted parameter values into ``env``'s MuJoCo model (they become its nominal values).
+
+    Args:
+        env: any env :func:`sim2real.find_physics` understands.
+        params: a :class:`sysid.FitResult` or a mapping ``{address: value}`` (e.g. ``result.params``).
+
+    Returns:
+        ``env`` itself. On composer envs (which recompile every reset) the values are written again after
+        every recompile.
+    """
+    from sysid.params import ParameterSpace
+
+    values = getattr(params, "params", params)
+    if not isinstance(values, Mapping) or not values:
+        raise TypeError(
+            f"`params` must be a sysid.FitResult or a non-empty mapping {{address: value}}. Received {params!r}."
+        )
+    handle = find_physics(env)
+    if handle is None:
+        raise TypeError(f"`env` of type {type(env).__name__} has no MuJoCo model to calibrate.")
+    addresses = list(values)
+    vector = np.array([float(values[a]) for a in addresses])
+
+    def write(model: mujoco.MjModel) -> None:
+        bounds = {a: (min(v, 0.0) - 1.0, max(v, 0.0) + 1.0 + abs(v)) for a, v in zip(addresses, vector, strict=True)}
+        space = ParameterSpace(model, addresses, bounds)
+        space.writer(model)(space.values_from(dict(zip(addresses, vector, strict=True)), "params"))
+
+    write(handle.model)
+    if handle.recompiles:
+        handle.on_recompile(lambda model, data: write(model))
+    return env
+
+
+def _limits(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
+    low = np.where(model.actuator_ctrllimited.astype(bool), model.actuator_ctrlrange[:, 0], -1.0)
+    high = np.where(model.actuator_ctrllimited.astype(bool), model.actuator_ctrlrange[:, 1], 1.0)
+    return low, high
+
+
+def record(
+    task: str,
+    *,
+    sets: Sequence[str] = (),
+    policy: str = "multisine",
+    episodes: int = 4,
+    steps: int = 200,
+    seed: int = 0,
+    obs_noise: float = 0.0,
+    latency: int = 0,
+    obs_latency: int = 0,
+    amplitude: float = 0.5,
+) -> Any:
+    """Records an excitation log of ``task`` (open loop, exact physics through ``mujoco.rollout``).
+
+    Args:
+        task: a task id (``sim2real tasks``); composer tasks are not supported (their model changes each reset).
+        sets: perturbations in :func:`parse_set` form, applied to the model the log is recorded on.
+        policy: excitation signal, one of :data:`sysid.EXCITATIONS` (``random``, ``multisine``, ``chirp``, ``prbs``).
+        episodes: episodes; each starts from the task's own reset state for ``reset(seed=seed + e)``.
+        steps: control steps per episode.
+        seed: seeds the excitation, the initial states and the sensor noise.
+        obs_noise: standard deviation of Gaussian noise on the logged qpos, qvel and sensordata.
+        latency: action latency in control steps (the actuators apply ``ctrl[t - latency]``).
+        obs_latency: sensor latency in control steps (``sensordata`` lags the state).
+        amplitude: excitation amplitude as a fraction of each actuator's half-range, in (0, 1].
+
+    Returns:
+        A :class:`sysid.TrajectoryLog` whose ``meta`` holds the task, the true parameter values of every
+        perturbed address and the true latencies.
+    """
+    import sysid
+    from sim2real.tasks import make
+
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
+        raise ValueError(f"`episodes` must be an int >= 1. Received {episodes!r}.")
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 2:
+        raise ValueError(f"`steps` must be an int >= 2. Received {steps!r}.")
+    if not (isinstance(obs_noise, (int, float)) and obs_noise >= 0):
+        raise ValueError(f"`obs_noise` must be a number >= 0. Received {obs_noise!r}.")
+    effects = [parse_set(s) for s in sets]
+    env = make(task)
+    handle = _require(env, task)
+    if handle.recompiles:
+        env.close()
+        raise ValueError(
+            f"`task` {task!r} recompiles its model every episode; record a dm-control suite, gym or sim2real task."
+        )
+    substeps = handle.substeps or 1
+    starts = []
+    for e in range(episodes):
+        env.reset(seed=seed + e)
+        starts.append((np.array(handle.data.qpos), np.array(handle.data.qvel)))
+    model = handle.model
+    true_params: dict[str, float] = {}
+    if effects:
+        randomizer = PhysicsRandomizer(effects, seed=seed)
+        randomizer.bind(model, handle.data)
+        randomizer.begin_episode()
+        randomizer.apply()
+        true_params = dict(randomizer.current_params)
+        model = _copy_model(model)
+        randomizer.restore_nominal()
+    dt = float(model.opt.timestep) * substeps
+    excitation = sysid.make_excitation(policy, _limits(model), amplitude=amplitude, seed=seed)
+    ctrl = np.stack([excitation.signal(steps, dt, t0=e * steps * dt) for e in range(episodes)])
+    log = sysid.record_log(
+        model,
+        ctrl,
+        n_substeps=substeps,
+        initial_qpos=np.stack([q for q, _ in starts]),
+        initial_qvel=np.stack([v for _, v in starts]),
+        action_latency=latency,
+        obs_latency=obs_latency,
+        noise_std=obs_noise if obs_noise > 0 else None,
+        rng=np.random.default_rng([seed, 0x10C]) if obs_noise > 0 else None,
+        task=task,
+        true_params=true_params,
+    )
+    env.close()
+    return log
+
+
+def _copy_model(model: mujoco.MjModel) -> mujoco.MjModel:
+    import copy
+
+    return copy.copy(model)
+
+
+def _require(env: Any, task: str) -> PhysicsHandle:
+    handle = find_physics(env)
+    if handle is None:
+        raise ValueError(f"`task` {task!r} has no MuJoCo model to record.")
+    return handle
+
+
+class RecordTrajectory(gym.Wrapper):
+    """Records a gymnasium MuJoCo env step by step into a :class:`sysid.TrajectoryLog` (any policy, closed loop).
+
+    Row ``t`` holds the true state before control step ``t`` (``time``, ``qpos``, ``qvel``, ``sensordata``),
+    the observation the policy acted on, and the actuator command the env issued for that step (read when
+    the physics step starts, so an outer latency model does not hide it). Put noise or latency models
+    inside (``RecordTrajectory(sim2real.wrap(env, ...))``) to record a "real" twin.
+
+    Example:
+        >>> import sim2real as s2r
+        >>> env = RecordTrajectory(s2r.make("dmc/reacher-easy"))
+        >>> obs, _ = env.reset(seed=0)
+        >>> for _ in range(5):
+        ...     obs, *_ = env.step(env.action_space.sample())
+        >>> env.to_log().qpos.shape
+        (5, 2)
+    """
+
+    def __init__(self, env: gym.Env, task: str = "") -> None:
+        super().__init__(env)
+        handle = find_physics(env)
+        if handle is None:
+            raise TypeError(f"`env` of type {type(env).__name__} has no MuJoCo model to record.")
+        self.handle = handle
+        self.task = task
+        self._rows: dict[str, list[np.ndarray]] = {k: [] for k in ("time", "qpos", "qvel", "ctrl", "sensordata", "obs")}
+        self._episode: list[int] = []
+        self._episodes = -1
+        self._obs: Any = None
+        self._command: np.ndarray | None = None
+        self._first = False
+        self._remove: Any = None
+        try:
+            self._remove = handle.intercept_step(self._capture)
+        except TypeError:
+            self._remove = None  # fall back to the ctrl left after the step
+        self.true_params: dict[str, float] = {}
+
+    def _capture(self, run: Any, nstep: int) -> None:
+        if self._first:
+            self._command = np.array(self.handle.data.ctrl)
+            self._first = False
+        run(nstep)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
+        obs, info = self.env.reset(seed=seed, options=options)
+        self._episodes += 1
+        self._obs = obs
+        if self._episodes == 0:
+            self.true_params = dict(info.get("sim2real", {}).get("params", {}))
+        return obs, info
+
+    def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
+        data = self.handle.data
+        state = (float(data.time), np.array(data.qpos), np.array(data.qvel), np.array(data.sensordata))
+        self._first = True
+        self._command = None
+        result = self.env.step(action)
+        command = self._command if self._command is not None else np.array(data.ctrl)
+        rows = self._rows
+        for key, value in zip(("time", "qpos", "qvel", "sensordata"), state, strict=True):
+            rows[key].append(np.asarray(value))
+        rows["ctrl"].append(command)
+        rows["obs"].append(np.array(self._obs, dtype=np.float64).ravel())
+        self._episode.append(self._episodes)
+        self._obs = result[0]
+        return result
+
+    def to_log(self) -> Any:
+        """The rows recorded so far as a validated :class:`sysid.TrajectoryLog`."""
+        import sysid
+
+        if not self._rows["time"]:
+            raise ValueError("nothing recorded yet: call reset() and step() first.")
+        model = self.handle.model
+        substeps = self.handle.substeps or 1
+        names = sysid.channel_names(model)
+        arrays = {k: np.array(v) for k, v in self._rows.items()}
+        episode = np.array(self._episode)
+        time = arrays["time"]
+        return sysid.TrajectoryLog(
+            time=time,
+            qpos=arrays["qpos"],
+            qvel=arrays["qvel"],
+            ctrl=arrays["ctrl"],
+            sensordata=arrays["sensordata"] if model.nsensordata else None,
+            obs=arrays["obs"],
+            episode=episode if episode.max() > 0 else None,
+            meta={
+                "task": self.task,
+                "timestep": float(model.opt.timestep),
+                "control_timestep": float(model.opt.timestep) * substeps,
+                "joint_names": [
+                    mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or f"#{j}" for j in range(model.njnt)
+                ],
+                "actuator_names": [n[5:-1] if n.startswith("ctrl[") else n for n in names["ctrl"]],
+                "sensor_names": names["sensordata"],
+                "true_params": self.true_params,
+            },
+        )
+
+    def close(self) -> None:
+        if self._remove is not None:
+            self._remove()
+            self._remove = None
+        super().close()
