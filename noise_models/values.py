@@ -1,9 +1,9 @@
-"""Parameters (a constant or anything with ``sample(rng, size)``) and signal layouts with selections.
+"""Parameters (a constant or anything with ``sample(rng)``) and signal layouts with selections.
 
 Any parameter of a noise model takes a plain number or a distribution. Distributions are accepted by
 duck typing — ``randomizers.Uniform`` and friends work, and so does any object with a
-``sample(rng, size)`` method; when it also has a ``support`` ``(low, high)`` the range is checked
-when the model is built.
+``sample(rng)`` or ``sample(rng, size)`` method; when it also has a ``support`` ``(low, high)`` the
+range is checked when the model is built.
 
 Example:
     >>> import numpy as np
@@ -120,7 +120,11 @@ def draw(value: Any, rng: np.random.Generator, n: int) -> np.ndarray:
     """``n`` float64 values of a parameter (a constant is repeated without touching ``rng``)."""
     if not is_sampler(value):
         return np.full(n, float(value))
-    out = np.asarray(value.sample(rng, n), dtype=np.float64)
+    try:
+        raw = value.sample(rng, n)
+    except TypeError:  # a bare ``sample(rng)``: one call per value
+        raw = [value.sample(rng) for _ in range(n)]
+    out = np.asarray(raw, dtype=np.float64)
     if out.shape != (n,):
         out = np.broadcast_to(out, (n,)).copy()
     return out

@@ -110,12 +110,14 @@ class PhysicsHandle:
                 return int(value)
         return None
 
-    def intercept_step(self, stepper: Callable[[Callable[[int], None], int], None]) -> Callable[[], None]:
+    def intercept_step(self, stepper: Callable[[Any, int], None]) -> Callable[[], None]:
         """Routes the env's physics stepping through ``stepper(run, nstep)``.
 
         The env asks for ``nstep`` physics steps (once per control step, or once per substep on
         composer envs); ``stepper`` decides what happens and calls ``run(k)`` to advance ``k`` steps
-        with the env's own stepping code and the current ``data.ctrl``. Returns a function that
+        with the env's own stepping code and the current ``data.ctrl``, or
+        ``run.split([(ctrl, k), ...])`` to advance in pieces with a command each, which does the same
+        work as one unsplit step (no extra kinematics or collision passes). Returns a function that
         removes the interception.
 
         Raises:
@@ -125,10 +127,10 @@ class PhysicsHandle:
         if self.source.startswith("dm_control"):
 
             def install(physics: Any) -> None:
-                original = physics.step
+                runner = _DmRunner(physics, physics.step)
 
                 def step(nstep: int = 1) -> None:
-                    stepper(original, nstep)
+                    stepper(runner, nstep)
 
                 physics.step = step
 
@@ -145,16 +147,16 @@ class PhysicsHandle:
                     self.remove_hook(hook)
 
             return remove
-        data = self.data
         if callable(getattr(owner, "_simulate", None)):
-            original_sim = owner._simulate
-            owner._simulate = lambda nstep: stepper(original_sim, nstep)
+            sim_runner = _Runner(owner._simulate, self.data)
+            owner._simulate = lambda nstep: stepper(sim_runner, nstep)
         elif callable(getattr(owner, "_step_mujoco_simulation", None)):
-            original_mj = owner._step_mujoco_simulation
+            gym_runner = _GymRunner(owner._step_mujoco_simulation, self.model, self.data)
+            data = self.data
 
             def simulate(ctrl: Any, n_frames: int) -> None:
                 data.ctrl[:] = ctrl
-                stepper(lambda k: original_mj(data.ctrl, k), n_frames)
+                stepper(gym_runner, n_frames)
 
             owner._step_mujoco_simulation = simulate
         else:
@@ -177,6 +179,79 @@ class PhysicsHandle:
         hooks = self.owner._hooks._after_compile.extra_hooks  # composer keeps no public remover
         if hook in hooks:
             hooks.remove(hook)
+
+
+class _Runner:
+    """Advances physics with the env's own stepping function; ``split`` runs pieces with a command each."""
+
+    def __init__(self, original: Callable[[int], None], data: mujoco.MjData) -> None:
+        self.original = original
+        self.data = data
+
+    def __call__(self, nstep: int) -> None:
+        self.original(nstep)
+
+    def split(self, pieces: list[tuple[np.ndarray, int]]) -> None:
+        ctrl = self.data.ctrl
+        for command, length in pieces:
+            ctrl[:] = command
+            self.original(length)
+
+
+class _GymRunner(_Runner):
+    """gymnasium's ``_step_mujoco_simulation``: ``mj_step`` then ``mj_rnePostConstraint`` once."""
+
+    def __init__(self, original: Callable[[Any, int], None], model: mujoco.MjModel, data: mujoco.MjData) -> None:
+        self.step_sim = original
+        self.model = model
+        self.data = data
+
+    def __call__(self, nstep: int) -> None:
+        self.step_sim(self.data.ctrl, nstep)
+
+    def split(self, pieces: list[tuple[np.ndarray, int]]) -> None:
+        model, data = self.model, self.data
+        for command, length in pieces:
+            data.ctrl[:] = command
+            mujoco.mj_step(model, data, nstep=length)
+        mujoco.mj_rnePostConstraint(model, data)
+
+
+class _DmRunner:
+    """dm-control's ``Physics.step``; ``split`` keeps its legacy step1/step2 bracketing, so the pieces cost
+    what one unsplit step costs and give bitwise the same state when the command does not change."""
+
+    def __init__(self, physics: Any, original: Callable[[int], None]) -> None:
+        self.physics = physics
+        self.original = original
+        self.fast = bool(getattr(physics, "legacy_step", False)) and int(physics.model.opt.integrator) != int(
+            mujoco.mjtIntegrator.mjINT_RK4
+        )
+
+    def __call__(self, nstep: int) -> None:
+        self.original(nstep)
+
+    def split(self, pieces: list[tuple[np.ndarray, int]]) -> None:
+        physics = self.physics
+        if not self.fast:
+            ctrl = physics.data.ctrl
+            for command, length in pieces:
+                ctrl[:] = command
+                self.original(length)
+            return
+        with physics.check_invalid_state():
+            model, data = physics.model.ptr, physics.data.ptr
+            first = True
+            for command, length in pieces:
+                data.ctrl[:] = command
+                if first:
+                    mujoco.mj_step2(model, data)  # finishes the step begun by the last mj_step1
+                    if length > 1:
+                        mujoco.mj_step(model, data, length - 1)
+                    first = False
+                else:
+                    mujoco.mj_step(model, data, length)
+            mujoco.mj_step1(model, data)
 
 
 def _dm_handle(env: Any) -> PhysicsHandle | None:

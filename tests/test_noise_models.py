@@ -380,3 +380,14 @@ def test_models_are_immutable_values() -> None:
         g.std = 0.2  # type: ignore[misc]
     assert g == Gaussian(std=0.1) and hash(g) == hash(Gaussian(std=0.1)) and g != Gaussian(std=0.2)
     assert ObservationLatency(steps=3) == ObservationLatency(steps=3.0)
+
+
+def test_any_object_with_sample_rng_is_a_distribution() -> None:
+    class Coin:
+        def sample(self, rng: np.random.Generator) -> float:
+            return float(rng.integers(0, 2)) * 0.1
+
+    out, params = run_obs([ObservationNoise(Gaussian(std=Coin()))], steps=2000)
+    stds = [params[f"obs_noise_std[{i}]"] for i in range(4)]
+    assert set(stds) <= {0.0, 0.1}
+    assert np.allclose(out.std(axis=0), stds, atol=0.01)

@@ -378,3 +378,35 @@ def test_dm_env_reports_key_names_and_closes_cleanly() -> None:
     env.step(np.zeros(2))
     env.close()
     assert "step" not in vars(physics)  # the physics-step interception is removed
+
+
+def test_mid_step_latency_on_dm_control_costs_no_extra_pass_and_is_exact() -> None:
+    # manipulator runs 10 substeps per control step; 5 steps of latency splits every control step.
+    from sim2real.physics import _DmRunner
+
+    def trajectory(fast: bool) -> np.ndarray:
+        env = s2r.wrap(s2r.make("dmc/manipulator-bring_ball"), ActionLatency(steps=5), seed=0)
+        env.reset(seed=0)
+        original = _DmRunner.__init__
+
+        def init(self, physics, step):  # type: ignore[no-untyped-def]
+            original(self, physics, step)
+            self.fast = self.fast and fast
+
+        _DmRunner.__init__ = init  # type: ignore[method-assign]
+        try:
+            env.clock._remove()
+            env.clock._remove = env.clock.handle.intercept_step(env.clock._stepper)
+        finally:
+            _DmRunner.__init__ = original  # type: ignore[method-assign]
+        rng = np.random.default_rng(0)
+        states = []
+        for _ in range(20):
+            env.step(rng.uniform(-1, 1, env.action_space.shape).astype(np.float32))
+            data = env.clock.handle.data
+            states.append(np.concatenate([data.qpos, data.qvel]))
+        env.close()
+        return np.array(states)
+
+    fast, plain = trajectory(True), trajectory(False)
+    assert fast.tobytes() == plain.tobytes()

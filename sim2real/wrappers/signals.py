@@ -194,10 +194,11 @@ class SignalClock:
             else:
                 pieces = self.corruptor.continue_segments(start, nstep)
             self._passed += nstep
-            ctrl = data.ctrl
-            for command, length in pieces:
-                ctrl[:] = command
-                run(length)
+            if len(pieces) == 1:
+                data.ctrl[:] = pieces[0][0]
+                run(nstep)
+            else:
+                run.split(pieces)
             return
         corruptor = self.corruptor
         first = self._passed == 0
@@ -215,10 +216,11 @@ class SignalClock:
         data = self.handle.data  # type: ignore[union-attr]
         start = self.now()
         pieces = corruptor.command_segments(data.ctrl, start, k) if first else corruptor.continue_segments(start, k)
-        ctrl = data.ctrl
-        for command, length in pieces:
-            ctrl[:] = command
-            run(length)
+        if len(pieces) == 1:
+            data.ctrl[:] = pieces[0][0]
+            run(k)
+        else:
+            run.split(pieces)
 
     def close(self) -> None:
         if self._remove is not None:
