@@ -29,6 +29,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -123,8 +124,17 @@ def run_fit(log: TrajectoryLog, seed: int) -> tuple[object, float]:
 
 
 # ----------------------------------------------------------------------------- naive baseline
-def naive_nelder_mead(log: TrajectoryLog, budget_s: float) -> tuple[float, int, bool, np.ndarray]:
-    """Nelder–Mead on the same weighted simulation error, simulated with a Python mj_step loop, true latency."""
+class _Reached(Exception):
+    """The naive baseline reached the target accuracy."""
+
+
+def naive_nelder_mead(
+    log: TrajectoryLog, budget_s: float, reached: Any = None
+) -> tuple[float, int, bool, np.ndarray]:
+    """Nelder–Mead on the same weighted simulation error, simulated with a Python mj_step loop, true latency.
+
+    Restarted from its best point (a fresh simplex) until ``reached(theta)`` holds — the accuracy our fit
+    reaches — or the time budget runs out; the returned time is the time to reach it."""
     model = mujoco.MjModel.from_xml_string(ARM_REACH_XML)
     space = ParameterSpace(model, PARAMS, BOUNDS)
     write = space.writer(model)
@@ -161,11 +171,21 @@ def naive_nelder_mead(log: TrajectoryLog, budget_s: float) -> tuple[float, int, 
         value = cost(z)
         if value < best[1]:
             best[0], best[1] = z.copy(), value
+            if reached is not None and reached(np.exp(z)):
+                raise _Reached
         return value
 
-    finished = True
+    finished = False
     try:
-        optimize.minimize(tracked, z0, method="Nelder-Mead", options={"maxfev": 20000, "xatol": 1e-4, "fatol": 1e-6})
+        while True:
+            before = best[1]
+            optimize.minimize(
+                tracked, best[0], method="Nelder-Mead", options={"maxfev": 20000, "xatol": 1e-6, "fatol": 1e-9}
+            )
+            if reached is None or best[1] >= before * (1 - 1e-12):
+                break  # no target, or a restart no longer improves: stuck
+    except _Reached:
+        finished = True
     except TimeoutError:
         finished = False
     return time.perf_counter() - started, evals, finished, np.exp(best[0])
@@ -335,12 +355,15 @@ def main() -> None:
     print(f"far starts (3x off) converged: {converged.mean():.0%}; median fit time {fit_time:.2f} s")
 
     first = noisy(clean, 0)
-    naive_time, evals, finished, naive_est = naive_nelder_mead(first, naive_budget)
+    naive_time, evals, finished, naive_est = naive_nelder_mead(
+        first, naive_budget, lambda theta: bool(np.all(np.abs(theta - TRUE) <= 5 * crlb))
+    )
     naive_ok = bool(np.all(np.abs(naive_est - TRUE) <= 5 * crlb))
     speedup = naive_time / fit_time
     print(
         f"naive Nelder–Mead + Python mj_step: {naive_time:.1f} s, {evals} evaluations, "
-        f"{'finished' if finished else 'budget exhausted'}, within 5 CRLB SD: {naive_ok} -> speed-up "
+        f"{'reached 5 CRLB SD of the truth' if finished else 'budget exhausted or stuck'}, within 5 CRLB SD: "
+        f"{naive_ok} -> speed-up "
         f"{'>= ' if not finished else ''}{speedup:.1f}x"
     )
 
