@@ -27,6 +27,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from noise_models.values import (
+    FrozenValue,
     Layout,
     Selection,
     check_probability,
@@ -58,7 +59,7 @@ __all__ = [
 BLOCK = 256
 
 
-class Process:
+class Process(FrozenValue):
     """Base of every noise process: immutable, compared by value, with a stable stream name.
 
     Args (common to every process):
@@ -72,7 +73,6 @@ class Process:
     sides: ClassVar[tuple[str, ...]] = ("obs", "action")
     #: parameter fields in draw order, with the report suffix of each ("" = the stem alone)
     params: ClassVar[tuple[tuple[str, str], ...]] = ()
-    _frozen = False
 
     def __init__(self, *, select: Selection = None, shared: bool = False, name: str | None = None) -> None:
         self.select = check_selection(select)
@@ -95,23 +95,6 @@ class Process:
 
     def _own_fields(self) -> tuple[str, ...]:
         return tuple(p for p, _ in self.params)
-
-    def __repr__(self) -> str:
-        return f"{type(self).__name__}({', '.join(f'{k}={v!r}' for k, v in self._fields().items())})"
-
-    def __eq__(self, other: object) -> bool:
-        return type(other) is type(self) and self._fields() == other._fields()  # type: ignore[attr-defined]
-
-    def __hash__(self) -> int:
-        return hash((type(self).__name__, repr(self)))
-
-    def __setattr__(self, key: str, value: object) -> None:
-        if self._frozen:
-            raise AttributeError(f"{type(self).__name__} is immutable; build a new one instead.")
-        super().__setattr__(key, value)
-
-    def _freeze(self) -> None:
-        object.__setattr__(self, "_frozen", True)
 
     def to_config(self) -> dict[str, Any]:
         """A YAML-ready mapping (``type`` plus fields)."""

@@ -32,7 +32,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from noise_models.values import check_value, draw, is_sampler, upper_bound, value_config
+from noise_models.values import FrozenValue, check_value, draw, is_sampler, upper_bound, value_config
 
 __all__ = [
     "ActionLatency",
@@ -45,31 +45,10 @@ __all__ = [
 ]
 
 
-class TimeModel:
+class TimeModel(FrozenValue):
     """Base of the timing models: immutable, compared by value."""
 
     stream: ClassVar[str] = ""
-    _frozen = False
-
-    def _fields(self) -> dict[str, Any]:
-        raise NotImplementedError
-
-    def __repr__(self) -> str:
-        return f"{type(self).__name__}({', '.join(f'{k}={v!r}' for k, v in self._fields().items())})"
-
-    def __eq__(self, other: object) -> bool:
-        return type(other) is type(self) and self._fields() == other._fields()  # type: ignore[attr-defined]
-
-    def __hash__(self) -> int:
-        return hash((type(self).__name__, repr(self)))
-
-    def __setattr__(self, key: str, value: object) -> None:
-        if self._frozen:
-            raise AttributeError(f"{type(self).__name__} is immutable; build a new one instead.")
-        super().__setattr__(key, value)
-
-    def _freeze(self) -> None:
-        object.__setattr__(self, "_frozen", True)
 
     def to_config(self) -> dict[str, Any]:
         """A YAML-ready mapping (``type`` plus fields)."""

@@ -31,9 +31,45 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Layout", "Selection", "check_probability", "check_value", "draw", "is_sampler", "value_config"]
+__all__ = [
+    "FrozenValue",
+    "Layout",
+    "Selection",
+    "check_probability",
+    "check_value",
+    "draw",
+    "is_sampler",
+    "value_config",
+]
 
 Selection = None | str | int | slice | range | Sequence[str] | Sequence[int]
+
+
+class FrozenValue:
+    """Immutable value semantics for models: ``repr`` and ``==`` from ``_fields()``, hashable, frozen after
+    ``_freeze()``."""
+
+    _frozen = False
+
+    def _fields(self) -> dict[str, Any]:  # pragma: no cover - every subclass overrides
+        raise NotImplementedError
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({', '.join(f'{k}={v!r}' for k, v in self._fields().items())})"
+
+    def __eq__(self, other: object) -> bool:
+        return type(other) is type(self) and self._fields() == other._fields()  # type: ignore[attr-defined]
+
+    def __hash__(self) -> int:
+        return hash((type(self).__name__, repr(self)))
+
+    def __setattr__(self, key: str, value: object) -> None:
+        if self._frozen:
+            raise AttributeError(f"{type(self).__name__} is immutable; build a new one instead.")
+        super().__setattr__(key, value)
+
+    def _freeze(self) -> None:
+        object.__setattr__(self, "_frozen", True)
 
 
 def is_sampler(value: object) -> bool:

@@ -399,22 +399,6 @@ def _cmd_record(args: argparse.Namespace, out: TextIO) -> int:
     return 0
 
 
-def _atomic_text(path: str, text: str) -> None:
-    import tempfile
-
-    folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=os.path.basename(path))
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 def _fit_report_html(result: Any, task: str, log_path: str) -> str:
     import base64
     import html
@@ -434,6 +418,7 @@ def _fit_report_html(result: Any, task: str, log_path: str) -> str:
 
 def _cmd_sysid(args: argparse.Namespace, out: TextIO) -> int:
     import sysid
+    from randomizers.files import atomic_write
     from sim2real.tasks import make
 
     if args.sysid_command != "fit":
@@ -455,7 +440,7 @@ def _cmd_sysid(args: argparse.Namespace, out: TextIO) -> int:
         raise _UsageError(str(err)) from err
     result.to_json(args.out)
     if args.report:
-        _atomic_text(args.report, _fit_report_html(result, args.task, args.log))
+        atomic_write(args.report, _fit_report_html(result, args.task, args.log))
     print(result.summary(), file=out)
     print(f"wrote {args.out}" + (f" and {args.report}" if args.report else ""), file=out)
     return 0

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import difflib
 import os
-import tempfile
 import weakref
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
@@ -37,6 +36,7 @@ import numpy as np
 from gymnasium import spaces
 
 from randomizers import Effect, add_texture_uploader, load_effects
+from randomizers.files import atomic_write
 from sim2real._gl import require_rendering
 from sim2real.physics import PhysicsHandle, find_physics
 
@@ -324,19 +324,6 @@ def _effects(effects: Iterable[Effect] | str | os.PathLike[str] | None) -> list[
     return out
 
 
-def _write_atomically(path: Path, write: Callable[[str], None]) -> None:
-    if not path.parent.is_dir():
-        raise FileNotFoundError(f"`out` directory {str(path.parent)!r} does not exist.")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def contact_sheet(
     task: str,
     effects: Iterable[Effect] | str | os.PathLike[str] | None = None,
@@ -410,5 +397,5 @@ def contact_sheet(
     path = None
     if out is not None:
         path = Path(out)
-        _write_atomically(path, lambda tmp: fig.savefig(tmp, format="png"))
+        atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"), make_parents=False)
     return ContactSheet(np.stack(frames), tuple(params), image, path)

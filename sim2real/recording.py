@@ -34,7 +34,6 @@ __all__ = ["RecordTrajectory", "calibrate", "parse_set", "record"]
 
 _SET = re.compile(r"^\s*(?P<address>[^=\s]+)\s*=\s*(?P<op>[*+]?)\s*(?P<value>[-+0-9.eE]+)\s*$")
 _OPS = {"*": "scale", "+": "add", "": "set"}
-_FRICTION_AXES = ("sliding", "torsional", "rolling")
 
 
 def parse_set(text: str) -> Effect:
@@ -49,7 +48,7 @@ def parse_set(text: str) -> Effect:
         ValueError: `--set` must look like 'dof_damping[*]=*1.3' (scale), 'dof_damping[*]=+0.1' (add) or \
 'dof_damping[*]=0.5' (set). Received 'dof_damping=*2'.
     """
-    from sysid.params import EFFECT_FIELDS
+    from sysid.params import EFFECT_FIELDS, effect_for
 
     match = _SET.match(text) if isinstance(text, str) else None
     address = None
@@ -64,19 +63,11 @@ def parse_set(text: str) -> Effect:
             "`--set` must look like 'dof_damping[*]=*1.3' (scale), 'dof_damping[*]=+0.1' (add) or "
             f"'dof_damping[*]=0.5' (set). Received {text!r}."
         )
-    cls = EFFECT_FIELDS.get(address.field)
-    if cls is None:
+    if address.field not in EFFECT_FIELDS:
         raise ValueError(
             f"`--set` field must be one of {sorted(EFFECT_FIELDS)}. Received {address.field!r} in {text!r}."
         )
-    kwargs: dict[str, Any] = {_OPS[match["op"]]: value}
-    if address.field == "gravity":
-        kwargs["axes"] = "xyz" if address.element == "*" else address.element
-    else:
-        kwargs[cls.selector] = address.element  # type: ignore[attr-defined]
-    if address.field == "geom_friction":
-        kwargs["axis"] = _FRICTION_AXES[address.index or 0]
-    return cls(**kwargs)
+    return effect_for(address, _OPS[match["op"]], value)
 
 
 def calibrate(env: Any, params: Any) -> Any:

@@ -49,7 +49,6 @@ import itertools
 import json
 import math
 import os
-import tempfile
 import zipfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -59,6 +58,8 @@ from typing import Any
 import mujoco
 import mujoco.rollout
 import numpy as np
+
+from randomizers.files import atomic_write
 
 __all__ = [
     "OPTIONAL_KEYS",
@@ -337,18 +338,15 @@ def save_log(log: TrajectoryLog, path: str | os.PathLike[str]) -> None:
     target = Path(path)
     if target.suffix != ".npz":
         raise ValueError(f"`path` must end in '.npz'. Received {str(path)!r}.")
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            np.savez(handle, **log.to_arrays())
+    arrays = log.to_arrays()
+
+    def write(tmp: str) -> None:
+        with open(tmp, "wb") as handle:
+            np.savez(handle, **arrays)
             handle.flush()
             os.fsync(handle.fileno())
-        os.replace(tmp, target)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+
+    atomic_write(target, write)
 
 
 def load_log(path: str | os.PathLike[str], model: mujoco.MjModel | None = None) -> TrajectoryLog:

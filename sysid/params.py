@@ -33,7 +33,7 @@ from randomizers.addressing import Address, select
 from randomizers.config import EFFECT_TYPES
 from randomizers.effects import ArrayEffect
 
-__all__ = ["EFFECT_FIELDS", "ParameterSpace"]
+__all__ = ["EFFECT_FIELDS", "ParameterSpace", "effect_for"]
 
 #: Model fields that a randomiser effect owns, mapped to that effect class.
 EFFECT_FIELDS: dict[str, type[ArrayEffect]] = {
@@ -111,9 +111,15 @@ def _raw_targets(model: mujoco.MjModel, address: Address, text: str) -> tuple[li
     return rows, None, names
 
 
-def _effect_for(address: Address) -> ArrayEffect:
+def effect_for(address: Address, operation: str = "set", value: float = 1.0) -> ArrayEffect:
+    """The randomiser effect that owns ``address``, acting with ``operation`` (scale/add/set) and ``value``.
+
+    Example:
+        >>> effect_for(Address.parse("dof_damping[*]"), "scale", 1.3)
+        Damping(scale=Constant(value=1.3), joints='*')
+    """
     cls = EFFECT_FIELDS[address.field]
-    kwargs: dict[str, Any] = {"set": 1.0}
+    kwargs: dict[str, Any] = {operation: value}
     if address.field == "gravity":
         kwargs["axes"] = "xyz" if address.element == "*" else address.element
     else:
@@ -201,7 +207,7 @@ class ParameterSpace:
     @staticmethod
     def _bind(model: mujoco.MjModel, address: Address, via_effect: bool, text: str) -> Any:
         if via_effect:
-            return _effect_for(address).bind(model)
+            return effect_for(address).bind(model)
         rows, cols, names = _raw_targets(model, address, text)
         return _RawBinding(model, address.field, rows, cols, names)
 

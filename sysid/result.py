@@ -20,10 +20,8 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -42,6 +40,7 @@ from randomizers.effects import (
     Mass,
     Stiffness,
 )
+from randomizers.files import atomic_write
 
 __all__ = ["FitResult"]
 
@@ -54,20 +53,6 @@ _SINGLE_ELEMENT = {
     "body_mass": (Mass, "bodies"),
     "actuator_gain": (ActuatorGain, "actuators"),
 }
-
-
-def _atomic_write(path: str | os.PathLike[str], text: str) -> None:
-    target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-    try:
-        with os.fdopen(fd, "w") as handle:
-            handle.write(text)
-        os.replace(tmp, target)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def _readonly(array: np.ndarray) -> np.ndarray:
@@ -215,7 +200,7 @@ class FitResult:
         numbers become ``null``."""
         text = json.dumps(self.to_dict(), indent=indent)
         if path is not None:
-            _atomic_write(path, text + "\n")
+            atomic_write(path, text + "\n")
         return text
 
     def to_effects(self, width: float = 2.0) -> list[Effect]:
@@ -282,7 +267,7 @@ class FitResult:
         if notes:
             text = "\n".join(notes) + "\n" + text
         if path is not None:
-            _atomic_write(path, text)
+            atomic_write(path, text)
         return text
 
     def plot(self, path: str | os.PathLike[str] | None = None, max_channels: int = 6) -> Any:

@@ -498,6 +498,7 @@ def test_contact_sheet_and_cli_write_atomically(tmp_path: Path) -> None:
 def test_uploaders_are_dropped_with_their_envs() -> None:
     import gc
 
+    gc.collect()  # envs of earlier tests must not vanish in the middle of the count
     count = len(texture_uploaders())
     env = s2r.make(TASK)
     assert len(texture_uploaders()) == count + 1
