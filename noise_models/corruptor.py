@@ -147,6 +147,12 @@ class ActionNoise(_Noise):
     def _fields(self) -> tuple[Any, ...]:
         return (*super()._fields(), self.clip)
 
+    def to_config(self) -> dict[str, Any]:
+        out = super().to_config()
+        if not self.clip:
+            out["clip"] = False
+        return out
+
     def __repr__(self) -> str:
         text = super().__repr__()
         return text if self.clip else text[:-1] + ", clip=False)"

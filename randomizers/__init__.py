@@ -13,7 +13,16 @@ Example:
 from __future__ import annotations
 
 from randomizers.addressing import Address, element_names, select
-from randomizers.config import EFFECT_TYPES, dump_effects, effect_to_config, load_effects
+from randomizers.config import (
+    EFFECT_TYPES,
+    SIGNAL_TYPES,
+    dump_config,
+    dump_effects,
+    effect_to_config,
+    load_config,
+    load_effects,
+    load_signals,
+)
 from randomizers.distributions import (
     Choice,
     Constant,
@@ -55,6 +64,7 @@ from randomizers.visual import (
 
 __all__ = [
     "EFFECT_TYPES",
+    "SIGNAL_TYPES",
     "ActuatorGain",
     "Address",
     "Armature",
@@ -88,10 +98,13 @@ __all__ = [
     "add_texture_uploader",
     "as_distribution",
     "distribution_from_config",
+    "dump_config",
     "dump_effects",
     "effect_to_config",
     "element_names",
+    "load_config",
     "load_effects",
+    "load_signals",
     "select",
     "stream",
 ]

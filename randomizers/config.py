@@ -47,7 +47,16 @@ from randomizers.effects import (
 )
 from randomizers.visual import VISUAL_EFFECTS
 
-__all__ = ["EFFECT_TYPES", "dump_effects", "effect_to_config", "load_effects"]
+__all__ = [
+    "EFFECT_TYPES",
+    "SIGNAL_TYPES",
+    "dump_config",
+    "dump_effects",
+    "effect_to_config",
+    "load_config",
+    "load_effects",
+    "load_signals",
+]
 
 EFFECT_TYPES: dict[str, type[Effect]] = {
     cls.__name__: cls
@@ -83,12 +92,7 @@ def _schedule_from_config(value: object, where: str) -> Any:
     )
 
 
-def load_effects(source: str | os.PathLike[str] | Mapping[str, Any]) -> list[Effect]:
-    """Builds effects from a YAML file path, a YAML string or an already-parsed mapping.
-
-    Raises:
-        ValueError: with ``<file>: effects[i].<key>: ...`` naming where the problem is.
-    """
+def _read(source: str | os.PathLike[str] | Mapping[str, Any]) -> tuple[Any, str]:
     where = "<config>"
     if isinstance(source, Mapping):
         config: Any = source
@@ -104,6 +108,16 @@ def load_effects(source: str | os.PathLike[str] | Mapping[str, Any]) -> list[Eff
             config = yaml.safe_load(text)
         except yaml.YAMLError as err:
             raise ValueError(f"{where}: not valid YAML: {err}") from err
+    return config, where
+
+
+def load_effects(source: str | os.PathLike[str] | Mapping[str, Any]) -> list[Effect]:
+    """Builds effects from a YAML file path, a YAML string or an already-parsed mapping.
+
+    Raises:
+        ValueError: with ``<file>: effects[i].<key>: ...`` naming where the problem is.
+    """
+    config, where = _read(source)
     if not isinstance(config, Mapping) or "effects" not in config:
         raise ValueError(f"{where}: the top level must be a mapping with an `effects` list. Received {config!r}.")
     items = config["effects"]
@@ -153,3 +167,139 @@ def effect_to_config(effect: Effect) -> dict[str, Any]:
 def dump_effects(effects: Sequence[Effect]) -> str:
     """YAML text for ``effects`` that :func:`load_effects` reads back to equal effects."""
     return yaml.safe_dump({"effects": [effect_to_config(e) for e in effects]}, sort_keys=False)
+
+
+def _signal_types() -> dict[str, type]:
+    import noise_models
+
+    return {n: getattr(noise_models, n) for n in SIGNAL_TYPES}
+
+
+#: Signal-model types a ``signals:`` list may name (noise_models), and their processes.
+SIGNAL_TYPES: tuple[str, ...] = (
+    "ObservationNoise",
+    "ActionNoise",
+    "ObservationLatency",
+    "ActionLatency",
+    "SampleAndHold",
+    "ControlJitter",
+)
+_SIGNAL_VALUE_ARGS = {
+    "std", "half_width", "offset", "gain", "timescale", "probability", "magnitude", "resolution", "low", "high",
+    "duration", "width", "steps", "seconds", "jitter", "phase", "delta",
+}  # fmt: skip
+
+
+def _signal_value(value: object, where: str) -> Any:
+    """A number stays a number (reported as one value); ``[low, high]`` or ``{type: ...}`` is a distribution."""
+    if value is None or (isinstance(value, (int, float)) and not isinstance(value, bool)):
+        return value
+    return distribution_from_config(value, where)
+
+
+def _signal_kwargs(item: Mapping[str, Any], key: str) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for name, value in item.items():
+        if name in ("type", "processes"):
+            continue
+        if name in _SIGNAL_VALUE_ARGS:
+            out[name] = _signal_value(value, f"{key}.{name}")
+        elif name == "select" and isinstance(value, list):
+            out[name] = tuple(value)
+        else:
+            out[name] = value
+    return out
+
+
+def load_signals(source: str | os.PathLike[str] | Mapping[str, Any]) -> list[Any]:
+    """Builds noise and latency models (:mod:`noise_models`) from the ``signals:`` list of a YAML config.
+
+    Example:
+        >>> load_signals('''
+        ... signals:
+        ...   - type: ObservationNoise
+        ...     select: velocity
+        ...     processes:
+        ...       - {type: Gaussian, std: 0.01}
+        ...       - {type: Bias, offset: [-0.02, 0.02]}
+        ...   - {type: ActionLatency, seconds: 0.02}
+        ... ''')
+        [ObservationNoise(Gaussian(std=0.01), Bias(offset=Uniform(low=-0.02, high=0.02)), select='velocity'), \
+ActionLatency(seconds=0.02)]
+
+    Raises:
+        ValueError: with ``<file>: signals[i].<key>: ...`` naming where the problem is.
+    """
+    config, where = _read(source)
+    return _load_signals(config, where)
+
+
+def _load_signals(config: Any, where: str) -> list[Any]:
+    import noise_models
+
+    if not isinstance(config, Mapping):
+        raise ValueError(f"{where}: the top level must be a mapping. Received {config!r}.")
+    items = config.get("signals", [])
+    if not isinstance(items, Sequence) or isinstance(items, str):
+        raise ValueError(f"{where}: `signals` must be a list. Received {items!r}.")
+    types = _signal_types()
+    out = []
+    for i, item in enumerate(items):
+        key = f"{where}: signals[{i}]"
+        if not isinstance(item, Mapping) or item.get("type") not in types:
+            got = item.get("type") if isinstance(item, Mapping) else item
+            raise ValueError(f"{key}.type must be one of {sorted(types)}. Received {got!r}.")
+        kwargs = _signal_kwargs(item, key)
+        try:
+            if item["type"] in ("ObservationNoise", "ActionNoise"):
+                processes = item.get("processes")
+                if not isinstance(processes, Sequence) or isinstance(processes, str) or not processes:
+                    raise ValueError(f"`processes` must be a non-empty list. Received {processes!r}.")
+                built = []
+                for j, proc in enumerate(processes):
+                    pkey = f"{key}.processes[{j}]"
+                    if not isinstance(proc, Mapping) or proc.get("type") not in noise_models.PROCESS_TYPES:
+                        got = proc.get("type") if isinstance(proc, Mapping) else proc
+                        raise ValueError(
+                            f"{pkey}.type must be one of {sorted(noise_models.PROCESS_TYPES)}. Received {got!r}."
+                        )
+                    try:
+                        built.append(noise_models.PROCESS_TYPES[proc["type"]](**_signal_kwargs(proc, pkey)))
+                    except (TypeError, ValueError) as err:
+                        raise ValueError(f"{pkey}: {err}") from err
+                out.append(types[item["type"]](*built, **kwargs))
+            else:
+                out.append(types[item["type"]](**kwargs))
+        except TypeError as err:
+            raise ValueError(f"{key}: unknown or missing argument for {item['type']}: {err}") from err
+        except ValueError as err:
+            text = str(err)
+            raise ValueError(text if text.startswith(where) else f"{key}: {text}") from err
+    return out
+
+
+def load_config(source: str | os.PathLike[str] | Mapping[str, Any]) -> list[Any]:
+    """Effects (``effects:``) and signal models (``signals:``) of one YAML config, ready for ``sim2real.wrap``.
+
+    Example:
+        >>> [type(m).__name__ for m in load_config("effects: [{type: Damping, scale: [0.5, 2.0]}]\\n"
+        ...                                         "signals: [{type: ObservationLatency, steps: 2}]")]
+        ['Damping', 'ObservationLatency']
+    """
+    config, where = _read(source)
+    if not isinstance(config, Mapping) or not ({"effects", "signals"} & set(config)):
+        raise ValueError(
+            f"{where}: the top level must be a mapping with an `effects` and/or a `signals` list. Received {config!r}."
+        )
+    effects = load_effects(source) if "effects" in config else []
+    return [*effects, *_load_signals(config, where)]
+
+
+def dump_config(effects: Sequence[Any]) -> str:
+    """YAML text with ``effects:`` and ``signals:`` lists that :func:`load_config` reads back to equal models."""
+    physical = [e for e in effects if isinstance(e, Effect)]
+    signals = [e.to_config() for e in effects if not isinstance(e, Effect)]
+    doc: dict[str, Any] = {"effects": [effect_to_config(e) for e in physical]}
+    if signals:
+        doc["signals"] = signals
+    return yaml.safe_dump(doc, sort_keys=False)

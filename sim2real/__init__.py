@@ -60,6 +60,8 @@ from randomizers import (  # noqa: E402 - the GL backend must be chosen before m
     Texture,
     TruncatedNormal,
     Uniform,
+    dump_config,
+    load_config,
     load_effects,
 )
 from sim2real.adapters import DmEnvToGym  # noqa: E402
@@ -117,7 +119,9 @@ __all__ = [
     "Uniform",
     "UniformNoise",
     "contact_sheet",
+    "dump_config",
     "find_physics",
+    "load_config",
     "load_effects",
     "make",
     "make_vec",

@@ -391,3 +391,31 @@ def test_any_object_with_sample_rng_is_a_distribution() -> None:
     stds = [params[f"obs_noise_std[{i}]"] for i in range(4)]
     assert set(stds) <= {0.0, 0.1}
     assert np.allclose(out.std(axis=0), stds, atol=0.01)
+
+
+def test_yaml_round_trip_of_every_model() -> None:
+    from randomizers import Damping
+    from randomizers.config import dump_config, load_config
+
+    models = [
+        Damping(scale=Uniform(0.5, 2.0)),
+        ObservationNoise(Gaussian(std=Uniform(0.0, 0.1)), Bias(0.01), Drift(0.001, timescale=20.0), select="velocity"),
+        ObservationNoise(Quantize(0.01), Dropout(0.1, mode="zero"), Stuck(0.01, 5), Outlier(0.01, 1.0),
+                         Saturate(-1.0, 1.0), Scale(Uniform(0.9, 1.1)), UniformNoise(0.01), select=(0, 1)),
+        ActionNoise(Gaussian(std=0.05), Deadzone(0.01), Sticky(0.1), clip=False),
+        ObservationLatency(steps=Choice((1, 2, 3)), jitter=Uniform(0, 2)),
+        ActionLatency(seconds=0.02, max_steps=50),
+        SampleAndHold(seconds=0.05, phase=0.01),
+        ControlJitter(delta=Choice((-1, 0, 1))),
+    ]
+    assert load_config(dump_config(models)) == models
+
+
+def test_yaml_signal_errors_name_the_key(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from randomizers.config import load_config
+
+    path = tmp_path / "bad.yaml"
+    path.write_text("signals:\n  - type: ObservationNoise\n    processes:\n      - {type: Gaussian, std: -1}\n")
+    with pytest.raises(ValueError) as info:
+        load_config(path)
+    assert str(info.value) == f"{path}: signals[0].processes[0]: `std` must be >= 0. Received -1.0."
