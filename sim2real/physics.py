@@ -110,15 +110,15 @@ class PhysicsHandle:
                 return int(value)
         return None
 
-    def intercept_step(self, stepper: Callable[[Any, int], None]) -> Callable[[], None]:
-        """Routes the env's physics stepping through ``stepper(run, nstep)``.
+    def intercept_step(self, stepper: Callable[[Any, int, Any], None]) -> Callable[[], None]:
+        """Routes the env's physics stepping through ``stepper(run, nstep, runner)``.
 
         The env asks for ``nstep`` physics steps (once per control step, or once per substep on
         composer envs); ``stepper`` decides what happens and calls ``run(k)`` to advance ``k`` steps
         with the env's own stepping code and the current ``data.ctrl``, or
-        ``run.split([(ctrl, k), ...])`` to advance in pieces with a command each, which does the same
-        work as one unsplit step (no extra kinematics or collision passes). Returns a function that
-        removes the interception.
+        ``runner.split([(ctrl, k), ...])`` to advance in pieces with a command each, which does the
+        same work as one unsplit step (no extra kinematics or collision passes). Returns a function
+        that removes the interception.
 
         Raises:
             TypeError: the env steps MuJoCo in a way that cannot be intercepted.
@@ -127,10 +127,11 @@ class PhysicsHandle:
         if self.source.startswith("dm_control"):
 
             def install(physics: Any) -> None:
-                runner = _DmRunner(physics, physics.step)
+                original = physics.step
+                runner = _DmRunner(physics, original)
 
                 def step(nstep: int = 1) -> None:
-                    stepper(runner, nstep)
+                    stepper(original, nstep, runner)
 
                 physics.step = step
 
@@ -148,15 +149,16 @@ class PhysicsHandle:
 
             return remove
         if callable(getattr(owner, "_simulate", None)):
-            sim_runner = _Runner(owner._simulate, self.data)
-            owner._simulate = lambda nstep: stepper(sim_runner, nstep)
+            original_sim = owner._simulate
+            sim_runner = _Runner(original_sim, self.data)
+            owner._simulate = lambda nstep: stepper(original_sim, nstep, sim_runner)
         elif callable(getattr(owner, "_step_mujoco_simulation", None)):
             gym_runner = _GymRunner(owner._step_mujoco_simulation, self.model, self.data)
             data = self.data
 
             def simulate(ctrl: Any, n_frames: int) -> None:
                 data.ctrl[:] = ctrl
-                stepper(gym_runner, n_frames)
+                stepper(gym_runner, n_frames, gym_runner)
 
             owner._step_mujoco_simulation = simulate
         else:

@@ -245,7 +245,7 @@ class RecordTrajectory(gym.Wrapper):
             self._remove = None  # fall back to the ctrl left after the step
         self.true_params: dict[str, float] = {}
 
-    def _capture(self, run: Any, nstep: int) -> None:
+    def _capture(self, run: Any, nstep: int, runner: Any = None) -> None:
         if self._first:
             self._command = np.array(self.handle.data.ctrl)
             self._first = False

@@ -168,7 +168,7 @@ class SignalClock:
     def end_step(self) -> None:
         self._in_step = False
 
-    def _stepper(self, run: Any, nstep: int) -> None:
+    def _stepper(self, run: Any, nstep: int, runner: Any = None) -> None:
         if not self._in_step:  # physics stepped outside a control step (e.g. inside reset)
             run(nstep)
             return
@@ -198,7 +198,7 @@ class SignalClock:
                 data.ctrl[:] = pieces[0][0]
                 run(nstep)
             else:
-                run.split(pieces)
+                runner.split(pieces)
             return
         corruptor = self.corruptor
         first = self._passed == 0
@@ -220,7 +220,7 @@ class SignalClock:
             data.ctrl[:] = pieces[0][0]
             run(k)
         else:
-            run.split(pieces)
+            runner.split(pieces)
 
     def close(self) -> None:
         if self._remove is not None:
