@@ -31,9 +31,23 @@ _OBJ = {
     "joint": mujoco.mjtObj.mjOBJ_JOINT,
     "actuator": mujoco.mjtObj.mjOBJ_ACTUATOR,
     "site": mujoco.mjtObj.mjOBJ_SITE,
+    "material": mujoco.mjtObj.mjOBJ_MATERIAL,
+    "light": mujoco.mjtObj.mjOBJ_LIGHT,
+    "camera": mujoco.mjtObj.mjOBJ_CAMERA,
+    "texture": mujoco.mjtObj.mjOBJ_TEXTURE,
 }
 _PLURAL = {"body": "bodies"}
-_COUNT = {"geom": "ngeom", "body": "nbody", "joint": "njnt", "actuator": "nu", "site": "nsite"}
+_COUNT = {
+    "geom": "ngeom",
+    "body": "nbody",
+    "joint": "njnt",
+    "actuator": "nu",
+    "site": "nsite",
+    "material": "nmat",
+    "light": "nlight",
+    "camera": "ncam",
+    "texture": "ntex",
+}
 
 
 @dataclass(frozen=True)
@@ -90,7 +104,8 @@ def select(
 
     Args:
         model: the compiled model.
-        kind: ``"geom"``, ``"body"``, ``"joint"``, ``"actuator"`` or ``"site"``.
+        kind: ``"geom"``, ``"body"``, ``"joint"``, ``"actuator"``, ``"site"``, ``"material"``, ``"light"``,
+            ``"camera"`` or ``"texture"``.
         patterns: one fnmatch pattern or a list of them.
         argument: the user-facing argument name, for error messages.
         exclude: ids never selected (e.g. the world body for masses).
@@ -108,10 +123,10 @@ def select(
             candidates = [n for i, n in enumerate(names) if i not in exclude]
             close = difflib.get_close_matches(pattern, candidates, n=3, cutoff=0.5)
             hint = f" Close matches: {', '.join(repr(c) for c in close)}." if close else ""
+            plural = _PLURAL.get(kind, kind + "s")
             shown = ", ".join(repr(c) for c in candidates[:40]) + (" ..." if len(candidates) > 40 else "")
-            raise ValueError(
-                f"`{argument}` pattern {pattern!r} matches no {kind} in the model.{hint} Known {_PLURAL.get(kind, kind + 's')}: {shown}."
-            )
+            known = f"Known {plural}: {shown}." if candidates else f"The model has no {plural}."
+            raise ValueError(f"`{argument}` pattern {pattern!r} matches no {kind} in the model.{hint} {known}")
         for i in hits:
             chosen[i] = names[i]
     return sorted(chosen.items())

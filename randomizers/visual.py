@@ -37,8 +37,6 @@ Example:
 
 from __future__ import annotations
 
-import difflib
-import fnmatch
 import itertools
 import math
 from collections.abc import Callable, Sequence
@@ -48,7 +46,7 @@ from typing import Any, ClassVar
 import mujoco
 import numpy as np
 
-from randomizers.addressing import select as _select_known
+from randomizers.addressing import select as _select
 from randomizers.distributions import Choice, Constant, Distribution, Uniform, as_distribution
 from randomizers.effects import ArrayEffect, Binding, Effect, Operation, Schedule, _check_schedule
 
@@ -81,33 +79,6 @@ _SEED_HIGH = float(2**31)
 _DEFAULT_GEOM_RGBA = np.array([0.5, 0.5, 0.5, 1.0], dtype=np.float32)
 
 # ----------------------------------------------------------------------------- element selection
-
-_KINDS = {
-    "material": (mujoco.mjtObj.mjOBJ_MATERIAL, "nmat", "materials"),
-    "light": (mujoco.mjtObj.mjOBJ_LIGHT, "nlight", "lights"),
-    "camera": (mujoco.mjtObj.mjOBJ_CAMERA, "ncam", "cameras"),
-    "texture": (mujoco.mjtObj.mjOBJ_TEXTURE, "ntex", "textures"),
-}
-
-
-def _select(model: mujoco.MjModel, kind: str, patterns: Sequence[str], argument: str) -> list[tuple[int, str]]:
-    """Like :func:`randomizers.addressing.select`, for the visual element kinds too."""
-    if kind not in _KINDS:
-        return _select_known(model, kind, patterns, argument)
-    obj, count, plural = _KINDS[kind]
-    names = [mujoco.mj_id2name(model, obj, i) or f"#{i}" for i in range(getattr(model, count))]
-    chosen: dict[int, str] = {}
-    for pattern in patterns:
-        hits = [i for i, n in enumerate(names) if fnmatch.fnmatchcase(n, pattern)]
-        if not hits:
-            close = difflib.get_close_matches(pattern, names, n=3, cutoff=0.5)
-            hint = f" Close matches: {', '.join(repr(c) for c in close)}." if close else ""
-            shown = ", ".join(repr(c) for c in names[:40]) + (" ..." if len(names) > 40 else "")
-            known = f"Known {plural}: {shown}." if names else f"The model has no {plural}."
-            raise ValueError(f"`{argument}` pattern {pattern!r} matches no {kind} in the model.{hint} {known}")
-        for i in hits:
-            chosen[i] = names[i]
-    return sorted(chosen.items())
 
 
 def _patterns(select: object, argument: str, owner: str) -> tuple[str, ...]:
