@@ -257,13 +257,14 @@ class _Pipeline:
                 stages.append(_Affine([part], self.layout.size, self.dtype))
         self.stages = stages
         self.first_affine = isinstance(stages[0], _Affine)
-        self.simple = False  # decided after the first refill, when the gain is known
+        self.simple = 0  # decided after the first refill, when the gain is known (1: add, 2: add + clip)
         self.block = -1
         self.r = BLOCK
 
     def _decide(self) -> None:
         stage = self.stages[0]
-        self.simple = self.first_affine and len(self.stages) == 1 and self.low is None and stage.G is None
+        plain = self.first_affine and len(self.stages) == 1 and stage.G is None
+        self.simple = (2 if self.low is not None else 1) if plain else 0
 
     def _refill(self) -> None:
         self.block += 1
@@ -278,8 +279,12 @@ class _Pipeline:
             self._refill()
             r = 0
         self.r = r + 1
-        if self.simple:  # one fused affine stage, nothing to clip: one add per step
-            return x + self.stages[0].rows[r]
+        simple = self.simple
+        if simple:  # one fused affine stage (no gain): one add per step, then the clip if any
+            w = x + self.stages[0].rows[r]
+            if simple == 2:
+                _clip(w, self.low, self.high, out=w)
+            return w
         if self.first_affine:
             w = self.stages[0].apply(x, r)
             rest = self.stages[1:]

@@ -352,12 +352,19 @@ class CorruptSignals(gym.Wrapper):
         obs, reward, terminated, truncated, info = self.env.step(action)
         clock._in_step = False
         if self._has_obs:
-            now = clock.now() if self._obs_time else 0
+            now = 0
+            if self._obs_time:
+                handle = clock.handle
+                now = clock._control if handle is None else round((handle.data.time - clock._t0) / clock.timestep)
             if self._obs_codec is None:
                 obs = c.observe(obs, now)
             else:
                 obs = self._obs_out(c.observe(self._obs_in(obs), now), obs)
-        self._report(info)
+        report = info.get("sim2real")
+        if report is None or self._jitter:
+            self._report(info)
+        else:  # the inner wrapper built fresh dicts for this call: extend them in place
+            report["params"].update(c.current_params)
         return obs, reward, terminated, truncated, info
 
     def close(self) -> None:
