@@ -64,7 +64,9 @@ from randomizers import (  # noqa: E402 - the GL backend must be chosen before m
     load_config,
     load_effects,
 )
+from sim2real import metrics  # noqa: E402
 from sim2real.adapters import DmEnvToGym  # noqa: E402
+from sim2real.metrics import Estimate, FewSamplesWarning, Gap, RobustnessRadius  # noqa: E402
 from sim2real.physics import PhysicsHandle, find_physics  # noqa: E402
 from sim2real.pixels import ContactSheet, PixelObservation, contact_sheet, track_render_contexts  # noqa: E402
 from sim2real.tasks import TASKS, make, task_ids  # noqa: E402
@@ -90,8 +92,11 @@ __all__ = [
     "DmEnvToGym",
     "Drift",
     "Dropout",
+    "Estimate",
+    "FewSamplesWarning",
     "Friction",
     "FrictionLoss",
+    "Gap",
     "Gaussian",
     "GeomColor",
     "Gravity",
@@ -108,6 +113,7 @@ __all__ = [
     "PixelObservation",
     "Push",
     "Quantize",
+    "RobustnessRadius",
     "SampleAndHold",
     "Saturate",
     "Scale",
@@ -125,6 +131,7 @@ __all__ = [
     "load_effects",
     "make",
     "make_vec",
+    "metrics",
     "task_ids",
     "track_render_contexts",
     "wrap",
