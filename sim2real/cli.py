@@ -167,6 +167,14 @@ def _build_parser() -> argparse.ArgumentParser:
     record.add_argument("--amplitude", type=float, default=0.5, help="fraction of each actuator's half-range")
     record.add_argument("--out", required=True, help="output .npz path")
 
+    train = sub.add_parser(
+        "train",
+        help="train a PPO or SAC policy with TorchRL and save a checkpoint",
+        description="Train a policy (`sim2real train --task T --algo ppo --frames N [--config effects.yaml] --out ckpt.pt`).",
+        add_help=False,
+    )
+    del train  # its arguments are parsed by sim2real.agents.cli (torch loads only for this command)
+
     sysid_parser = sub.add_parser("sysid", help="system identification (`sim2real sysid fit LOG ...`)")
     sysid_sub = sysid_parser.add_subparsers(dest="sysid_command", title="sysid commands")
     fit = sysid_sub.add_parser(
@@ -458,6 +466,11 @@ def main(argv: list[str] | None = None) -> int:
     Returns:
         The exit code: 0 on success, 2 on a usage error or bad input.
     """
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["train"]:
+        from sim2real.agents.cli import cli_train
+
+        return cli_train(argv[1:])
     parser = _build_parser()
     try:
         args = parser.parse_args(argv)

@@ -1,0 +1,246 @@
+"""Checkpoints: policy weights plus everything needed to rebuild, trust and trace them.
+
+A checkpoint is one ``torch.save`` file holding only plain types and tensors, so it loads with
+``torch.load(weights_only=True)`` (no pickled code runs). It is written atomically: a crash never leaves
+a half-written file under the final name.
+
+Keys: ``format`` / ``format_version``, ``algo``, ``config`` (the config as a dict), ``task``, ``obs_dim``,
+``action_low`` / ``action_high``, ``state_dict`` (the actor's weights), ``seed``, ``run_id``,
+``git_commit`` (None outside a git checkout), ``versions`` (python, numpy, torch, torchrl, tensordict,
+mujoco, sim2real) and ``created`` (UTC, ISO 8601).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import platform
+import subprocess
+from dataclasses import dataclass
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+from sim2real.agents.config import PPOConfig, SACConfig, config_class
+
+__all__ = ["FORMAT", "FORMAT_VERSION", "Checkpoint", "CheckpointError", "load_checkpoint", "save_checkpoint"]
+
+#: Marker stored under ``"format"``.
+FORMAT = "sim2real.agents.checkpoint"
+#: Version of the layout; bumped on incompatible changes.
+FORMAT_VERSION = 1
+
+_REQUIRED = (
+    "format",
+    "format_version",
+    "algo",
+    "config",
+    "task",
+    "obs_dim",
+    "action_low",
+    "action_high",
+    "state_dict",
+    "seed",
+    "run_id",
+    "git_commit",
+    "versions",
+)
+
+
+class CheckpointError(ValueError):
+    """A checkpoint that cannot be read, is inconsistent, or does not fit the task it is used for."""
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    """A loaded checkpoint.
+
+    Attributes:
+        policy: the rebuilt TorchRL actor with the saved weights (``"observation"`` -> ``"action"``).
+        config: the training config.
+        task: task id the policy was trained on, or None.
+        seed: training seed.
+        run_id: id of the training run.
+        git_commit: commit of the sim2real checkout that trained it, or None.
+        versions: package name -> version at save time.
+        created: UTC time of saving, ISO 8601.
+        path: the file it was read from.
+    """
+
+    policy: Any
+    config: PPOConfig | SACConfig
+    task: str | None
+    seed: int
+    run_id: str
+    git_commit: str | None
+    versions: dict[str, str]
+    created: str
+    path: Path
+
+
+def _versions() -> dict[str, str]:
+    out = {"python": platform.python_version()}
+    for name in ("numpy", "torch", "torchrl", "tensordict", "mujoco", "sim2real"):
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = "unknown"
+    return out
+
+
+def git_commit() -> str | None:
+    """HEAD of the git checkout sim2real runs from, or None (not a checkout, or git missing)."""
+    here = Path(__file__).resolve().parent
+    try:
+        done = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, timeout=5, check=False
+        )
+    except (OSError, subprocess.SubprocessError):
+        return None
+    commit = done.stdout.strip()
+    return commit if done.returncode == 0 and len(commit) == 40 else None
+
+
+def save_checkpoint(
+    path: str | os.PathLike[str],
+    policy: Any,
+    config: PPOConfig | SACConfig,
+    seed: int,
+    run_id: str,
+    *,
+    task: str | None = None,
+) -> None:
+    """Writes ``policy`` (an actor from :func:`~sim2real.agents.train`) and its provenance to ``path`` atomically.
+
+    Args:
+        path: destination file (parents are created).
+        policy: the actor (``TrainResult.policy`` or ``Checkpoint.policy``).
+        config: the config it was trained with.
+        seed: training seed.
+        run_id: id of the training run.
+        task: task id it was trained on (checked again on load when given there).
+
+    Raises:
+        TypeError: ``policy`` was not built by sim2real.agents, or ``config`` is not a PPO/SAC config.
+    """
+    import torch
+
+    from randomizers.files import atomic_write
+    from sim2real.agents.nets import actor_dims
+
+    if not isinstance(config, (PPOConfig, SACConfig)):
+        raise TypeError(f"`config` must be a PPOConfig or SACConfig. Received {type(config).__name__}.")
+    obs_dim, low, high = actor_dims(policy)
+    payload = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "algo": config.algo,
+        "config": config.to_dict(),
+        "task": task,
+        "obs_dim": obs_dim,
+        "action_low": low,
+        "action_high": high,
+        "state_dict": {k: v.detach().clone().cpu() for k, v in policy.state_dict().items()},
+        "seed": int(seed),
+        "run_id": str(run_id),
+        "git_commit": git_commit(),
+        "versions": _versions(),
+        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+    }
+    atomic_write(path, lambda tmp: torch.save(payload, tmp))
+
+
+def _shape(value: Any) -> tuple[int, ...]:
+    return tuple(value.shape)
+
+
+def load_checkpoint(path: str | os.PathLike[str], *, task: str | None = None) -> Checkpoint:
+    """Reads a checkpoint written by :func:`save_checkpoint` (``torch.load(weights_only=True)``).
+
+    Args:
+        path: the file.
+        task: when given, the checkpoint must have been trained on this task id.
+
+    Returns:
+        A :class:`Checkpoint` whose ``policy`` is rebuilt from the config and loaded with the weights.
+
+    Raises:
+        FileNotFoundError: ``path`` does not exist.
+        CheckpointError: the file is corrupt or truncated, not a sim2real checkpoint, missing keys, holds
+            weights that do not fit its own architecture (tampered), or was trained on another task.
+    """
+    import torch
+
+    from sim2real.agents.nets import build_actor
+
+    file = Path(path)
+    if not file.is_file():
+        raise FileNotFoundError(f"`path` {str(file)!r} does not exist or is not a file.")
+    try:
+        data = torch.load(file, map_location="cpu", weights_only=True)
+    except Exception as err:  # torch raises RuntimeError, UnpicklingError, EOFError... for broken files
+        raise CheckpointError(
+            f"checkpoint {str(file)!r} is corrupt or not a torch file ({type(err).__name__}: "
+            f"{str(err).splitlines()[0] if str(err) else ''})."
+        ) from err
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise CheckpointError(f"checkpoint {str(file)!r} is not a sim2real.agents checkpoint (no {FORMAT!r} marker).")
+    missing = [k for k in _REQUIRED if k not in data]
+    if missing:
+        raise CheckpointError(f"checkpoint {str(file)!r} is missing key(s) {missing}.")
+    if data["format_version"] != FORMAT_VERSION:
+        raise CheckpointError(
+            f"checkpoint {str(file)!r} has format_version {data['format_version']!r}; this sim2real reads "
+            f"{FORMAT_VERSION}."
+        )
+    if task is not None and data["task"] != task:
+        raise CheckpointError(f"checkpoint {str(file)!r} was trained on task {data['task']!r}, not on {task!r}.")
+    try:
+        config = config_class(data["algo"]).from_dict(data["config"], source=f"checkpoint {str(file)!r} config")
+    except ValueError as err:
+        raise CheckpointError(str(err)) from err
+    actor = build_actor(
+        config.algo,
+        int(data["obs_dim"]),
+        data["action_low"],
+        data["action_high"],
+        config.hidden_sizes,
+        config.activation,
+        config.init_log_std,
+    )
+    _load_weights(actor, data["state_dict"], file)
+    return Checkpoint(
+        policy=actor,
+        config=config,
+        task=data["task"],
+        seed=int(data["seed"]),
+        run_id=str(data["run_id"]),
+        git_commit=data["git_commit"],
+        versions=dict(data["versions"]),
+        created=str(data.get("created", "")),
+        path=file,
+    )
+
+
+def _load_weights(actor: Any, state: Any, file: Path) -> None:
+    import torch
+
+    expected = actor.state_dict()
+    if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
+        raise CheckpointError(f"checkpoint {str(file)!r}: `state_dict` must map names to tensors.")
+    missing = sorted(set(expected) - set(state))
+    unexpected = sorted(set(state) - set(expected))
+    if missing or unexpected:
+        raise CheckpointError(
+            f"checkpoint {str(file)!r} does not match its architecture: missing weights {missing}, "
+            f"unexpected weights {unexpected}."
+        )
+    for name, tensor in expected.items():
+        if _shape(state[name]) != _shape(tensor):
+            raise CheckpointError(
+                f"checkpoint {str(file)!r} does not match its architecture: weight {name!r} has shape "
+                f"{_shape(state[name])}, expected {_shape(tensor)}."
+            )
+        if tensor.is_floating_point() and not bool(torch.isfinite(state[name]).all()):
+            raise CheckpointError(f"checkpoint {str(file)!r}: weight {name!r} holds NaN or infinite values.")
+    actor.load_state_dict(state)

@@ -1,0 +1,125 @@
+"""``sim2real train``: train a PPO or SAC policy on a task and write a checkpoint.
+
+``cli_train(argv)`` is the whole command, so ``sim2real.cli`` can dispatch ``train`` to it.
+
+Example:
+    >>> import contextlib, io
+    >>> err = io.StringIO()
+    >>> with contextlib.redirect_stderr(err):
+    ...     cli_train(["--task", "sim2real/arm-reach", "--frames", "0", "--out", "x.pt"])
+    2
+    >>> "--frames" in err.getvalue()
+    True
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, TextIO
+
+__all__ = ["build_parser", "cli_train"]
+
+
+def build_parser(prog: str = "sim2real train") -> argparse.ArgumentParser:
+    """The argument parser of ``sim2real train``."""
+    parser = argparse.ArgumentParser(
+        prog=prog,
+        description="Train a PPO or SAC policy with TorchRL (optionally under randomisation) and save a checkpoint.",
+    )
+    parser.add_argument("--task", required=True, help="task id, e.g. sim2real/arm-reach (see `sim2real tasks`)")
+    parser.add_argument("--algo", choices=("ppo", "sac"), default="ppo", help="algorithm (default ppo)")
+    parser.add_argument("--frames", type=int, default=None, help="environment steps (overrides the agent config)")
+    parser.add_argument(
+        "--config",
+        default=None,
+        help="effects YAML (`effects:` physics randomisation and `signals:` noise/latency); default: none",
+    )
+    parser.add_argument("--agent-config", default=None, help="PPO/SAC hyperparameters YAML (its `algo` must match)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of weights, exploration, env and effects")
+    parser.add_argument("--out", required=True, help="checkpoint file to write (e.g. ckpt.pt)")
+    parser.add_argument("--log-dir", default=None, help="CSV logger root (default ./sim2real_runs)")
+    parser.add_argument("--no-log", action="store_true", help="do not write logger files")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    return parser
+
+
+def _fail(parser: argparse.ArgumentParser, message: str) -> int:
+    parser.print_usage(sys.stderr)
+    print(f"{parser.prog}: error: {message}", file=sys.stderr)
+    return 2
+
+
+def cli_train(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
+    """Runs ``sim2real train``; returns the exit code (0 ok, 2 usage error).
+
+    Args:
+        argv: the arguments after ``train``.
+        out: where the summary goes (default stdout).
+    """
+    from sim2real.agents.config import config_class, load_agent_config, replace
+
+    out = sys.stdout if out is None else out
+    parser = build_parser()
+    try:
+        args = parser.parse_args(list(argv) if argv is not None else None)
+    except SystemExit as exc:
+        return int(exc.code) if isinstance(exc.code, int) else 2
+    if args.frames is not None and args.frames <= 0:
+        return _fail(parser, f"--frames must be a positive int. Received {args.frames}.")
+    if args.seed < 0:
+        return _fail(parser, f"--seed must be >= 0. Received {args.seed}.")
+    try:
+        config: Any = load_agent_config(Path(args.agent_config)) if args.agent_config else config_class(args.algo)()
+    except (OSError, ValueError) as err:
+        return _fail(parser, f"--agent-config: {err}")
+    if config.algo != args.algo:
+        return _fail(parser, f"--agent-config is for {config.algo!r} but --algo is {args.algo!r}.")
+    if args.frames is not None:
+        try:
+            config = replace(config, frames=args.frames)
+        except ValueError as err:
+            return _fail(parser, f"--frames: {err}")
+    effects: list[Any] = []
+    if args.config is not None:
+        import sim2real
+
+        try:
+            effects = list(sim2real.load_config(Path(args.config)))
+        except (OSError, ValueError) as err:
+            return _fail(parser, f"--config: {err}")
+    import sim2real
+
+    try:
+        sim2real.make(args.task).close()
+    except (TypeError, ValueError) as err:
+        return _fail(parser, f"--task: {err}")
+
+    from sim2real.agents.training import train
+
+    result = train(
+        args.task,
+        config,
+        effects=effects,
+        seed=args.seed,
+        progress=not args.quiet and sys.stderr.isatty(),
+        logger=None if args.no_log else "csv",
+        log_dir=args.log_dir,
+    )
+    result.save(args.out)
+    returns = [r for r in result.metrics.get("episode_return", ()) if r == r]
+    first = f"{returns[0]:.3f}" if returns else "n/a"
+    last = f"{returns[-1]:.3f}" if returns else "n/a"
+    print(
+        f"sim2real train: {args.algo} on {args.task}, {result.frames} frames in {result.wall_time:.1f} s, "
+        f"seed {args.seed}, {len(effects)} effect(s)",
+        file=out,
+    )
+    print(f"episode return (batch mean): first {first}, last {last}", file=out)
+    print(f"run id: {result.run_id}", file=out)
+    if result.log_dir is not None:
+        print(f"log: {result.log_dir}", file=out)
+    print(f"checkpoint: {args.out}", file=out)
+    return 0

@@ -1,0 +1,169 @@
+"""Actor and critic networks shared by training, checkpoints and the policy adapter.
+
+One builder per network so a checkpoint can rebuild exactly the module it was saved from: the
+architecture is a function of ``(algo, obs_dim, action bounds, hidden_sizes, activation)`` only.
+
+Example:
+    >>> import torch
+    >>> from tensordict import TensorDict
+    >>> actor = build_actor("ppo", 16, [-0.05] * 3, [0.05] * 3, (32,), "tanh")
+    >>> td = actor(TensorDict({"observation": torch.zeros(4, 16)}, batch_size=[4]))
+    >>> td["action"].shape
+    torch.Size([4, 3])
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from tensordict.nn import AddStateIndependentNormalScale, NormalParamExtractor, TensorDictModule
+from torch import nn
+from torchrl.data import Bounded
+from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
+
+__all__ = ["OBS_KEY", "Normalize", "actor_dims", "actor_normalizer", "build_actor", "build_critic", "build_qvalue"]
+
+#: The observation entry every network reads.
+OBS_KEY = "observation"
+
+_ACTIVATIONS: dict[str, type[nn.Module]] = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
+
+
+class Normalize(nn.Module):
+    """Fixed affine input normalisation ``(x - loc) / scale``; ``loc`` and ``scale`` are buffers, so they
+    travel in the state dict (and checkpoints) with the weights. Identity until :meth:`set_stats`."""
+
+    def __init__(self, dim: int) -> None:
+        super().__init__()
+        self.register_buffer("loc", torch.zeros(dim))
+        self.register_buffer("scale", torch.ones(dim))
+
+    def set_stats(self, loc: torch.Tensor, scale: torch.Tensor) -> None:
+        """Sets the statistics in place (every module sharing this normaliser sees them)."""
+        self.loc.copy_(loc)
+        self.scale.copy_(scale)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Normalised ``x``."""
+        return (x - self.loc) / self.scale
+
+
+class _QNet(nn.Module):
+    def __init__(self, norm: Normalize, mlp: nn.Module) -> None:
+        super().__init__()
+        self.norm = norm
+        self.mlp = mlp
+
+    def forward(self, obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        return self.mlp(torch.cat((self.norm(obs), action), dim=-1))
+
+
+def _mlp(in_features: int, out_features: int, hidden: Sequence[int], activation: str) -> MLP:
+    return MLP(
+        in_features=in_features,
+        out_features=out_features,
+        num_cells=list(hidden),
+        activation_class=_ACTIVATIONS[activation],
+    )
+
+
+def build_actor(
+    algo: str,
+    obs_dim: int,
+    low: Sequence[float],
+    high: Sequence[float],
+    hidden_sizes: Sequence[int],
+    activation: str,
+    init_log_std: float = 0.0,
+) -> ProbabilisticActor:
+    """A tanh-Gaussian policy ``observation -> action`` bounded to ``[low, high]``.
+
+    PPO uses a state-independent learned log standard deviation (the usual choice for on-policy
+    continuous control); SAC a state-dependent one (its entropy tuning needs it).
+
+    Args:
+        algo: ``"ppo"`` or ``"sac"``.
+        obs_dim: observation size.
+        low: lower action bounds (its length is the action size).
+        high: upper action bounds.
+        hidden_sizes: hidden layer widths.
+        activation: ``"tanh"``, ``"relu"`` or ``"elu"``.
+        init_log_std: initial log standard deviation before the tanh.
+
+    Returns:
+        A ``ProbabilisticActor`` reading ``"observation"`` and writing ``"action"`` (and
+        ``"action_log_prob"`` when sampling). Its first layer is a :class:`Normalize` (see
+        :func:`actor_normalizer`).
+    """
+    low_t = torch.as_tensor(list(low), dtype=torch.float32)
+    high_t = torch.as_tensor(list(high), dtype=torch.float32)
+    act_dim = int(low_t.numel())
+    norm = Normalize(obs_dim)
+    if algo == "ppo":
+        net = nn.Sequential(
+            norm,
+            _mlp(obs_dim, act_dim, hidden_sizes, activation),
+            AddStateIndependentNormalScale(act_dim, init_value=float(init_log_std)),
+        )
+    else:
+        mlp = _mlp(obs_dim, 2 * act_dim, hidden_sizes, activation)
+        with torch.no_grad():  # start the scale near exp(init_log_std) through the biased softplus
+            mlp[-1].bias[act_dim:].fill_(float(init_log_std))
+        net = nn.Sequential(norm, mlp, NormalParamExtractor(scale_mapping="biased_softplus_1.0"))
+    module = TensorDictModule(net, in_keys=[OBS_KEY], out_keys=["loc", "scale"])
+    spec = Bounded(low=low_t, high=high_t, shape=(act_dim,), dtype=torch.float32)
+    return ProbabilisticActor(
+        module,
+        in_keys=["loc", "scale"],
+        spec=spec,
+        distribution_class=TanhNormal,
+        distribution_kwargs={"low": low_t, "high": high_t},
+        return_log_prob=True,
+    )
+
+
+def actor_dims(actor: nn.Module) -> tuple[int, list[float], list[float]]:
+    """``(obs_dim, low, high)`` of an actor made by :func:`build_actor`.
+
+    Raises:
+        TypeError: ``actor`` was not made by :func:`build_actor`.
+    """
+    spec = getattr(actor, "spec", None)
+    linear = next((m for m in actor.modules() if isinstance(m, nn.Linear)), None)
+    try:
+        action = spec["action"]
+        low, high = action.space.low, action.space.high
+    except Exception:
+        low = high = None
+    if linear is None or low is None or high is None:
+        raise TypeError(
+            "`policy` must be an actor built by sim2real.agents (the `policy` of a TrainResult or of a "
+            f"loaded checkpoint). Received {type(actor).__name__}."
+        )
+    return int(linear.in_features), [float(v) for v in low.flatten()], [float(v) for v in high.flatten()]
+
+
+def actor_normalizer(actor: nn.Module) -> Normalize:
+    """The :class:`Normalize` input layer of an actor made by :func:`build_actor`."""
+    norm = next((m for m in actor.modules() if isinstance(m, Normalize)), None)
+    if norm is None:
+        raise TypeError(f"`actor` must be built by build_actor. Received {type(actor).__name__}.")
+    return norm
+
+
+def build_critic(obs_dim: int, hidden_sizes: Sequence[int], activation: str, norm: Normalize) -> ValueOperator:
+    """State-value network ``observation -> state_value`` (PPO), sharing the actor's normaliser ``norm``."""
+    return ValueOperator(nn.Sequential(norm, _mlp(obs_dim, 1, hidden_sizes, activation)), in_keys=[OBS_KEY])
+
+
+def build_qvalue(
+    obs_dim: int, act_dim: int, hidden_sizes: Sequence[int], activation: str, norm: Normalize
+) -> ValueOperator:
+    """Action-value network ``(observation, action) -> state_action_value`` (SAC), normalising the observation
+    with the actor's ``norm``."""
+    return ValueOperator(
+        _QNet(norm, _mlp(obs_dim + act_dim, 1, hidden_sizes, activation)),
+        in_keys=[OBS_KEY, "action"],
+        out_keys=["state_action_value"],
+    )

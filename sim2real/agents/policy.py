@@ -1,0 +1,147 @@
+"""``as_policy``: one batched numpy interface ``(B, obs_dim) -> (B, act_dim)`` for every kind of policy.
+
+Accepted: a TorchRL policy module (``TensorDictModuleBase`` reading one observation key), a plain
+``torch.nn.Module`` on tensors, a checkpoint path or :class:`~sim2real.agents.Checkpoint`, a
+:class:`~sim2real.agents.TrainResult`, a scripted baseline, or any callable ``obs -> action``.
+Stochastic TorchRL policies run in deterministic mode (the mean action).
+
+Example:
+    >>> import numpy as np
+    >>> from sim2real.agents import ReachController
+    >>> policy = as_policy(ReachController())
+    >>> policy(np.zeros((4, 16), dtype=np.float32)).shape
+    (4, 3)
+    >>> as_policy(lambda obs: obs[:2] * 2)(np.ones((3, 5))).tolist()
+    [[2.0, 2.0], [2.0, 2.0], [2.0, 2.0]]
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["BatchedPolicy", "as_policy"]
+
+
+class BatchedPolicy:
+    """A batched numpy policy: ``policy(obs)`` with ``obs`` of shape ``(B, obs_dim)`` gives ``(B, act_dim)``
+    float32 actions; a single ``(obs_dim,)`` observation gives ``(act_dim,)``.
+
+    Attributes:
+        name: what the policy was made from (for reports).
+        source: the original object.
+    """
+
+    def __init__(self, fn: Callable[[np.ndarray], np.ndarray], name: str, source: Any) -> None:
+        self._fn = fn
+        self.name = name
+        self.source = source
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        """Actions for a batch ``(B, obs_dim)`` or one observation ``(obs_dim,)``."""
+        arr = np.asarray(obs)
+        if arr.ndim not in (1, 2):
+            raise ValueError(f"`obs` must have shape (obs_dim,) or (B, obs_dim). Received shape {arr.shape}.")
+        batch = arr[None] if arr.ndim == 1 else arr
+        out = np.asarray(self._fn(batch), dtype=np.float32)
+        if out.ndim == 1 and batch.shape[0] == 1:
+            out = out[None]
+        if out.ndim != 2 or out.shape[0] != batch.shape[0]:
+            raise ValueError(
+                f"policy {self.name} returned actions of shape {out.shape} for {batch.shape[0]} observation(s); "
+                "expected (B, act_dim)."
+            )
+        return out[0] if arr.ndim == 1 else out
+
+    def __repr__(self) -> str:
+        return f"BatchedPolicy({self.name})"
+
+
+def _torchrl_fn(module: Any) -> Callable[[np.ndarray], np.ndarray]:
+    import torch
+    from tensordict import TensorDict
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    keys = [k for k in module.in_keys if k not in ("is_init",)]
+    if len(keys) != 1:
+        raise TypeError(f"`policy` must read a single observation key to be batched. Received in_keys {keys}.")
+    key = keys[0]
+    out_key = "action" if "action" in module.out_keys else module.out_keys[0]
+    dtype = next((p.dtype for p in module.parameters()), torch.float32)
+
+    def fn(batch: np.ndarray) -> np.ndarray:
+        obs = torch.as_tensor(np.ascontiguousarray(batch), dtype=dtype)
+        with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+            td = module(TensorDict({key: obs}, batch_size=[obs.shape[0]]))
+        return td[out_key].detach().cpu().numpy()
+
+    return fn
+
+
+def _torch_fn(module: Any) -> Callable[[np.ndarray], np.ndarray]:
+    import torch
+
+    dtype = next((p.dtype for p in module.parameters()), torch.float32)
+
+    def fn(batch: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            out = module(torch.as_tensor(np.ascontiguousarray(batch), dtype=dtype))
+        return out.detach().cpu().numpy()
+
+    return fn
+
+
+def _rowwise(fn: Callable[[np.ndarray], Any]) -> Callable[[np.ndarray], np.ndarray]:
+    def batched(batch: np.ndarray) -> np.ndarray:
+        return np.stack([np.asarray(fn(row), dtype=np.float32) for row in batch])
+
+    return batched
+
+
+def as_policy(obj: Any, *, batched: bool | None = None, task: str | None = None) -> BatchedPolicy:
+    """Turns ``obj`` into a :class:`BatchedPolicy`.
+
+    Args:
+        obj: a TorchRL policy module, a ``torch.nn.Module``, a checkpoint path (str or ``PathLike``), a
+            :class:`~sim2real.agents.Checkpoint`, a :class:`~sim2real.agents.TrainResult`, a scripted
+            baseline, or a callable ``obs -> action``.
+        batched: for plain callables, whether they take a ``(B, obs_dim)`` batch; by default the
+            callable's ``batched`` attribute, else False (called once per row).
+        task: for checkpoints, the task the policy must have been trained on.
+
+    Raises:
+        TypeError: ``obj`` is none of the above.
+        CheckpointError: an unreadable checkpoint or one trained on another task.
+    """
+    if isinstance(obj, BatchedPolicy):
+        return obj
+    if isinstance(obj, (str, os.PathLike)):
+        from sim2real.agents.checkpoint import load_checkpoint
+
+        ckpt = load_checkpoint(obj, task=task)
+        return BatchedPolicy(_torchrl_fn(ckpt.policy), f"checkpoint {Path(obj).name} ({ckpt.run_id})", ckpt)
+    kind = type(obj).__name__
+    if kind in ("Checkpoint", "TrainResult") and hasattr(obj, "policy") and hasattr(obj, "run_id"):
+        return BatchedPolicy(_torchrl_fn(obj.policy), f"{kind.lower()} {obj.run_id}", obj)
+    import sys
+
+    if "torch" in sys.modules:
+        import torch
+        from tensordict.nn import TensorDictModuleBase
+
+        if isinstance(obj, TensorDictModuleBase):
+            return BatchedPolicy(_torchrl_fn(obj), f"TorchRL {kind}", obj)
+        if isinstance(obj, torch.nn.Module):
+            return BatchedPolicy(_torch_fn(obj), f"torch {kind}", obj)
+    if callable(obj):
+        is_batched = bool(getattr(obj, "batched", False)) if batched is None else bool(batched)
+        fn = obj if is_batched else _rowwise(obj)
+        return BatchedPolicy(fn, kind if kind == "function" else repr(obj), obj)
+    raise TypeError(
+        "`obj` must be a TorchRL policy module, a torch.nn.Module, a checkpoint path, a Checkpoint, a TrainResult, "
+        f"a scripted baseline or a callable obs -> action. Received {kind}."
+    )

@@ -1,0 +1,414 @@
+"""``train``: PPO and SAC with TorchRL on any task from :func:`sim2real.make`, with or without randomisation.
+
+Determinism: every draw comes from torch's CPU generator seeded with ``seed`` inside
+``torch.random.fork_rng`` (so the caller's global torch RNG state is restored afterwards), minibatch
+orders from a dedicated ``torch.Generator``, the environment from ``env.set_seed(seed)`` and the
+effects from ``sim2real.wrap(..., seed=seed)``. The same seed, thread count and versions give the same
+weights; torch does not promise identical float reductions across thread counts or machines.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import time
+import uuid
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+from sim2real.agents.config import PPOConfig, SACConfig
+
+__all__ = ["TrainResult", "make_train_env", "train"]
+
+_LOGGERS = ("csv", "tensorboard", None)
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """What :func:`train` returns.
+
+    Attributes:
+        policy: the trained TorchRL actor (``ProbabilisticActor``; ``"observation"`` -> ``"action"``).
+        config: the :class:`PPOConfig` or :class:`SACConfig` used.
+        metrics: metric name -> one value per collected batch; ``"frames"`` holds the frame count at each
+            row, ``"episode_return"`` the mean undiscounted return of episodes finished in that batch
+            (NaN when none finished), plus the losses of the algorithm.
+        frames: environment steps collected.
+        wall_time: seconds spent in :func:`train`.
+        run_id: unique id of the run (names the logger folder and is stored in checkpoints).
+        seed: the seed.
+        task: task id, or None when an env object was given without a gymnasium ``spec``.
+        log_dir: folder of the logger's files, or None without a logger.
+    """
+
+    policy: Any
+    config: PPOConfig | SACConfig
+    metrics: Mapping[str, tuple[float, ...]]
+    frames: int
+    wall_time: float
+    run_id: str
+    seed: int
+    task: str | None = None
+    log_dir: Path | None = field(default=None)
+
+    def save(self, path: str | os.PathLike[str]) -> None:
+        """Writes a checkpoint (see :func:`~sim2real.agents.save_checkpoint`)."""
+        from sim2real.agents.checkpoint import save_checkpoint
+
+        save_checkpoint(path, self.policy, self.config, self.seed, self.run_id, task=self.task)
+
+
+def _task_id(task_or_env: Any) -> str | None:
+    if isinstance(task_or_env, str):
+        return task_or_env
+    spec = getattr(task_or_env, "spec", None)
+    return getattr(spec, "id", None) if spec is not None and not callable(spec) else None
+
+
+def make_train_env(task_or_env: Any, effects: Sequence[Any] = (), seed: int = 0) -> Any:
+    """The TorchRL env ``train`` learns on: ``GymWrapper(make(task))`` (or the given env), ``sim2real.wrap``
+    with ``effects``, then ``DoubleToFloat`` and ``RewardSum`` (the episode return under ``"episode_reward"``).
+
+    Args:
+        task_or_env: a task id, a gymnasium env or a TorchRL ``EnvBase`` with a flat ``"observation"``.
+        effects: physics effects and signal models for :func:`sim2real.wrap`.
+        seed: seeds the env and the effect streams.
+
+    Raises:
+        TypeError: an unsupported env, or one without a single ``"observation"`` vector.
+        ValueError: an unknown task id.
+    """
+    import gymnasium as gym
+    from torchrl.envs import Compose, DoubleToFloat, EnvBase, GymWrapper, RewardSum, TransformedEnv
+
+    import sim2real
+
+    if isinstance(task_or_env, str):
+        env: Any = GymWrapper(sim2real.make(task_or_env))
+    elif isinstance(task_or_env, gym.Env):
+        env = GymWrapper(task_or_env)
+    elif isinstance(task_or_env, EnvBase):
+        env = task_or_env
+    else:
+        raise TypeError(
+            "`task_or_env` must be a task id (e.g. 'sim2real/arm-reach'), a gymnasium env or a TorchRL EnvBase. "
+            f"Received {type(task_or_env).__name__}."
+        )
+    if effects:
+        env = sim2real.wrap(env, *effects, seed=seed)
+    obs_spec = env.observation_spec.get("observation", None)
+    if obs_spec is None or len(obs_spec.shape) != 1:
+        keys = list(env.observation_spec.keys(True, True))
+        raise TypeError(
+            "`task_or_env` must give one flat `observation` vector (use flatten=True for dm-control). "
+            f"Received observation keys {keys}."
+        )
+    # auto_unwrap=False: keep a wrapped env intact instead of merging (and mutating) its transforms.
+    env = TransformedEnv(env, Compose(DoubleToFloat(), RewardSum()), auto_unwrap=False)
+    env.set_seed(seed)
+    return env
+
+
+def _make_logger(logger: str | None, log_dir: str | os.PathLike[str] | None, run_id: str) -> Any:
+    if logger not in _LOGGERS:
+        raise ValueError(f"`logger` must be one of {list(_LOGGERS)}. Received {logger!r}.")
+    if logger is None:
+        return None
+    root = str(Path(log_dir) if log_dir is not None else Path("sim2real_runs"))
+    if logger == "csv":
+        from torchrl.record.loggers import CSVLogger
+
+        return CSVLogger(exp_name=run_id, log_dir=root)
+    try:
+        import tensorboard  # noqa: F401
+    except ImportError:
+        raise ValueError(
+            "`logger` 'tensorboard' needs the tensorboard package, which is not installed; use 'csv' or None."
+        ) from None
+    from torchrl.record.loggers import TensorboardLogger
+
+    return TensorboardLogger(exp_name=run_id, log_dir=root)
+
+
+def _logger_dir(logger: Any) -> Path | None:
+    if logger is None:
+        return None
+    path = getattr(logger, "log_dir", None)
+    exp = getattr(logger, "exp_name", None)
+    if path is None:
+        return None
+    return Path(path) / exp if exp is not None and (Path(path) / exp).exists() else Path(path)
+
+
+def _run_id(algo: str, task: str | None, seed: int) -> str:
+    slug = re.sub(r"[^A-Za-z0-9]+", "-", task or "env").strip("-")
+    # uuid4 reads os.urandom, so the id is unique without touching any seeded generator.
+    return f"{algo}_{slug}_seed{seed}_{time.strftime('%Y%m%d-%H%M%S')}_{uuid.uuid4().hex[:6]}"
+
+
+def train(
+    task_or_env: Any,
+    config: PPOConfig | SACConfig,
+    *,
+    effects: Sequence[Any] = (),
+    seed: int = 0,
+    progress: bool = True,
+    logger: str | None = "csv",
+    log_dir: str | os.PathLike[str] | None = None,
+) -> TrainResult:
+    """Trains a PPO or SAC policy (chosen by the type of ``config``) with TorchRL.
+
+    Args:
+        task_or_env: a task id, a gymnasium env or a TorchRL env (see :func:`make_train_env`).
+        config: :class:`PPOConfig` (``ClipPPOLoss`` + ``GAE``) or :class:`SACConfig` (``SACLoss``, uniform
+            replay buffer).
+        effects: physics effects and signal models applied with :func:`sim2real.wrap` (domain randomisation).
+        seed: seeds weights, exploration, minibatch order, env and effects.
+        progress: show a tqdm bar on stderr.
+        logger: ``"csv"`` (TorchRL ``CSVLogger``), ``"tensorboard"`` (needs tensorboard) or None.
+        log_dir: root folder of the logger (default ``./sim2real_runs``); the run writes to ``log_dir/run_id``.
+
+    Returns:
+        A :class:`TrainResult`.
+
+    Raises:
+        TypeError: ``config`` is not a PPO/SAC config, or an unsupported env.
+        ValueError: a bad ``seed``, ``logger`` or task id.
+    """
+    import torch
+
+    if not isinstance(config, (PPOConfig, SACConfig)):
+        raise TypeError(f"`config` must be a PPOConfig or SACConfig. Received {type(config).__name__}.")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ValueError(f"`seed` must be an int >= 0. Received {seed!r}.")
+    task = _task_id(task_or_env)
+    run_id = _run_id(config.algo, task, seed)
+    log = _make_logger(logger, log_dir, run_id)
+    if log is not None:
+        log.log_hparams({**config.to_dict(), "seed": seed, "task": task or "", "run_id": run_id})
+    start = time.perf_counter()
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        env = make_train_env(task_or_env, effects, seed)
+        try:
+            run = _train_ppo if isinstance(config, PPOConfig) else _train_sac
+            policy, rows, frames = run(env, config, seed, progress, log)
+        finally:
+            env.close()
+    wall = time.perf_counter() - start
+    names = sorted({k for row in rows for k in row}, key=lambda k: (k != "frames", k))
+    metrics = MappingProxyType({k: tuple(float(row.get(k, math.nan)) for row in rows) for k in names})
+    return TrainResult(
+        policy=policy,
+        config=config,
+        metrics=metrics,
+        frames=frames,
+        wall_time=wall,
+        run_id=run_id,
+        seed=seed,
+        task=task,
+        log_dir=_logger_dir(log),
+    )
+
+
+def _bounds(env: Any) -> tuple[int, int, list[float], list[float]]:
+    obs_dim = int(env.observation_spec["observation"].shape[-1])
+    spec = env.action_spec
+    low = getattr(getattr(spec, "space", None), "low", None)
+    if low is None:
+        raise TypeError(f"the env's action spec must be bounded and continuous. Received {type(spec).__name__}.")
+    low_l = [float(v) for v in spec.space.low.flatten()]
+    high_l = [float(v) for v in spec.space.high.flatten()]
+    return obs_dim, len(low_l), low_l, high_l
+
+
+def _fit_normalizer(env: Any, norm: Any, frames: int) -> None:
+    import torch
+
+    if frames <= 0:
+        return
+    # Uniform random actions (drawn from torch's forked, seeded generator); the env is reset again by the
+    # collector afterwards, so these steps only fix the input statistics.
+    rollout = env.rollout(frames, break_when_any_done=False)
+    obs = rollout["observation"].reshape(-1, rollout["observation"].shape[-1]).to(torch.float32)
+    norm.set_stats(obs.mean(0), obs.std(0).clamp_min(0.01))
+
+
+def _episode_stats(data: Any) -> dict[str, float]:
+    import torch
+
+    done = data["next", "done"]
+    returns = data["next", "episode_reward"][done]
+    row = {"reward": float(data["next", "reward"].mean())}
+    row["episode_return"] = float(returns.mean()) if returns.numel() else math.nan
+    row["episodes"] = float(int(torch.count_nonzero(done)))
+    return row
+
+
+def _bar(total: int, progress: bool, desc: str) -> Any:
+    import sys
+
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, unit="frame", disable=not progress, file=sys.stderr, leave=False)
+
+
+def _log(log: Any, row: Mapping[str, float], frames: int) -> None:
+    if log is None:
+        return
+    for key, value in row.items():
+        if key != "frames" and math.isfinite(value):
+            log.log_scalar(key, value, step=frames)
+
+
+def _train_ppo(env: Any, cfg: PPOConfig, seed: int, progress: bool, log: Any) -> tuple[Any, list[dict], int]:
+    import torch
+    from torchrl.collectors import Collector
+    from torchrl.objectives import ClipPPOLoss
+    from torchrl.objectives.value import GAE
+
+    from sim2real.agents.nets import actor_normalizer, build_actor, build_critic
+
+    obs_dim, _, low, high = _bounds(env)
+    actor = build_actor("ppo", obs_dim, low, high, cfg.hidden_sizes, cfg.activation, cfg.init_log_std)
+    norm = actor_normalizer(actor)
+    _fit_normalizer(env, norm, cfg.obs_norm_frames)
+    critic = build_critic(obs_dim, cfg.hidden_sizes, cfg.activation, norm)
+    advantage = GAE(gamma=cfg.gamma, lmbda=cfg.gae_lambda, value_network=critic, average_gae=False)
+    loss_module = ClipPPOLoss(
+        actor,
+        critic,
+        clip_epsilon=cfg.clip_epsilon,
+        entropy_bonus=cfg.entropy_coef > 0,
+        entropy_coeff=cfg.entropy_coef,
+        critic_coeff=cfg.critic_coef,
+        normalize_advantage=True,
+    )
+    optim = torch.optim.Adam(loss_module.parameters(), lr=cfg.lr)
+    shuffle = torch.Generator().manual_seed(seed)
+    collector = Collector(
+        env,
+        actor,
+        frames_per_batch=cfg.frames_per_batch,
+        total_frames=cfg.frames,
+        auto_register_policy_transforms=False,
+    )
+    rows: list[dict[str, float]] = []
+    frames = 0
+    try:
+        with _bar(cfg.frames, progress, "ppo") as bar:
+            for data in collector:
+                data = data.reshape(-1)
+                n = data.numel()
+                frames += n
+                row = {"frames": float(frames), **_episode_stats(data)}
+                if cfg.reward_scale != 1.0:
+                    data["next", "reward"] = data["next", "reward"] * cfg.reward_scale
+                sums = {"loss_objective": 0.0, "loss_critic": 0.0, "loss_entropy": 0.0}
+                steps = 0
+                for _ in range(cfg.epochs):
+                    with torch.no_grad():
+                        advantage(data)
+                    order = torch.randperm(n, generator=shuffle)
+                    for start in range(0, n - cfg.minibatch_size + 1, cfg.minibatch_size):
+                        batch = data[order[start : start + cfg.minibatch_size]]
+                        out = loss_module(batch)
+                        total = out["loss_objective"] + out["loss_critic"]
+                        if "loss_entropy" in out.keys():  # noqa: SIM118 - TensorDict has no `in`
+                            total = total + out["loss_entropy"]
+                        optim.zero_grad()
+                        total.backward()
+                        torch.nn.utils.clip_grad_norm_(loss_module.parameters(), cfg.max_grad_norm)
+                        optim.step()
+                        for key in sums:
+                            if key in out.keys():  # noqa: SIM118
+                                sums[key] += float(out[key].detach())
+                        steps += 1
+                row.update({k: v / max(steps, 1) for k, v in sums.items()})
+                collector.update_policy_weights_()
+                rows.append(row)
+                _log(log, row, frames)
+                bar.update(n)
+                if math.isfinite(row["episode_return"]):
+                    bar.set_postfix(ret=f"{row['episode_return']:.2f}")
+    finally:
+        collector.shutdown()
+    return actor, rows, frames
+
+
+def _train_sac(env: Any, cfg: SACConfig, seed: int, progress: bool, log: Any) -> tuple[Any, list[dict], int]:
+    import torch
+    from torchrl.collectors import Collector
+    from torchrl.data import LazyTensorStorage, RandomSampler, ReplayBuffer
+    from torchrl.objectives import SACLoss, SoftUpdate
+
+    from sim2real.agents.nets import actor_normalizer, build_actor, build_qvalue
+
+    obs_dim, act_dim, low, high = _bounds(env)
+    actor = build_actor("sac", obs_dim, low, high, cfg.hidden_sizes, cfg.activation, cfg.init_log_std)
+    norm = actor_normalizer(actor)
+    _fit_normalizer(env, norm, cfg.obs_norm_frames)
+    qvalue = build_qvalue(obs_dim, act_dim, cfg.hidden_sizes, cfg.activation, norm)
+    loss_module = SACLoss(
+        actor,
+        qvalue,
+        num_qvalue_nets=2,
+        loss_function="l2",
+        alpha_init=cfg.alpha_init,
+        action_spec=env.action_spec,
+    )
+    loss_module.make_value_estimator(gamma=cfg.gamma)
+    target = SoftUpdate(loss_module, tau=cfg.tau)
+    optim = torch.optim.Adam(loss_module.parameters(), lr=cfg.lr)
+    buffer = ReplayBuffer(
+        storage=LazyTensorStorage(cfg.buffer_size),
+        sampler=RandomSampler(),
+        batch_size=cfg.batch_size,
+        generator=torch.Generator().manual_seed(seed),
+    )
+    collector = Collector(
+        env,
+        actor,
+        frames_per_batch=cfg.frames_per_batch,
+        total_frames=cfg.frames,
+        init_random_frames=cfg.init_random_frames,
+        auto_register_policy_transforms=False,
+    )
+    updates = max(1, round(cfg.utd_ratio * cfg.frames_per_batch))
+    rows: list[dict[str, float]] = []
+    frames = 0
+    try:
+        with _bar(cfg.frames, progress, "sac") as bar:
+            for data in collector:
+                data = data.reshape(-1)
+                n = data.numel()
+                frames += n
+                row = {"frames": float(frames), **_episode_stats(data)}
+                if cfg.reward_scale != 1.0:
+                    data["next", "reward"] = data["next", "reward"] * cfg.reward_scale
+                buffer.extend(data)
+                if frames >= cfg.init_random_frames and len(buffer) >= cfg.batch_size:
+                    sums = {"loss_actor": 0.0, "loss_qvalue": 0.0, "loss_alpha": 0.0, "alpha": 0.0}
+                    for _ in range(updates):
+                        out = loss_module(buffer.sample())
+                        total = out["loss_actor"] + out["loss_qvalue"] + out["loss_alpha"]
+                        optim.zero_grad()
+                        total.backward()
+                        optim.step()
+                        target.step()
+                        for key in sums:
+                            sums[key] += float(out[key].detach())
+                    row.update({k: v / updates for k, v in sums.items()})
+                collector.update_policy_weights_()
+                rows.append(row)
+                _log(log, row, frames)
+                bar.update(n)
+                if math.isfinite(row["episode_return"]):
+                    bar.set_postfix(ret=f"{row['episode_return']:.2f}")
+    finally:
+        collector.shutdown()
+    return actor, rows, frames
