@@ -681,12 +681,3 @@ class SignalCorruptor:
         if self._cmd_delay is None:
             raise RuntimeError("no action latency")
         return self._cmd_delay.segments(start, n)
-
-    def max_delay_steps(self) -> int:
-        """The longest delay any latency model can produce this episode, in time steps."""
-        out = 0
-        for cls in (ObservationLatency, ActionLatency):
-            model = self.timing.get(cls)
-            if model is not None:
-                out = max(out, model.check_capacity(self._scales[cls]))  # type: ignore[attr-defined]
-        return out

@@ -32,7 +32,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from noise_models.values import FrozenValue, check_value, draw, is_sampler, upper_bound, value_config
+from noise_models.values import FrozenValue, check_value, draw, upper_bound, value_config
 
 __all__ = [
     "ActionLatency",
@@ -288,11 +288,6 @@ class ObservationDelay:
             j -= 1
         return self._values[delivered % cap]
 
-    @property
-    def age_index(self) -> int:
-        """Index of the sample read last (0 = the reset sample)."""
-        return self._delivered
-
 
 class CommandDelay:
     """Arrival-ordered command buffer at physics rate (a preallocated ring of command arrays).
@@ -377,8 +372,3 @@ def sample_and_hold_updates(prev: int, now: int, period: float, phase: float) ->
     if now < phase:
         return False
     return math.floor((now - phase) / period) > math.floor((prev - phase) / period) or prev < phase <= now
-
-
-def is_random(value: Any) -> bool:
-    """True when a timing parameter is a distribution."""
-    return is_sampler(value)

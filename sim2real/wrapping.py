@@ -35,7 +35,7 @@ import gymnasium as gym
 
 from noise_models.corruptor import ActionNoise, ObservationNoise
 from noise_models.timing import TimeModel
-from randomizers import Effect
+from randomizers import Effect, Texture
 from randomizers.seeding import SeedLike, normalize_seed
 
 __all__ = ["make_vec", "wrap"]
@@ -93,7 +93,7 @@ def wrap(env: Any, *effects: Any, seed: SeedLike = None) -> Any:
     flat = [e for e in items if isinstance(e, Effect)]
     signals = [e for e in items if not isinstance(e, Effect)]
     normalize_seed(seed)
-    if any(type(e).__name__ == "Texture" for e in flat):
+    if any(isinstance(e, Texture) for e in flat):
         # Texture edits must reach every live render context, also of envs not built by make().
         from sim2real.pixels import track_render_contexts
 

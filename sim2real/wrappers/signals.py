@@ -42,7 +42,7 @@ import dm_env
 import gymnasium as gym
 import numpy as np
 
-from noise_models import Layout, SignalCorruptor, SignalModel
+from noise_models import ControlJitter, Layout, SignalCorruptor, SignalModel
 from noise_models.seeding import SeedLike
 from sim2real.physics import PhysicsHandle, find_physics
 
@@ -139,7 +139,7 @@ class SignalClock:
         self._latency = corruptor.has_action and handle is not None
         # Composer steps one substep at a time and its hooks may rewrite ctrl between substeps.
         self._whole_steps = handle is not None and not handle.recompiles
-        self._fixed = self._latency and not any(type(m).__name__ == "ControlJitter" for m in corruptor.models)
+        self._fixed = self._latency and ControlJitter not in corruptor.timing
         self._in_step = False
         self._passed = 0
         self._target = substeps
@@ -164,9 +164,6 @@ class SignalClock:
         self._control += 1
         self._passed = 0
         self._in_step = True
-
-    def end_step(self) -> None:
-        self._in_step = False
 
     def _stepper(self, run: Any, nstep: int, runner: Any = None) -> None:
         if not self._in_step:  # physics stepped outside a control step (e.g. inside reset)
@@ -290,9 +287,7 @@ class CorruptSignals(gym.Wrapper):
         self._has_obs = self.corruptor.has_observation
         self._has_action = self.corruptor.has_action
         self._obs_time = self.corruptor.observation_needs_time
-        self._jitter = self.corruptor.needs_physics_hook and any(
-            type(m).__name__ == "ControlJitter" for m in self.corruptor.models
-        )
+        self._jitter = self.corruptor.needs_physics_hook and ControlJitter in self.corruptor.timing
         self._closed = False
 
     @property
