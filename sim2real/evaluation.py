@@ -306,6 +306,11 @@ def _grid_values(values: Any, argument: str) -> np.ndarray:
     return arr
 
 
+def axis_values(spec: Mapping[str, Any]) -> Any:
+    """The grid of a sweep or grid-axis mapping: its ``values``, else ``{low, high, num}``."""
+    return spec["values"] if "values" in spec else {k: spec[k] for k in ("low", "high", "num") if k in spec}
+
+
 def _default_nominal(path: str) -> float:
     last = path.split(".")[-1]
     return 1.0 if last in ("scale", "gain") else 0.0
@@ -384,8 +389,7 @@ def grid(
                 f"`{argument}` must be a mapping with `field` and `values` (or low/high/num). Received {spec!r}."
             )
         effect = spec.get("effect", spec)
-        values = spec["values"] if "values" in spec else {k: spec[k] for k in ("low", "high", "num") if k in spec}
-        axes.append(_axis(effect, spec["field"], values, spec.get("nominal"), f"{argument}.values"))
+        axes.append(_axis(effect, spec["field"], axis_values(spec), spec.get("nominal"), f"{argument}.values"))
     (tx, lx, gx, nx), (ty, ly, gy, ny) = axes
     name = name or f"{lx} x {ly}"
     extra = _effect_list(base, "base")
@@ -535,7 +539,7 @@ def episode_seed(seed: int, episode: int) -> int:
 class _Job:
     task: str
     options: Mapping[str, Any]
-    condition: Condition
+    conditions: tuple[Condition, ...]  # all with the same calibration params: they share the base envs
     policies: tuple[tuple[str, Any], ...]
     first: int
     count: int
@@ -554,13 +558,8 @@ class _JobResult:
     steps: int
 
 
-def _build_env(job: _Job) -> Any:
-    from sim2real.tasks import make
-    from sim2real.wrapping import wrap
-
-    cond = job.condition
-    env = make(job.task, params=dict(cond.params) if cond.params is not None else None, **job.options)
-    return wrap(env, *cond.effects, seed=job.seed) if cond.effects else env
+#: Conditions per job: a job builds its envs once and reuses them for each of its conditions.
+_CONDITIONS_PER_JOB = 8
 
 
 def _observation(obs: Any, task: str) -> np.ndarray:
@@ -573,57 +572,79 @@ def _observation(obs: Any, task: str) -> np.ndarray:
     return arr
 
 
-def _run_job(job: _Job) -> _JobResult:
-    """Runs ``job.count`` episodes of every policy on one condition, all envs stepped together."""
+def _release(env: Any, base: Any) -> None:
+    """Peels sim2real's wrappers off ``env`` down to ``base``, restoring its nominal model."""
+    while env is not base and hasattr(env, "release"):
+        env = env.release()
+
+
+def _run_job(job: _Job) -> list[_JobResult]:
+    """Runs ``job.count`` episodes of every policy on each of the job's conditions, all envs stepped together."""
     from sim2real.agents.policy import as_policy
+    from sim2real.tasks import make
+    from sim2real.wrapping import wrap
 
     n = job.count
-    envs = [_build_env(job) for _ in range(n)]
+    params = job.conditions[0].params
+    base = [make(job.task, params=dict(params) if params is not None else None, **job.options) for _ in range(n)]
     seeds = [episode_seed(job.seed, job.first + i) for i in range(n)]
+    policies = [(name, as_policy(source, task=job.task)) for name, source in job.policies]
+    out = []
+    try:
+        for cond in job.conditions:
+            envs = [wrap(b, *cond.effects, seed=job.seed) if cond.effects else b for b in base]
+            try:
+                out.append(_episodes(job, cond, envs, seeds, policies))
+            finally:
+                for env, b in zip(envs, base, strict=True):
+                    _release(env, b)
+    finally:
+        for env in base:
+            env.close()
+    return out
+
+
+def _episodes(
+    job: _Job, cond: Condition, envs: list[Any], seeds: list[int], policies: list[tuple[str, Any]]
+) -> _JobResult:
+    n = len(envs)
     returns: dict[str, np.ndarray] = {}
     lengths: dict[str, np.ndarray] = {}
     successes: dict[str, np.ndarray] = {}
-    draws: dict[str, list[float]] = {}
+    draws: dict[str, np.ndarray] = {}
     steps = 0
-    try:
-        for p, (name, source) in enumerate(job.policies):
-            policy = as_policy(source, task=job.task)
-            first = [env.reset(seed=s) for env, s in zip(envs, seeds, strict=True)]
-            obs = np.stack([_observation(o, job.task) for o, _ in first])
-            if p == 0:
-                keys = sorted({k for _, info in first for k in info.get("sim2real", {}).get("params", {})})
-                for key in keys:
-                    draws[key] = [float(info["sim2real"]["params"].get(key, math.nan)) for _, info in first]
-            total = np.zeros(n)
-            length = np.zeros(n, dtype=np.int64)
-            done = np.zeros(n, dtype=bool)
-            success = np.zeros(n, dtype=bool)
-            reports_success = False
-            t = 0
-            while not done.all() and (job.max_steps is None or t < job.max_steps):
-                actions = policy(obs)
-                for i in np.flatnonzero(~done):
-                    o, r, terminated, truncated, info = envs[i].step(actions[i])
-                    obs[i] = o
-                    total[i] += float(r)
-                    length[i] += 1
-                    if "is_success" in info:
-                        reports_success = True
-                        success[i] = bool(info["is_success"])
-                    if terminated or truncated:
-                        done[i] = True
-                t += 1
-            steps += int(length.sum())
-            returns[name] = total
-            lengths[name] = length
-            if reports_success:
-                successes[name] = success
-    finally:
-        for env in envs:
-            env.close()
-    return _JobResult(
-        job.condition.name, job.first, returns, lengths, successes, {k: np.asarray(v) for k, v in draws.items()}, steps
-    )
+    for p, (name, policy) in enumerate(policies):
+        first = [env.reset(seed=s) for env, s in zip(envs, seeds, strict=True)]
+        obs = np.stack([_observation(o, job.task) for o, _ in first])
+        if p == 0:
+            keys = sorted({k for _, info in first for k in info.get("sim2real", {}).get("params", {})})
+            for key in keys:
+                draws[key] = np.array([float(info["sim2real"]["params"].get(key, math.nan)) for _, info in first])
+        total = np.zeros(n)
+        length = np.zeros(n, dtype=np.int64)
+        done = np.zeros(n, dtype=bool)
+        success = np.zeros(n, dtype=bool)
+        reports_success = False
+        t = 0
+        while not done.all() and (job.max_steps is None or t < job.max_steps):
+            actions = policy(obs)
+            for i in np.flatnonzero(~done):
+                o, r, terminated, truncated, info = envs[i].step(actions[i])
+                obs[i] = o
+                total[i] += float(r)
+                length[i] += 1
+                if "is_success" in info:
+                    reports_success = True
+                    success[i] = bool(info["is_success"])
+                if terminated or truncated:
+                    done[i] = True
+            t += 1
+        steps += int(length.sum())
+        returns[name] = total
+        lengths[name] = length
+        if reports_success:
+            successes[name] = success
+    return _JobResult(cond.name, job.first, returns, lengths, successes, draws, steps)
 
 
 def _policies(policies: Any) -> tuple[tuple[str, Any], ...]:
@@ -697,11 +718,25 @@ def evaluate(
     named = _policies(policies)
     policy_names = tuple(n for n, _ in named)
     options = _freeze(dict(task_options or {}))
+    groups: dict[Any, list[Condition]] = {}
+    for cond in conditions:
+        if cond.simulated:
+            key = None if cond.params is None else tuple(sorted(cond.params.items()))
+            groups.setdefault(key, []).append(cond)
     jobs = [
-        _Job(task, options, cond, named, first, min(batch, episodes - first), int(seed), max_steps)
-        for cond in conditions
-        if cond.simulated
+        _Job(
+            task,
+            options,
+            tuple(group[i : i + _CONDITIONS_PER_JOB]),
+            named,
+            first,
+            min(batch, episodes - first),
+            int(seed),
+            max_steps,
+        )
+        for group in groups.values()
         for first in range(0, episodes, batch)
+        for i in range(0, len(group), _CONDITIONS_PER_JOB)
     ]
     start = time.perf_counter()
     results = _dispatch(jobs, backend, workers, progress)
@@ -713,10 +748,12 @@ def _dispatch(jobs: list[_Job], backend: str, workers: int | None, progress: boo
     if backend == "serial":
         from tqdm.auto import tqdm
 
-        return [_run_job(job) for job in tqdm(jobs, desc="evaluate", disable=not progress, leave=False)]
-    from sim2real.parallel import run_tasks
+        runs = [_run_job(job) for job in tqdm(jobs, desc="evaluate", disable=not progress, leave=False)]
+    else:
+        from sim2real.parallel import run_tasks
 
-    return list(run_tasks(_run_job, jobs, backend=backend, workers=workers, progress=progress, desc="evaluate").results)
+        runs = list(run_tasks(_run_job, jobs, backend=backend, workers=workers, progress=progress, desc="evaluate"))
+    return [res for run in runs for res in run]
 
 
 def _collect(

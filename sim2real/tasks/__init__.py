@@ -51,15 +51,43 @@ def _split(options: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
     return adapter, env_kwargs
 
 
+#: Pristine suite environments, one per (domain, task, time limit), that new instances are copied from.
+_SUITE_TEMPLATES: dict[tuple[str, str, Any], Any] = {}
+
+
+def _suite_env(domain: str, task: str, env_kwargs: dict[str, Any]) -> Any:
+    """A new suite environment. The first one of a kind is loaded from XML and kept as a template; later
+    ones copy its compiled model (about 10x faster than compiling: reacher's procedural skybox alone costs
+    a quarter of a second) and deep-copy its task, with fresh entropy in the task's ``RandomState``.
+    The copies step bitwise like ``suite.load`` (tested)."""
+    import copy
+
+    import numpy as np
+    from dm_control import suite
+    from dm_control.rl import control
+
+    key = (domain, task, env_kwargs.get("time_limit"))
+    template = _SUITE_TEMPLATES.get(key)
+    if template is None:
+        template = _SUITE_TEMPLATES[key] = suite.load(domain, task, task_kwargs=env_kwargs or None)
+    new_task = copy.deepcopy(template.task)
+    new_task._random = np.random.RandomState()
+    return control.Environment(
+        template.physics.copy(share_model=False),
+        new_task,
+        time_limit=template._step_limit * template.control_timestep(),
+        n_sub_steps=template._n_sub_steps,
+        flat_observation=template._flat_observation,
+    )
+
+
 def _suite(domain: str, task: str) -> Callable[..., gym.Env]:
     def factory(task_id: str, **options: Any) -> gym.Env:
-        from dm_control import suite
-
         from sim2real.adapters import DmEnvToGym
 
         _check_options(task_id, options, _DM_OPTIONS)
         adapter, env_kwargs = _split(options)
-        return DmEnvToGym(suite.load(domain, task, task_kwargs=env_kwargs or None), **adapter)
+        return DmEnvToGym(_suite_env(domain, task, env_kwargs), **adapter)
 
     return factory
 

@@ -117,8 +117,14 @@ class RandomizePhysics(gym.Wrapper):
         """Writes every touched model field back to its nominal value (bitwise)."""
         self.randomizer.restore_nominal()
 
-    def close(self) -> None:
+    def release(self) -> gym.Env:
+        """Detaches from the wrapped env and returns it, still open, for reuse: the nominal model is
+        restored bitwise and the recompile hook removed. The wrapper is closed afterwards."""
         if not self._closed:
             self._closed = True
             self._handle.detach(self.randomizer, self._hook)
+        return self.env
+
+    def close(self) -> None:
+        self.release()
         super().close()

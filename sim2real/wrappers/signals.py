@@ -362,10 +362,16 @@ class CorruptSignals(gym.Wrapper):
             report["params"].update(c.current_params)
         return obs, reward, terminated, truncated, info
 
-    def close(self) -> None:
+    def release(self) -> gym.Env:
+        """Detaches from the wrapped env and returns it, still open, for reuse: physics stepping is no
+        longer intercepted. The wrapper is closed afterwards."""
         if not self._closed:
             self._closed = True
             self.clock.close()
+        return self.env
+
+    def close(self) -> None:
+        self.release()
         super().close()
 
 
