@@ -401,7 +401,13 @@ def test_cli_train_writes_a_checkpoint(tmp_path: Path) -> None:
     )  # fmt: skip
     assert code == 0, out.getvalue()
     assert "ppo on sim2real/arm-reach, 200 frames" in out.getvalue() and "2 effect(s)" in out.getvalue()
-    assert load_checkpoint(tmp_path / "ckpt.pt").config.frames == 200
+    ckpt = load_checkpoint(tmp_path / "ckpt.pt")
+    assert ckpt.config.frames == 200
+    # The training randomisation travels with the checkpoint, as YAML that loads back to equal models.
+    import sim2real as s2r
+
+    assert ckpt.effects is not None
+    assert s2r.load_config(ckpt.effects) == s2r.load_config(effects)
 
 
 def test_cli_train_usage_errors(tmp_path: Path, capsys) -> None:

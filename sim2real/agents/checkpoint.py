@@ -65,6 +65,8 @@ class Checkpoint:
         versions: package name -> version at save time.
         created: UTC time of saving, ISO 8601.
         path: the file it was read from.
+        effects: the training randomisation as YAML (``sim2real.dump_config``), or None when trained without
+            effects or saved without them.
     """
 
     policy: Any
@@ -76,6 +78,7 @@ class Checkpoint:
     versions: dict[str, str]
     created: str
     path: Path
+    effects: str | None = None
 
 
 def _versions() -> dict[str, str]:
@@ -109,6 +112,7 @@ def save_checkpoint(
     run_id: str,
     *,
     task: str | None = None,
+    effects: str | None = None,
 ) -> None:
     """Writes ``policy`` (an actor from :func:`~sim2real.agents.train`) and its provenance to ``path`` atomically.
 
@@ -119,6 +123,7 @@ def save_checkpoint(
         seed: training seed.
         run_id: id of the training run.
         task: task id it was trained on (checked again on load when given there).
+        effects: the training randomisation as YAML text (:func:`sim2real.dump_config`), kept for provenance.
 
     Raises:
         TypeError: ``policy`` was not built by sim2real.agents, or ``config`` is not a PPO/SAC config.
@@ -146,6 +151,7 @@ def save_checkpoint(
         "git_commit": git_commit(),
         "versions": _versions(),
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "effects": effects,
     }
     atomic_write(path, lambda tmp: torch.save(payload, tmp))
 
@@ -219,6 +225,7 @@ def load_checkpoint(path: str | os.PathLike[str], *, task: str | None = None) ->
         versions=dict(data["versions"]),
         created=str(data.get("created", "")),
         path=file,
+        effects=data["effects"] if isinstance(data.get("effects"), str) else None,
     )
 
 

@@ -43,6 +43,7 @@ class TrainResult:
         seed: the seed.
         task: task id, or None when an env object was given without a gymnasium ``spec``.
         log_dir: folder of the logger's files, or None without a logger.
+        effects: the randomisation trained under, as YAML (:func:`sim2real.dump_config`); None without effects.
     """
 
     policy: Any
@@ -54,12 +55,13 @@ class TrainResult:
     seed: int
     task: str | None = None
     log_dir: Path | None = field(default=None)
+    effects: str | None = None
 
     def save(self, path: str | os.PathLike[str]) -> None:
         """Writes a checkpoint (see :func:`~sim2real.agents.save_checkpoint`)."""
         from sim2real.agents.checkpoint import save_checkpoint
 
-        save_checkpoint(path, self.policy, self.config, self.seed, self.run_id, task=self.task)
+        save_checkpoint(path, self.policy, self.config, self.seed, self.run_id, task=self.task, effects=self.effects)
 
 
 def _task_id(task_or_env: Any) -> str | None:
@@ -212,7 +214,19 @@ def train(
         seed=seed,
         task=task,
         log_dir=_logger_dir(log),
+        effects=_effects_text(effects),
     )
+
+
+def _effects_text(effects: Sequence[Any]) -> str | None:
+    from sim2real.wrapping import _flatten
+
+    flat = _flatten(effects)
+    if not flat:
+        return None
+    from randomizers import dump_config
+
+    return dump_config(flat)
 
 
 def _bounds(env: Any) -> tuple[int, int, list[float], list[float]]:
