@@ -410,18 +410,17 @@ def _cmd_record(args: argparse.Namespace, out: TextIO) -> int:
 def _fit_report_html(result: Any, task: str, log_path: str) -> str:
     import base64
     import html
-    import io
 
-    buffer = io.BytesIO()
-    result.plot().savefig(buffer, format="png", dpi=80)
-    image = base64.b64encode(buffer.getvalue()).decode("ascii")
+    from sim2real.report import html_page, png_bytes  # the one page shell and PNG export of every HTML report
+
+    image = base64.b64encode(png_bytes(result.plot())).decode("ascii")
     warnings = "".join(f"<li>{html.escape(w)}</li>" for w in result.warnings) or "<li>none</li>"
-    return (
-        "<!doctype html><html><head><meta charset='utf-8'><title>sysid fit</title></head><body>"
+    body = (
         f"<h1>System identification: {html.escape(task)}</h1><p>log: {html.escape(log_path)}</p>"
         f"<pre>{html.escape(result.summary())}</pre><h2>Warnings</h2><ul>{warnings}</ul>"
-        f"<h2>Fit and residuals</h2><img alt='fit' src='data:image/png;base64,{image}'></body></html>"
+        f"<h2>Fit and residuals</h2><figure><img alt='fit' src='data:image/png;base64,{image}'></figure>"
     )
+    return html_page(f"sysid fit: {task}", body)
 
 
 def _cmd_sysid(args: argparse.Namespace, out: TextIO) -> int:

@@ -64,6 +64,7 @@ __all__ = [
     "robustness_radius",
     "srcc",
     "success_rate",
+    "unpaired_gap",
     "worst_case",
 ]
 
@@ -628,20 +629,87 @@ def gap(
     gen = _generator(rng)
     _check_enough("gap", [x.shape[0]], confidence, num_resamples)
     points, boots = _columns(x[:, [reference, target]], statistic, gen, num_resamples, paired=bool(paired))
+    return _gap(points, boots, 2 * x.shape[0], reference, target, bool(paired), statistic, confidence)
+
+
+def _gap(
+    points: np.ndarray,
+    boots: np.ndarray,
+    n: int,
+    reference: int,
+    target: int,
+    paired: bool,
+    statistic: str,
+    confidence: float,
+) -> Gap:
+    """The :class:`Gap` from the (reference, target) statistic ``points`` ``(2,)`` and replicates ``(B, 2)``."""
     absolute = points[0] - points[1]
     abs_boots = boots[:, 0] - boots[:, 1]
     with np.errstate(divide="ignore", invalid="ignore"):
         relative = absolute / abs(points[0]) if points[0] != 0 else math.nan
         rel_boots = np.where(boots[:, 0] != 0, abs_boots / np.abs(boots[:, 0]), np.nan)
-    n = 2 * x.shape[0]
     return Gap(
         absolute=_estimate(absolute, abs_boots, confidence, n),
         relative=_estimate(relative, rel_boots, confidence, n),
         reference=reference,
         target=target,
-        paired=bool(paired),
+        paired=paired,
         statistic=statistic,
     )
+
+
+def _runs_vector(values: ArrayLike, name: str) -> np.ndarray:
+    arr = np.asarray(values)
+    if arr.ndim != 1:
+        raise ValueError(f"`{name}` must be a 1-D array of runs, shape (num_runs,). Received shape {arr.shape}.")
+    return _runs_array(arr[:, None], name, "1")
+
+
+def unpaired_gap(
+    reference: ArrayLike,
+    target: ArrayLike,
+    *,
+    statistic: Statistic = "mean",
+    rng: np.random.Generator | int,
+    confidence: float = 0.95,
+    num_resamples: int = _DEFAULT_RESAMPLES,
+) -> Gap:
+    """:func:`gap` with ``paired=False`` for two conditions whose run counts may differ (e.g. 50 simulated
+    episodes against 12 measured real-robot episodes).
+
+    The two samples are resampled independently, reference first, exactly as :func:`gap` does for two columns of
+    equal length: with equal counts, ``unpaired_gap(x[:, 0], x[:, 1], rng=s)`` equals
+    ``gap(x, paired=False, rng=s)`` bitwise.
+
+    Args:
+        reference: Returns of the reference condition, shape ``(num_runs_reference,)``.
+        target: Returns of the target condition, shape ``(num_runs_target,)``.
+        statistic: ``'mean'`` or ``'iqm'``.
+        rng: Generator (or int seed) the bootstrap draws from.
+        confidence: Nominal coverage of the intervals, in (0, 1).
+        num_resamples: Bootstrap resamples.
+
+    Returns:
+        A :class:`Gap` with ``reference=0``, ``target=1``, ``paired=False`` and ``n`` the total number of runs.
+
+    Example:
+        >>> import numpy as np
+        >>> g = unpaired_gap(np.linspace(90, 110, 30), np.linspace(60, 100, 12), rng=0)
+        >>> round(g.absolute.value, 6), round(g.relative.value, 6), g.absolute.n
+        (20.0, 0.2, 42)
+    """
+    statistic = _statistic(statistic)
+    ref = _runs_vector(reference, "reference")
+    tgt = _runs_vector(target, "target")
+    confidence = _open_unit(confidence, "confidence")
+    num_resamples = _resamples(num_resamples)
+    gen = _generator(rng)
+    _check_enough("gap", [ref.shape[0], tgt.shape[0]], confidence, num_resamples)
+    ref_point, ref_boots = _columns(ref, statistic, gen, num_resamples)
+    tgt_point, tgt_boots = _columns(tgt, statistic, gen, num_resamples)
+    points = np.concatenate([ref_point, tgt_point])
+    boots = np.concatenate([ref_boots, tgt_boots], axis=1)
+    return _gap(points, boots, ref.shape[0] + tgt.shape[0], 0, 1, False, statistic, confidence)
 
 
 def probability_of_improvement(
