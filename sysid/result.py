@@ -21,7 +21,8 @@ import json
 import math
 import os
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -166,6 +167,38 @@ class FitResult:
             bounds=np.stack([np.full(est.shape, -np.inf), np.full(est.shape, np.inf)], axis=1),
         )
 
+    @classmethod
+    def from_json(cls, source: str | os.PathLike[str]) -> FitResult:
+        """A result read back from :meth:`to_json` (a file path or the JSON text): estimates, intervals,
+        latency, noise, fit percentages and warnings. The traces are not part of the JSON, so :meth:`plot` of
+        the result is empty.
+
+        Raises:
+            ValueError: text that is not a fit result document.
+        """
+        text = str(source)
+        if isinstance(source, os.PathLike) or not text.lstrip().startswith("{"):
+            text = Path(source).read_text()
+        try:
+            data = json.loads(text)
+            params = data["params"]
+            base = cls.from_estimates({a: (v["estimate"], v["stderr"]) for a, v in params.items()})
+        except (ValueError, KeyError, TypeError) as err:
+            raise ValueError(f"`source` is not a sysid fit result JSON document: {err}") from err
+
+        def num(value: Any) -> float:
+            return math.nan if value is None else float(value)
+
+        return replace(
+            base,
+            ci95=np.array([[num(v["ci95"][0]), num(v["ci95"][1])] for v in params.values()]).reshape(-1, 2),
+            crlb_sd=np.array([num(v["crlb_sd"]) for v in params.values()]),
+            latency_steps={k: float(v) for k, v in data.get("latency_steps", {}).items()},
+            noise_std={k: num(v) for k, v in data.get("noise_std", {}).items()},
+            fit_percent={k: num(v) for k, v in data.get("fit_percent", {}).items()},
+            warnings=tuple(data.get("warnings", ())),
+        )
+
     @property
     def params(self) -> dict[str, float]:
         """``{address: estimate}`` (what a calibrated environment is built from)."""
@@ -280,11 +313,7 @@ class FitResult:
         Returns:
             The ``matplotlib.figure.Figure``.
         """
-        import matplotlib
-
-        if matplotlib.get_backend().lower() != "agg":
-            matplotlib.use("Agg", force=True)
-        from matplotlib.figure import Figure
+        from matplotlib.figure import Figure  # no pyplot: the caller's backend (e.g. Jupyter's) stays as it is
 
         count = len(self.channels)
         order = sorted(range(count), key=lambda c: self.fit_percent.get(self.channels[c], 0.0))[:max_channels]

@@ -410,3 +410,17 @@ def test_mid_step_latency_on_dm_control_costs_no_extra_pass_and_is_exact() -> No
 
     fast, plain = trajectory(True), trajectory(False)
     assert fast.tobytes() == plain.tobytes()
+
+
+def test_dm_env_current_params_include_the_physics_draws() -> None:
+    from dm_control import suite
+
+    import sim2real as s2r
+
+    env = s2r.wrap(
+        suite.load("reacher", "easy"), s2r.Damping(scale=s2r.Uniform(0.5, 2.0)), s2r.ObservationLatency(steps=2), seed=0
+    )
+    env.reset()
+    params = env.current_params
+    assert params["obs_latency_steps"] == 2
+    assert 0.005 <= params["dof_damping[shoulder]"] <= 0.02

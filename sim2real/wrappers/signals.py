@@ -418,8 +418,12 @@ class CorruptSignalsDmEnv(dm_env.Environment):
 
     @property
     def current_params(self) -> dict[str, float]:
-        """Name -> value drawn for this episode."""
-        return self.corruptor.current_params
+        """Name -> value drawn for this episode: the wrapped env's draws (e.g. physics effects inside) and
+        this wrapper's, as gymnasium's ``info["sim2real"]["params"]`` merges them."""
+        inner = getattr(self._env, "current_params", None)
+        merged = dict(inner) if isinstance(inner, dict) else {}
+        merged.update(self.corruptor.current_params)
+        return merged
 
     def _observation(self, timestep: dm_env.TimeStep, first: bool) -> dm_env.TimeStep:
         if not self._has_obs:
