@@ -1061,7 +1061,7 @@ class GapReport:
             plan.append((unique(f"robustness_{_slug(sweep)}"), "robustness", sweep))
         for grid in dict.fromkeys(g.grid for g in self.grids):
             plan.append((unique(f"heatmap_{_slug(grid)}"), "heatmap", grid))
-        if self.fit is not None:
+        if self.fit is not None and len(self.fit.channels):  # a fit read back from JSON has no traces
             plan.append(("sysid_fit", "sysid_fit", ""))
         if self.contact_sheet is not None:
             plan.append(("contact_sheet", "contact_sheet", ""))
@@ -1326,7 +1326,8 @@ class GapReport:
                 doc.append(_Block("p", "held-out fit: " + ", ".join(f"{k} {v:.1f}%" for k, v in self.fit_percent)))
             if self.fit_warnings:
                 doc.append(_Block("list", items=tuple(f"fit warning: {w}" for w in self.fit_warnings)))
-            figure("sysid_fit", "", "measured vs simulated signals and residuals")
+            if self.fit is not None and len(self.fit.channels):
+                figure("sysid_fit", "", "measured vs simulated signals and residuals")
         if self.contact_sheet is not None:
             doc.append(_Block("h2", "Visual randomisation"))
             figure("contact_sheet", "", "contact sheet of randomised first frames")

@@ -190,6 +190,11 @@ class PPOConfig(_ConfigBase):
         reward_scale: rewards are multiplied by this before learning (logged returns stay unscaled).
         obs_norm_frames: random-action steps (not counted in ``frames``) whose observation mean and standard
             deviation (floored at 0.01) fix the networks' input normalisation; 0 disables it.
+        bc_baseline: scripted baseline (class name from :data:`~sim2real.agents.BASELINES`, e.g. ``"ReacherPD"``)
+            whose actions the actor imitates before PPO starts (behaviour-cloning warm start), or None.
+        bc_frames: env steps of the baseline recorded for the warm start (not counted in ``frames``; on the
+            training env, so under its randomisation); 0 disables it.
+        bc_epochs: passes of mean-squared-error regression of the actor's deterministic action on them.
     """
 
     algo: ClassVar[str] = "ppo"
@@ -210,11 +215,23 @@ class PPOConfig(_ConfigBase):
     init_log_std: float = 0.0
     reward_scale: float = 1.0
     obs_norm_frames: int = 2_000
+    bc_baseline: str | None = None
+    bc_frames: int = 0
+    bc_epochs: int = 20
 
     def _validate(self) -> None:
         _positive_int("frames", self.frames)
         _positive_int("frames_per_batch", self.frames_per_batch)
         _positive_int("epochs", self.epochs)
+        from sim2real.agents.baselines import BASELINES
+
+        names = sorted({cls.__name__ for cls in BASELINES.values()})
+        if self.bc_baseline is not None and self.bc_baseline not in names:
+            raise ValueError(f"`bc_baseline` must be None or one of {names}. Received {self.bc_baseline!r}.")
+        _nonnegative_int("bc_frames", self.bc_frames)
+        _positive_int("bc_epochs", self.bc_epochs)
+        if self.bc_frames > 0 and self.bc_baseline is None:
+            raise ValueError(f"`bc_frames` > 0 needs a `bc_baseline`. Received bc_frames={self.bc_frames}.")
         _positive_int("minibatch_size", self.minibatch_size)
         if self.minibatch_size > self.frames_per_batch:
             raise ValueError(
