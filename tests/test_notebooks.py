@@ -13,8 +13,7 @@ import nbformat
 import pytest
 
 NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks"
-# 03 is coming: add "03_..." here when it lands.
-EXPECTED = ("01_wrap_any_env.ipynb", "02_sysid_from_logs.ipynb")
+EXPECTED = ("01_wrap_any_env.ipynb", "02_sysid_from_logs.ipynb", "03_robustness_study.ipynb")
 ALL = sorted(NOTEBOOKS.glob("*.ipynb"))
 
 
