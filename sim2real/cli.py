@@ -198,7 +198,84 @@ def _build_parser() -> argparse.ArgumentParser:
         "--seed", type=_int_at_least(0), default=0, help="seed of the global search (default: %(default)s)"
     )
     fit.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    evaluate = sub.add_parser(
+        "evaluate",
+        help="score policies on sim, randomised sim, a real target and sweeps; write the gap report",
+        description=(
+            "Evaluate the policies of a spec (YAML, see sim2real.spec) on the nominal sim, a randomised sim, the real "
+            "target (a twin or measured returns) and sweeps, then write DIR/report.html, report.md, report.json and "
+            "figures/*.png."
+        ),
+    )
+    evaluate.add_argument("--config", required=True, help="evaluation spec (YAML)")
+    evaluate.add_argument("--out", required=True, help="report folder")
+    evaluate.add_argument("--backend", choices=("serial", "local", "ray"), default="local", help="default: local")
+    evaluate.add_argument("--workers", type=_int_at_least(1), default=None, help="processes (default: CPU count)")
+    evaluate.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    study = sub.add_parser(
+        "study",
+        help="the main job: twin, sysid, policies, evaluation and the gap report on an embedded default",
+        description=(
+            "Run the whole sim-to-real loop: record logs on a 'real' twin, fit them with system identification, "
+            "build the calibrated randomised simulator, evaluate nominal, randomised, calibrated and scripted "
+            "policies on sim, randomised sim, the twin and sweeps, and write the gap report."
+        ),
+    )
+    study.add_argument("--task", default="dmc/reacher-easy", help="task with a bundled study (default: %(default)s)")
+    study.add_argument("--out", default="sim2real-study", help="study folder (default: %(default)s)")
+    study.add_argument("--budget", choices=("quick", "standard", "full"), default="standard", help="default: standard")
+    study.add_argument("--backend", choices=("local", "ray", "serial"), default="local", help="default: local")
+    study.add_argument("--seed", type=_int_at_least(0), default=0, help="default: %(default)s")
+    study.add_argument("--workers", type=_int_at_least(1), default=None, help="processes (default: CPU count)")
+    study.add_argument("--quiet", action="store_true", help="no stage lines or progress bars")
     return parser
+
+
+def _cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
+    from sim2real.report import GapReport
+    from sim2real.spec import SpecError, load_spec
+    from sysid import FitResult
+
+    try:
+        spec = load_spec(Path(args.config))
+        options = dict(spec.report)
+        fit = FitResult.from_json(Path(options.pop("fit"))) if "fit" in options else None
+    except FileNotFoundError as err:
+        raise _UsageError(str(err)) from err
+    except (SpecError, ValueError) as err:
+        raise _UsageError(str(err)) from err
+    evaluation = spec.run(backend=args.backend, workers=args.workers, progress=not args.quiet)
+    notes = options.pop("notes", ())
+    report = GapReport.build(
+        evaluation, fit=fit, rng=spec.seed, notes=(notes,) if isinstance(notes, str) else tuple(notes), **options
+    )
+    files = report.write(Path(args.out))
+    print(report.summary(), file=out)
+    print(f"wrote {files.html}", file=out)
+    return 0
+
+
+def _cmd_study(args: argparse.Namespace, out: TextIO) -> int:
+    from sim2real.study import run_study
+
+    try:
+        result = run_study(
+            args.task,
+            args.out,
+            budget=args.budget,
+            backend=args.backend,
+            seed=args.seed,
+            workers=args.workers,
+            progress=not args.quiet,
+            log=None if args.quiet else sys.stderr,
+        )
+    except ValueError as err:
+        raise _UsageError(str(err)) from err
+    print(result.summary, file=out)
+    print(f"report: {result.report}", file=out)
+    return 0
 
 
 # ---------------------------------------------------------------------------------- tasks
@@ -487,10 +564,17 @@ def main(argv: list[str] | None = None) -> int:
             return _cmd_record(args, sys.stdout)
         if args.command == "sysid":
             return _cmd_sysid(args, sys.stdout)
+        if args.command == "evaluate":
+            return _cmd_evaluate(args, sys.stdout)
+        if args.command == "study":
+            return _cmd_study(args, sys.stdout)
         return _cmd_demo(args, sys.stdout)
     except _UsageError as err:
         print(f"sim2real {args.command}: error: {err}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"sim2real {args.command}: interrupted; no partial output was left behind", file=sys.stderr)
+        return 130
     except BrokenPipeError:
         # The reader went away (`sim2real tasks | head -1`): stop quietly, and point stdout at devnull so
         # the interpreter's final flush does not raise a second time.

@@ -1,0 +1,82 @@
+"""``sim2real study``: the whole loop on the quick budget, reproducibility, and nothing half-written on Ctrl-C."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from sim2real import cli
+from sim2real.study import BUDGETS, calibrated_effects, load_profile, run_study, study_tasks
+
+
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("study") / "first"
+    assert cli.main(["study", "--budget", "quick", "--backend", "serial", "--out", str(out), "--quiet"]) == 0
+    return out
+
+
+def test_quick_study_writes_the_report(quick: Path) -> None:
+    assert sorted(p.name for p in quick.iterdir()) == ["checkpoints", "figures", "report.html", "report.json",
+                                                       "report.md", "sysid"] or sorted(
+        p.name for p in quick.iterdir()) == ["figures", "report.html", "report.json", "report.md", "sysid"]  # fmt: skip
+    report = json.loads((quick / "report.json").read_text())
+    html = (quick / "report.html").read_text()
+    for role in ("nominal", "randomized", "calibrated", "scripted"):
+        assert role in report["evaluation"]["policies"]
+        assert f"{role}" in html
+    assert {"returns.png", "sysid_fit.png"} <= {p.name for p in (quick / "figures").iterdir()}
+    assert any(p.name.startswith("robustness_") for p in (quick / "figures").iterdir())
+    assert any(p.name.startswith("heatmap_") for p in (quick / "figures").iterdir())
+    assert (quick / "sysid" / "fit.json").is_file() and (quick / "sysid" / "calibrated.yaml").is_file()
+    # The twin's configuration appears only in the appendix.
+    head, _, appendix = html.partition("Appendix")
+    assert "0.03" not in head.split("System identification")[0] or "dof_damping[shoulder]" not in head
+    assert "dof_damping[shoulder]" in appendix
+
+
+def test_same_seed_reproduces_the_report_json_bitwise(quick: Path, tmp_path: Path) -> None:
+    again = run_study(out=tmp_path / "again", budget="quick", backend="serial", seed=0, progress=False, log=None)
+    assert (again.out / "report.json").read_bytes() == (quick / "report.json").read_bytes()
+    assert "sim to real" in again.summary
+
+
+def test_interrupt_leaves_nothing_half_written(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import sim2real.evaluation as evaluation
+
+    out = tmp_path / "study"
+    out.mkdir()
+    (out / "keep.txt").write_text("previous study")
+
+    def interrupted(*args: object, **kwargs: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(evaluation, "evaluate", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run_study(out=out, budget="quick", backend="serial", progress=False, log=None)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["study"]  # no staging folder left
+    assert [p.name for p in out.iterdir()] == ["keep.txt"]  # the previous study is intact
+
+
+def test_profile_and_errors() -> None:
+    assert "dmc/reacher-easy" in study_tasks()
+    profile = load_profile()
+    assert profile.recording == (0.005, 2)
+    with pytest.raises(
+        ValueError, match=r"`task` must be one of \[.*'dmc/reacher-easy'.*\]. Received 'dmc/cheetah-run'."
+    ):
+        load_profile("dmc/cheetah-run")
+    with pytest.raises(ValueError, match=r"`budget` must be one of \['quick', 'standard', 'full'\]. Received 'huge'."):
+        run_study(budget="huge")
+    assert BUDGETS["quick"].episodes < BUDGETS["standard"].episodes < BUDGETS["full"].episodes
+
+
+def test_calibrated_effects_round_and_widen() -> None:
+    from sysid import FitResult
+
+    fit = FitResult.from_estimates({"dof_damping[shoulder]": (0.02987, 0.0001), "actuator_gain[wrist]": (0.7926, 0.1)})
+    damping, gain = calibrated_effects(fit)
+    assert (damping.set.low, damping.set.high) == (0.027, 0.033)  # 0.030 +- 10%
+    assert (gain.set.low, gain.set.high) == (0.59, 0.99)  # 0.79 +- 2 stderr (0.2) dominates the 10% floor
