@@ -30,11 +30,10 @@ from typing import Any
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-import mujoco  # noqa: E402
-import numpy as np  # noqa: E402
+import mujoco
 
-import sim2real as s2r  # noqa: E402
-from sim2real.evaluation import evaluate, randomized  # noqa: E402
+import sim2real as s2r
+from sim2real.evaluation import evaluate, randomized
 
 GOAL = 10.0
 
@@ -91,7 +90,7 @@ def raw_limit(steps: int) -> float:
     from dm_control import suite
 
     env = suite.load("reacher", "easy")
-    n_sub = env._n_sub_steps  # noqa: SLF001 - the physics steps per control step
+    n_sub = env._n_sub_steps
     model, data = env.physics.model.ptr, env.physics.data.ptr
     mujoco.mj_resetData(model, data)
     start = time.perf_counter()
