@@ -1,0 +1,179 @@
+"""PPO training throughput with the full sim-to-real stack of issue #3 over plain training (issue #6).
+
+Measures in one run, side by side, the frames per second of :func:`sim2real.agents.train` with PPO:
+
+- *plain*: the task with no effects;
+- *stack*: the same task under physics randomisation at reset (``Friction(scale=U(0.5,1.5))``,
+  ``Mass(scale=U(0.8,1.2), bodies="*")``, ``Damping(scale=U(0.5,2))``, ``ActuatorGain(scale=U(0.9,1.1))``), an
+  observation noise pipeline (``Gaussian(std=0.01)`` + per-episode ``Bias(U(-0.02,0.02))`` + a ``Drift(std=0.001)``
+  random walk), ``ActionNoise(Gaussian(std=0.05))``, ``ObservationLatency(steps=1)`` and ``ActionLatency(steps=1)``.
+
+The arms alternate (plain, stack, plain, stack, ...) after one untimed warm-up run of each, so drift in the
+machine's load hits both alike. Repeat ``k`` of both arms uses seed ``k``. Each run covers everything
+:func:`train` does (env construction, the observation normaliser's random steps, collection, GAE and the gradient
+steps) and gives two figures:
+
+- wall frames/s: ``TrainResult.frames / TrainResult.wall_time``, what a user waits for;
+- CPU frames/s: frames over the CPU time this process spent in :func:`train` (``time.process_time``, all
+  threads). On a shared machine other jobs stretch the wall time but hardly the CPU time, so this is the steadier
+  figure for comparing the arms. It is only meaningful with torch on one thread (``--threads 1``, the default):
+  with more, idle threads spin and their CPU time tracks the load.
+
+The ratios are medians of the per-repeat stack/plain ratios; the goal is >= 0.95. Times are printed, never asserted.
+
+Usage:
+    .venv/bin/python benchmarks/bench_train.py                      # reacher-easy, 3 repeats of 10k frames
+    .venv/bin/python benchmarks/bench_train.py --tasks dmc/reacher-easy sim2real/arm-reach --repeats 5
+    .venv/bin/python benchmarks/bench_train.py --quick              # smoke test
+
+The last line printed is ``RESULT ...`` with each task's ratio against the goal.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import statistics
+import time
+from typing import Any
+
+import mujoco
+import numpy as np
+import torch
+
+import sim2real as s2r
+from noise_models import ActionLatency, ActionNoise, Bias, Drift, Gaussian, ObservationLatency, ObservationNoise
+from sim2real.agents import PPOConfig, train
+
+RATIO_GOAL = 0.95
+DEFAULT_TASKS = ("dmc/reacher-easy",)
+
+
+def make_stack(obs_latency: int = 1, action_latency: int = 1) -> list[Any]:
+    """The full issue-#3 stack: physics randomisation at reset, observation and action noise, both latencies."""
+    u = s2r.Uniform
+    return [
+        s2r.Friction(scale=u(0.5, 1.5)),
+        s2r.Mass(scale=u(0.8, 1.2), bodies="*"),
+        s2r.Damping(scale=u(0.5, 2.0)),
+        s2r.ActuatorGain(scale=u(0.9, 1.1)),
+        ObservationNoise(Gaussian(std=0.01), Bias(u(-0.02, 0.02)), Drift(std=0.001)),
+        ActionNoise(Gaussian(std=0.05)),
+        ObservationLatency(steps=obs_latency),
+        ActionLatency(steps=action_latency),
+    ]
+
+
+def cpu_model() -> str:
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def load() -> str:
+    try:
+        return "load average " + " ".join(f"{x:.2f}" for x in os.getloadavg())
+    except OSError:
+        return "load average unknown"
+
+
+def fps(task: str, config: PPOConfig, effects: list[Any], seed: int) -> tuple[float, float]:
+    """(wall frames/s, CPU frames/s) of one training run."""
+    cpu = time.process_time()
+    result = train(task, config, effects=effects, seed=seed, progress=False, logger=None)
+    cpu = time.process_time() - cpu
+    return result.frames / result.wall_time, result.frames / cpu
+
+
+def bench_task(task: str, config: PPOConfig, warmup: PPOConfig, repeats: int, stack: list[Any]) -> dict[str, Any]:
+    arms: dict[str, list[Any]] = {"plain": [], "stack": stack}
+    for effects in arms.values():
+        fps(task, warmup, effects, seed=10_000)  # untimed: imports, allocator and caches warm for both arms
+    wall: dict[str, list[float]] = {arm: [] for arm in arms}
+    cpu: dict[str, list[float]] = {arm: [] for arm in arms}
+    for rep in range(repeats):
+        for arm, effects in arms.items():
+            w, c = fps(task, config, effects, seed=rep)
+            wall[arm].append(w)
+            cpu[arm].append(c)
+        print(
+            f"  {task:<20} repeat {rep + 1}/{repeats}: wall plain {wall['plain'][-1]:6.1f} stack "
+            f"{wall['stack'][-1]:6.1f} ({wall['stack'][-1] / wall['plain'][-1]:.3f})   cpu plain "
+            f"{cpu['plain'][-1]:6.1f} stack {cpu['stack'][-1]:6.1f} ({cpu['stack'][-1] / cpu['plain'][-1]:.3f}) "
+            f"frames/s  [{load()}]",
+            flush=True,
+        )
+    out: dict[str, Any] = {}
+    for name, rates in (("wall", wall), ("cpu", cpu)):
+        ratios = [s / p for s, p in zip(rates["stack"], rates["plain"], strict=True)]
+        out[name] = {
+            "plain": statistics.median(rates["plain"]),
+            "stack": statistics.median(rates["stack"]),
+            "ratio": statistics.median(ratios),
+            "ratio_min": min(ratios),
+            "ratio_max": max(ratios),
+        }
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--tasks", nargs="+", default=list(DEFAULT_TASKS), help="task ids for sim2real.make")
+    parser.add_argument("--frames", type=int, default=10_000, help="PPO frames per timed run")
+    parser.add_argument("--repeats", type=int, default=3, help="timed runs per arm (the median is reported)")
+    parser.add_argument("--warmup-frames", type=int, default=2_000, help="frames of the untimed warm-up run per arm")
+    parser.add_argument("--obs-latency", type=int, default=1, help="ObservationLatency steps of the stack")
+    parser.add_argument("--action-latency", type=int, default=1, help="ActionLatency steps of the stack")
+    parser.add_argument(
+        "--threads", type=int, default=1, help="torch.set_num_threads (0 keeps torch's default); see CPU frames/s"
+    )
+    parser.add_argument("--quick", action="store_true", help="tiny run to check the script works")
+    args = parser.parse_args()
+    frames, repeats, warmup_frames = args.frames, args.repeats, args.warmup_frames
+    if args.quick:
+        frames, repeats, warmup_frames = 1_000, 1, 500
+    config = PPOConfig(frames=frames)
+    warmup = PPOConfig(frames=warmup_frames, frames_per_batch=min(warmup_frames, config.frames_per_batch))
+    stack = make_stack(args.obs_latency, args.action_latency)
+    if args.threads > 0:
+        torch.set_num_threads(args.threads)
+
+    print(
+        f"bench_train: python {platform.python_version()}, torch {torch.__version__} ({torch.get_num_threads()} "
+        f"threads), mujoco {mujoco.__version__}, numpy {np.__version__}"
+    )
+    print(f"machine: {os.cpu_count()} CPUs, {cpu_model()}, {load()}")
+    print(f"frames={frames} repeats={repeats} warmup_frames={warmup_frames} tasks={args.tasks}")
+    print(f"config: {config}")
+    print("stack:", ", ".join(repr(e) for e in stack))
+    print("arms alternate plain, stack, plain, stack, ...; wall = frames / wall time, cpu = frames / CPU time\n")
+
+    results = {task: bench_task(task, config, warmup, repeats, stack) for task in args.tasks}
+
+    print(
+        f"\n{'task':<22}{'clock':>6}{'plain fps':>11}{'stack fps':>11}{'stack/plain':>13}{'(min-max)':>15}"
+        f"{'goal':>7}  verdict"
+    )
+    for task, by_clock in results.items():
+        for clock, r in by_clock.items():
+            verdict = "met" if r["ratio"] >= RATIO_GOAL else "missed"
+            span = f"{r['ratio_min']:.3f}-{r['ratio_max']:.3f}"
+            print(
+                f"{task:<22}{clock:>6}{r['plain']:>11.1f}{r['stack']:>11.1f}{r['ratio']:>13.3f}{span:>15}"
+                f"{RATIO_GOAL:>7.2f}  {verdict}"
+            )
+    print("(frames/s medians over repeats; stack/plain = median of the per-repeat paired ratios)")
+    for clock in ("wall", "cpu"):
+        ok = all(r[clock]["ratio"] >= RATIO_GOAL for r in results.values())
+        text = " ".join(f"{task}={r[clock]['ratio']:.3f}" for task, r in results.items())
+        print(f"RESULT {clock} stack_over_plain_fps({text}) (goal: >={RATIO_GOAL}) {'MET' if ok else 'MISSED'}")
+
+
+if __name__ == "__main__":
+    main()
