@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The one command that sets sim2real up on a fresh Debian machine and runs the main job.
 #
-#   ./setup.sh                      install everything, then run `sim2real study` (or `sim2real demo`
-#                                   until the study command exists); extra arguments go to that command
+#   ./setup.sh                      install everything, then run the main job, `sim2real study` on its
+#                                   embedded default; extra arguments go to it (e.g. --budget quick)
 #   SIM2REAL_SKIP_RUN=1 ./setup.sh  install only (CI does this)
 #
 # Environment: PYTHON (interpreter for the venv, default python3, >= 3.10), MUJOCO_GL (default egl).
@@ -102,8 +102,8 @@ PIP=(.venv/bin/python -m pip install --progress-bar off -c constraints.txt)
 # pulling a multi-GB CUDA build.
 log "installing torch (CPU build, pinned in constraints.txt)"
 "${PIP[@]}" torch==2.13.0
-log "installing sim2real with the dev extra"
-"${PIP[@]}" -e ".[dev]"
+log "installing sim2real with the dev and ray extras"
+"${PIP[@]}" -e ".[dev,ray]"
 
 export MUJOCO_GL="${MUJOCO_GL:-egl}"
 
@@ -113,10 +113,6 @@ if [ "${SIM2REAL_SKIP_RUN:-0}" = "1" ]; then
 fi
 
 # --------------------------------------------------------------------------- the main job
-# `sim2real study` is the main job (issue #7); until it exists, the demo is the best end to end run.
-if .venv/bin/sim2real --help 2>/dev/null | grep -Eq '[{,]study[,}]|^[[:space:]]+study([[:space:]]|$)'; then
-    log "running: sim2real study $*"
-    exec .venv/bin/sim2real study "$@"
-fi
-log "running: sim2real demo $* (\`sim2real study\` does not exist yet)"
-exec .venv/bin/sim2real demo "$@"
+# The main job: the whole sim-to-real loop on the embedded default (writes ./sim2real-study/report.html).
+log "running: sim2real study $*"
+exec .venv/bin/sim2real study "$@"
