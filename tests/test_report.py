@@ -301,7 +301,17 @@ def test_argument_errors(evaluation: Evaluation) -> None:
 @pytest.fixture(scope="module")
 def full(evaluation: Evaluation) -> GapReport:
     fit = FitResult.from_estimates({HIDDEN_ADDRESS: (2.3, 0.05), "dof_damping[elbow_pitch]": (1.2, 0.01)})
-    fit = dataclasses.replace(fit, true_params={HIDDEN_ADDRESS: 2.345})
+    # A short trace so the fit figure has something to draw (a fit read back from JSON has none and no figure).
+    t = np.linspace(0.0, 1.0, 50)
+    fit = dataclasses.replace(
+        fit,
+        true_params={HIDDEN_ADDRESS: 2.345},
+        channels=("qpos[elbow_pitch]",),
+        trace_time=t,
+        trace_measured=np.sin(t)[:, None],
+        trace_predicted=np.sin(t)[:, None] + 0.01,
+        fit_percent={"qpos[elbow_pitch]": 98.0},
+    )
     image = np.zeros((20, 30, 3), dtype=np.uint8)
     image[:, :15] = 200
     sheet = s2r.ContactSheet(frames=image[None], params=({},), image=image, path=None)
@@ -420,3 +430,12 @@ def test_interrupted_rewrite_keeps_the_previous_report(
         report.write(tmp_path / "out")
     assert (tmp_path / "out" / "report.json").read_text() == before
     assert [p.name for p in tmp_path.iterdir()] == ["out"]
+
+
+def test_fit_read_back_from_json_gives_the_table_but_no_figure(evaluation: Evaluation) -> None:
+    fit = FitResult.from_estimates({HIDDEN_ADDRESS: (2.3, 0.05)})
+    back = FitResult.from_json(fit.to_json())
+    np.testing.assert_allclose(back.ci95, fit.ci95)
+    report = GapReport.build(evaluation, fit=back, rng=0)
+    assert "sysid_fit" not in report.figure_names()
+    assert HIDDEN_ADDRESS in report.to_html()
