@@ -223,3 +223,22 @@ def test_release_restores_the_base_env() -> None:
     np.testing.assert_array_equal(model.dof_damping, nominal_damping)
     obs, _ = base.reset(seed=0)
     assert base.step(np.zeros(3, dtype=np.float32))[0].shape == obs.shape
+
+
+@pytest.mark.parametrize("backend", ["local", "ray"])
+def test_backends_give_the_same_results(backend: str) -> None:
+    policies = {"reach": ReachController(), "slow": ReachController(kp=0.3)}
+    kwargs = {"episodes": 4, "seed": 5, "max_steps": 20, "batch": 2}
+    serial = evaluate(policies, TASK, _conditions(), **kwargs)
+    started = False
+    if backend == "ray":
+        ray = pytest.importorskip("ray")
+        if not ray.is_initialized():
+            ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+            started = True
+    try:
+        other = evaluate(policies, TASK, _conditions(), backend=backend, workers=2, **kwargs)
+    finally:
+        if started:
+            ray.shutdown()
+    assert other.to_json() == serial.to_json()
