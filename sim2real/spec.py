@@ -47,8 +47,6 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
-import yaml
-
 from sim2real.evaluation import Condition, axis_values, grid, measured, nominal, randomized, real, sweep
 
 __all__ = ["EvaluationSpec", "SpecError", "load_spec"]
@@ -166,21 +164,13 @@ def load_spec(source: str | os.PathLike[str] | Mapping[str, Any]) -> EvaluationS
         SpecError: with ``<file>: <key>: ...`` naming where the problem is.
         FileNotFoundError: the spec file does not exist.
     """
-    base = Path.cwd()
-    where = "<spec>"
-    if isinstance(source, Mapping):
-        config: Any = source
-    else:
-        text = str(source)
-        if isinstance(source, os.PathLike) or ("\n" not in text and text.endswith((".yaml", ".yml"))):
-            path = Path(source)
-            if not path.is_file():
-                raise FileNotFoundError(f"`config` file {str(path)!r} does not exist.")
-            where, base, text = str(path), path.resolve().parent, path.read_text()
-        try:
-            config = yaml.safe_load(text)
-        except yaml.YAMLError as err:
-            raise SpecError(f"{where}: not valid YAML: {err}") from err
+    from randomizers.config import _read  # the one YAML reader of configs: file path, text or mapping
+
+    try:
+        config, where = _read(source)
+    except ValueError as err:
+        raise SpecError(str(err)) from err
+    base = Path(where).resolve().parent if where != "<config>" else Path.cwd()
     if not isinstance(config, Mapping):
         raise SpecError(f"{where}: the top level must be a mapping. Received {config!r}.")
     unknown = sorted(set(config) - set(_TOP_KEYS))

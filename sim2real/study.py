@@ -263,6 +263,36 @@ def _fit_one(job: _FitJob) -> Any:
     return result
 
 
+def _record_twin(profile: StudyProfile, budget: Budget, seed: int) -> Any:
+    """Excitation logs recorded on the twin (its held-out parameters, sensor noise and action latency)."""
+    from sim2real.recording import record
+
+    std, latency = profile.recording
+    return record(
+        profile.task,
+        sets=[f"{address}={value!r}" for address, value in profile.twin_params.items()],
+        policy=profile.excitation,
+        episodes=budget.log_episodes,
+        steps=budget.log_steps,
+        seed=seed,
+        obs_noise=std,
+        latency=latency,
+    )
+
+
+def _best_fit(
+    profile: StudyProfile, log_path: Path, budget: Budget, seed: int, backend: str, workers: int | None
+) -> Any:
+    """``budget.fit_starts`` independent fits (seeds ``1000 seed + k``) on the backend; the lowest cost wins
+    (ties: the first)."""
+    jobs = [
+        _FitJob(profile.task, str(log_path), profile.calibration_params, seed * 1000 + k)
+        for k in range(budget.fit_starts)
+    ]
+    results = _dispatch(_fit_one, jobs, backend, workers, "sysid")
+    return min(results, key=lambda r: (r.cost, results.index(r)))
+
+
 # ------------------------------------------------------------------------------------------------- policies
 
 
@@ -483,39 +513,20 @@ def _run(
     from randomizers.files import atomic_write
     from sim2real.agents import baseline_for
     from sim2real.evaluation import evaluate
-    from sim2real.recording import record
     from sim2real.report import GapReport
 
     stages = _Stages(log, 5)
-    std, latency = profile.recording
-
-    def twin() -> Any:
-        sets = [f"{address}={value!r}" for address, value in profile.twin_params.items()]
-        return record(
-            profile.task,
-            sets=sets,
-            policy=profile.excitation,
-            episodes=budget.log_episodes,
-            steps=budget.log_steps,
-            seed=seed,
-            obs_noise=std,
-            latency=latency,
-        )
-
     trajectory = stages.run(
-        "twin", f"recording {budget.log_episodes} {profile.excitation} episodes on the real twin", twin
+        "twin",
+        f"recording {budget.log_episodes} {profile.excitation} episodes on the real twin",
+        lambda: _record_twin(profile, budget, seed),
     )
     (staging / "sysid").mkdir()
     log_path = staging / "sysid" / "twin_log.npz"
     sysid.save_log(trajectory, log_path)
 
     def fit() -> Any:
-        jobs = [
-            _FitJob(profile.task, str(log_path), profile.calibration_params, seed * 1000 + k)
-            for k in range(budget.fit_starts)
-        ]
-        results = _dispatch(_fit_one, jobs, backend, workers, "sysid")
-        return min(results, key=lambda r: (r.cost, results.index(r)))
+        return _best_fit(profile, log_path, budget, seed, backend, workers)
 
     result = stages.run("sysid", f"fitting {', '.join(profile.calibration_params)} and the latency", fit)
     atomic_write(staging / "sysid" / "fit.json", result.to_json())
@@ -650,27 +661,11 @@ def prepare_checkpoints(task: str = DEFAULT_TASK, *, seed: int = 0, budget: str 
     folder = profile.folder / "checkpoints"
     folder.mkdir(exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
-        _, latency = profile.recording
-        std, _ = profile.recording
-        from sim2real.recording import record
-
-        trajectory = record(
-            profile.task,
-            sets=[f"{a}={v!r}" for a, v in profile.twin_params.items()],
-            policy=profile.excitation,
-            episodes=spec.log_episodes,
-            steps=spec.log_steps,
-            seed=seed,
-            obs_noise=std,
-            latency=latency,
-        )
         import sysid
 
         log_path = Path(tmp) / "log.npz"
-        sysid.save_log(trajectory, log_path)
-        fits = [_fit_one(_FitJob(profile.task, str(log_path), profile.calibration_params, seed * 1000 + k))
-                for k in range(spec.fit_starts)]  # fmt: skip
-    fit = min(fits, key=lambda r: (r.cost, fits.index(r)))
+        sysid.save_log(_record_twin(profile, spec, seed), log_path)
+        fit = _best_fit(profile, log_path, spec, seed, "serial", None)
     calibrated = calibrated_effects(
         fit, relative_width=profile.relative_width, digits=profile.digits, keep=profile.keep
     )
