@@ -593,7 +593,7 @@ class _JobResult:
 
 
 #: Conditions per job: a job builds its envs once and reuses them for each of its conditions.
-_CONDITIONS_PER_JOB = 8
+_CONDITIONS_PER_JOB = 6
 
 
 def _observation(obs: Any, task: str) -> np.ndarray:

@@ -72,7 +72,8 @@ class Budget:
         name: ``quick``, ``standard`` or ``full``.
         episodes: episodes per (policy, condition).
         max_steps: cap on episode length (None: the task's own limit).
-        sweep_points: points kept per sweep axis (None: all; otherwise both bounds and the nominal first).
+        sweep_points: points kept per sweep (None: all; otherwise both bounds and the nominal first).
+        grid_points: points kept per grid axis (None: all).
         log_episodes, log_steps: excitation episodes and control steps recorded on the twin.
         fit_starts: independent sysid multi-starts (seeds), run on the backend.
         train_frames: frames for policies that must be trained (None: the profile's PPO frames).
@@ -84,6 +85,7 @@ class Budget:
     episodes: int
     max_steps: int | None
     sweep_points: int | None
+    grid_points: int | None
     log_episodes: int
     log_steps: int
     fit_starts: int
@@ -93,9 +95,9 @@ class Budget:
 
 
 BUDGETS: dict[str, Budget] = {
-    "quick": Budget("quick", 4, 100, 3, 4, 200, 2, 2_000, False, 500),
-    "standard": Budget("standard", 16, None, None, 4, 200, 2, None, False, 2_000),
-    "full": Budget("full", 50, None, None, 8, 200, 4, None, True, 5_000),
+    "quick": Budget("quick", 4, 200, 3, 2, 4, 200, 2, 2_000, False, 500),
+    "standard": Budget("standard", 16, None, 4, 2, 4, 200, 2, None, False, 2_000),
+    "full": Budget("full", 50, None, None, None, 8, 200, 4, None, True, 5_000),
 }
 
 
@@ -379,7 +381,7 @@ def _conditions(profile: StudyProfile, calibrated: Sequence[Any], budget: Budget
         for key in ("x", "y"):
             spec = dict(profile.grid[key])
             nom = spec.get("nominal", _default_nominal(spec["field"]))
-            spec["values"] = _thin(spec["values"], nom, None if budget.sweep_points is None else 2)
+            spec["values"] = _thin(spec["values"], nom, budget.grid_points)
             axes[key] = spec
         conds.extend(grid(axes["x"], axes["y"]))
     return conds
@@ -604,7 +606,7 @@ def _run(
     return StudyResult(
         out=staging,
         report=staging / "report.html",
-        summary=study_summary(report),
+        summary=study_summary(report, evaluation),
         seconds=dict(stages.seconds),
         policies=dict(sources),
         evaluation=evaluation,
@@ -618,9 +620,10 @@ def _fmt(e: Any, percent: bool = False) -> str:
     return f"{e.value:.0f} [{e.low:.0f}, {e.high:.0f}]"
 
 
-def study_summary(report: Any) -> str:
+def study_summary(report: Any, evaluation: Any = None) -> str:
     """The study's one-paragraph summary: the sim-to-real gap before calibration (the nominal and the randomised
-    policy) and after it (the calibrated policy), with the report's intervals."""
+    policy, from the nominal sim) and after it (the calibrated policy, whose own sim is the calibrated one; needs
+    the ``evaluation``), with intervals."""
     try:
         parts = []
         conf = report.stats_for("nominal", "sim").mean.confidence
@@ -635,10 +638,24 @@ def study_summary(report: Any) -> str:
             f"(loss {_fmt(report.gap('randomized').relative, True)})."
         )
         calibrated_real = report.stats_for("calibrated", "real").mean
-        parts.append(
+        text = (
             f"After system identification, the policy trained on the calibrated, randomised sim returns "
-            f"{_fmt(calibrated_real)} on the twin (loss {_fmt(report.gap('calibrated').relative, True)} from sim)."
+            f"{_fmt(calibrated_real)} on the twin"
         )
+        if evaluation is not None:
+            from sim2real import metrics
+
+            own = metrics.gap(
+                evaluation.table("calibrated", ["calibrated", "real"]),
+                paired=True,
+                rng=report.rng_seed,
+                num_resamples=report.num_resamples,
+            )
+            text += (
+                f" and {_fmt(report.stats_for('calibrated', 'calibrated').mean)} in the calibrated sim it was trained "
+                f"on, so it loses {_fmt(own.relative, True)} from its own sim to the twin"
+            )
+        parts.append(text + ".")
         scripted = report.stats_for("scripted", "real").mean
         parts.append(f"The scripted baseline returns {_fmt(scripted)} on the twin.")
         parts.append(f"Intervals: {100 * conf:.0f}% stratified bootstrap over {nominal_sim.n} episodes per condition.")

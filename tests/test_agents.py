@@ -460,3 +460,21 @@ def test_bc_warm_start_imitates_the_baseline() -> None:
                    ARM, [nominal()], episodes=6, seed=0, max_steps=60)  # fmt: skip
     bc, teacher, still = (out.returns[p]["sim"].mean() for p in ("bc", "teacher", "still"))
     assert bc > still + 0.7 * (teacher - still), (bc, teacher, still)
+
+
+def test_as_policy_fast_path_matches_torchrl_bitwise() -> None:
+    import torch
+    from tensordict import TensorDict
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    from sim2real.agents.nets import build_actor
+    from sim2real.agents.policy import _tanh_normal_fast_path
+
+    torch.manual_seed(0)
+    for algo, low, high in (("ppo", [-1.0, -1.0], [1.0, 1.0]), ("sac", [-0.5, 0.0, -2.0], [0.5, 1.0, 3.0])):
+        actor = build_actor(algo, 5, low, high, (16, 16), "tanh", -0.5)
+        assert _tanh_normal_fast_path(actor, "observation", "action", torch.float32) is not None
+        obs = torch.randn(33, 5) * 3
+        with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+            expected = actor(TensorDict({"observation": obs}, batch_size=[33]))["action"].numpy()
+        np.testing.assert_array_equal(as_policy(actor)(obs.numpy()), expected)

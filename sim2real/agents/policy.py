@@ -61,6 +61,51 @@ class BatchedPolicy:
         return f"BatchedPolicy({self.name})"
 
 
+def _tanh_normal_fast_path(
+    module: Any, key: str, out_key: str, dtype: Any
+) -> Callable[[np.ndarray], np.ndarray] | None:
+    """For a ``ProbabilisticActor`` with a ``TanhNormal`` head (what ``sim2real.agents`` trains): the deterministic
+    action computed from the network and the distribution's own transforms, without building a TensorDict and a
+    distribution per call (those cost ~0.3 ms a call, more than the MLP). Used only after checking that it gives
+    bitwise the same actions as the TorchRL path on a probe batch; otherwise None."""
+    import torch
+    from tensordict import TensorDict
+    from tensordict.nn import TensorDictModule
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+    from torchrl.modules import ProbabilisticActor, TanhNormal
+
+    if not isinstance(module, ProbabilisticActor) or key != "observation" or out_key != "action":
+        return None
+    try:
+        inner, head = module.module[0], module.module[-1]
+        kwargs = dict(head.distribution_kwargs or {})
+        if len(module.module) != 2 or head.distribution_class is not TanhNormal:
+            return None
+        if not isinstance(inner, TensorDictModule):
+            return None
+        if list(inner.out_keys) != ["loc", "scale"] or list(inner.in_keys) != [key]:
+            return None
+        net = inner.module
+        probe = torch.randn(7, int(next(m for m in net.modules() if isinstance(m, torch.nn.Linear)).in_features))
+        probe = probe.to(dtype)
+        with torch.no_grad():
+            loc, scale = net(probe)
+            transforms = TanhNormal(loc, scale, **kwargs).transforms
+        with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+            slow = module(TensorDict({key: probe}, batch_size=[7]))[out_key]
+    except Exception:
+        return None
+
+    def fn(batch: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            action, _ = net(torch.as_tensor(np.ascontiguousarray(batch), dtype=dtype))
+            for t in transforms:
+                action = t(action)
+        return action.numpy()
+
+    return fn if np.array_equal(fn(probe.numpy()), slow.numpy()) else None
+
+
 def _torchrl_fn(module: Any) -> Callable[[np.ndarray], np.ndarray]:
     import torch
     from tensordict import TensorDict
@@ -72,6 +117,9 @@ def _torchrl_fn(module: Any) -> Callable[[np.ndarray], np.ndarray]:
     key = keys[0]
     out_key = "action" if "action" in module.out_keys else module.out_keys[0]
     dtype = next((p.dtype for p in module.parameters()), torch.float32)
+    fast = _tanh_normal_fast_path(module, key, out_key, dtype)
+    if fast is not None:
+        return fast
 
     def fn(batch: np.ndarray) -> np.ndarray:
         obs = torch.as_tensor(np.ascontiguousarray(batch), dtype=dtype)
