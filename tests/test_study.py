@@ -40,7 +40,10 @@ def test_quick_study_writes_the_report(quick: Path) -> None:
 def test_same_seed_reproduces_the_report_json_bitwise(quick: Path, tmp_path: Path) -> None:
     again = run_study(out=tmp_path / "again", budget="quick", backend="serial", seed=0, progress=False, log=None)
     assert (again.out / "report.json").read_bytes() == (quick / "report.json").read_bytes()
-    assert "sim to real" in again.summary
+    assert again.summary.startswith("Before calibration, the nominal policy returns")
+    assert "on the real twin" in again.summary and "calibrated sim it was trained on" in again.summary
+    # The checkpoints the package ships were trained under exactly this study's configurations.
+    assert all(again.policies[r].startswith("shipped checkpoint") for r in ("nominal", "randomized", "calibrated"))
 
 
 def test_interrupt_leaves_nothing_half_written(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -65,7 +68,8 @@ def test_profile_and_errors() -> None:
     profile = load_profile()
     assert profile.recording == (0.005, 2)
     with pytest.raises(
-        ValueError, match=r"`task` must be one of \[.*'dmc/reacher-easy'.*\]. Received 'dmc/cheetah-run'."
+        ValueError,
+        match=r"`task` must be one of \[.*'dmc/reacher-easy'.*\] \(tasks with a bundled study\). Received 'dmc/cheetah-run'.",
     ):
         load_profile("dmc/cheetah-run")
     with pytest.raises(ValueError, match=r"`budget` must be one of \['quick', 'standard', 'full'\]. Received 'huge'."):
@@ -77,6 +81,8 @@ def test_calibrated_effects_round_and_widen() -> None:
     from sysid import FitResult
 
     fit = FitResult.from_estimates({"dof_damping[shoulder]": (0.02987, 0.0001), "actuator_gain[wrist]": (0.7926, 0.1)})
-    damping, gain = calibrated_effects(fit)
-    assert (damping.set.low, damping.set.high) == (0.027, 0.033)  # 0.030 +- 10%
-    assert (gain.set.low, gain.set.high) == (0.59, 0.99)  # 0.79 +- 2 stderr (0.2) dominates the 10% floor
+    from randomizers.config import effect_to_config
+
+    damping, gain = (effect_to_config(e)["set"] for e in calibrated_effects(fit))
+    assert (damping["low"], damping["high"]) == (0.027, 0.033)  # 0.030 +- 10%
+    assert (gain["low"], gain["high"]) == (0.59, 0.99)  # 0.79 +- 2 stderr (0.2) dominates the 10% floor
