@@ -142,7 +142,7 @@ def live_uploaders(env: Any) -> list[Upload]:
             upload = _renderer_upload(obj)
         elif type(obj).__name__ == "OffScreenViewer":
             upload = _viewer_upload(obj)
-        elif type(obj).__module__.startswith("dm_control") and hasattr(obj, "_contexts"):
+        elif hasattr(obj, "_contexts") and any(c.__module__.startswith("dm_control") for c in type(obj).__mro__):
             upload = _dm_physics_upload(obj)
         if upload is not None:
             found.append(upload)

@@ -38,6 +38,7 @@ import shutil
 import sys
 import tempfile
 import time
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -645,12 +646,14 @@ def study_summary(report: Any, evaluation: Any = None) -> str:
         if evaluation is not None:
             from sim2real import metrics
 
-            own = metrics.gap(
-                evaluation.table("calibrated", ["calibrated", "real"]),
-                paired=True,
-                rng=report.rng_seed,
-                num_resamples=report.num_resamples,
-            )
+            with warnings.catch_warnings():  # the report lists the few-samples warnings already
+                warnings.simplefilter("ignore", metrics.FewSamplesWarning)
+                own = metrics.gap(
+                    evaluation.table("calibrated", ["calibrated", "real"]),
+                    paired=True,
+                    rng=report.rng_seed,
+                    num_resamples=report.num_resamples,
+                )
             text += (
                 f" and {_fmt(report.stats_for('calibrated', 'calibrated').mean)} in the calibrated sim it was trained "
                 f"on, so it loses {_fmt(own.relative, True)} from its own sim to the twin"
