@@ -206,6 +206,18 @@ def test_suite_copies_step_like_suite_load() -> None:
         b, rb, *_ = loaded.step(action)
         np.testing.assert_array_equal(a, b)
         assert ra == rb
+    # Rewards while the finger is inside the target too (the fast task reads the radii by index).
+    from sim2real.agents import ReacherPD
+
+    pd, total = ReacherPD(), 0.0
+    a, _ = copied.reset(seed=3)
+    b, _ = loaded.reset(seed=3)
+    for _ in range(300):
+        a, ra, *_ = copied.step(pd(a))
+        b, rb, *_ = loaded.step(pd(b))
+        assert ra == rb
+        total += ra
+    assert total > 50
     # Without a seed, every env draws fresh entropy (as suite.load does).
     x, _ = s2r.make("dmc/reacher-easy").reset()
     y, _ = s2r.make("dmc/reacher-easy").reset()
