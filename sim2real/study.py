@@ -26,7 +26,7 @@ Example (the CI-sized budget, in a temporary folder):
 
     >>> from sim2real.study import BUDGETS
     >>> BUDGETS["quick"].episodes, BUDGETS["standard"].episodes
-    (4, 16)
+    (4, 32)
 """
 
 from __future__ import annotations
@@ -97,8 +97,8 @@ class Budget:
 
 BUDGETS: dict[str, Budget] = {
     "quick": Budget("quick", 4, 200, 3, 2, 4, 200, 2, 2_000, False, 500),
-    "standard": Budget("standard", 16, None, 4, 2, 4, 200, 2, None, False, 2_000),
-    "full": Budget("full", 50, None, None, None, 8, 200, 4, None, True, 5_000),
+    "standard": Budget("standard", 32, None, None, None, 4, 200, 2, None, False, 2_000),
+    "full": Budget("full", 100, None, None, None, 8, 200, 4, None, True, 5_000),
 }
 
 
