@@ -234,6 +234,7 @@ def _build_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
+    from sim2real._gl import RenderingUnavailable
     from sim2real.report import GapReport
     from sim2real.spec import SpecError, load_spec
     from sysid import FitResult
@@ -248,9 +249,13 @@ def _cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
         raise _UsageError(str(err)) from err
     evaluation = spec.run(backend=args.backend, workers=args.workers, progress=not args.quiet)
     notes = options.pop("notes", ())
-    report = GapReport.build(
-        evaluation, fit=fit, rng=spec.seed, notes=(notes,) if isinstance(notes, str) else tuple(notes), **options
-    )
+    notes = [notes] if isinstance(notes, str) else list(notes)
+    try:
+        sheet = spec.contact_sheet()
+    except RenderingUnavailable as err:  # the report still has every number; say why the images are missing
+        sheet = None
+        notes.append(f"no contact sheet of the visual effects: {err}")
+    report = GapReport.build(evaluation, fit=fit, contact_sheet=sheet, rng=spec.seed, notes=tuple(notes), **options)
     files = report.write(Path(args.out))
     print(report.summary(), file=out)
     print(f"wrote {files.html}", file=out)

@@ -77,6 +77,27 @@ class EvaluationSpec:
     report: Mapping[str, Any] = field(default_factory=dict)
     source: str = "<spec>"
 
+    def visual_effects(self) -> list[Any]:
+        """The visual effects (colours, textures, lights, cameras) of the spec's simulated conditions, once each."""
+        from randomizers.visual import VISUAL_EFFECTS
+
+        out: list[Any] = []
+        for cond in self.conditions:
+            for effect in cond.effects:
+                if isinstance(effect, VISUAL_EFFECTS) and effect not in out:
+                    out.append(effect)
+        return out
+
+    def contact_sheet(self, n: int = 8) -> Any:
+        """A contact sheet of the spec's visual randomisation (:func:`sim2real.contact_sheet`), or None when the spec
+        has no visual effects."""
+        effects = self.visual_effects()
+        if not effects:
+            return None
+        from sim2real.pixels import contact_sheet
+
+        return contact_sheet(self.task, effects, n=n, seed=self.seed, size=(64, 64))
+
     def run(self, *, backend: str = "serial", workers: int | None = None, progress: bool = False) -> Any:
         """Evaluates the spec's policies on its conditions (see :func:`sim2real.evaluation.evaluate`)."""
         from sim2real.evaluation import evaluate

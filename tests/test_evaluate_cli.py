@@ -1,0 +1,62 @@
+"""``sim2real evaluate --config study.yaml --out DIR`` and the evaluation spec format."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from sim2real import cli
+from sim2real.spec import SpecError, load_spec
+
+SPEC = """
+task: sim2real/arm-reach
+seed: 1
+episodes: 3
+max_steps: 15
+policies:
+  scripted: baseline
+  gentle: {baseline: ReachController, kp: 0.3}
+randomized:
+  effects:
+    - {type: Damping, scale: [0.5, 2.0]}
+    - {type: GeomColor, set: [0.2, 0.9]}
+real: {csv: real.csv}
+sweeps:
+  - {type: ActuatorGain, field: scale, low: 0.5, high: 1.5, num: 3}
+report: {title: "CLI <study>", num_resamples: 200}
+"""
+
+
+@pytest.mark.render
+def test_evaluate_writes_the_report_with_a_contact_sheet(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / "real.csv").write_text("policy,return\nscripted,-9.5\nscripted,-10.5\ngentle,-14\n")
+    (tmp_path / "study.yaml").write_text(SPEC)
+    out = tmp_path / "report"
+    code = cli.main(["evaluate", "--config", str(tmp_path / "study.yaml"), "--out", str(out), "--backend", "serial",
+                     "--quiet"])  # fmt: skip
+    printed = capsys.readouterr().out
+    assert code == 0, printed
+    assert f"wrote {out / 'report.html'}" in printed
+    assert sorted(p.name for p in out.iterdir()) == ["figures", "report.html", "report.json", "report.md"]
+    figures = sorted(p.name for p in (out / "figures").iterdir())
+    assert figures == ["contact_sheet.png", "returns.png", "robustness_actuatorgain-scale.png"]
+    report = json.loads((out / "report.json").read_text())
+    assert report["title"] == "CLI <study>"
+    assert "CLI &lt;study&gt;" in (out / "report.html").read_text()
+
+
+def test_spec_errors_name_the_file_and_key(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("task: sim2real/arm-reach\npolicies: {p: baseline}\nsweeps: [{type: Damping, values: [1, 2]}]\n")
+    assert cli.main(["evaluate", "--config", str(bad), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert f"{bad}: sweeps[0]: `field` must name the swept argument. Received keys ['type', 'values']." in err
+    with pytest.raises(SpecError, match=r"keys must be among .* Received unknown \['episode'\]"):
+        load_spec({"task": "sim2real/arm-reach", "policies": {"p": "baseline"}, "episode": 3})
+    with pytest.raises(SpecError, match=r"policies.p must be 'baseline', \{baseline: <class>, ...\} or"):
+        load_spec({"task": "sim2real/arm-reach", "policies": {"p": "ppo"}})
+    with pytest.raises(SpecError, match=r"policies.p.checkpoint: file '.*missing.pt' does not exist."):
+        load_spec({"task": "sim2real/arm-reach", "policies": {"p": {"checkpoint": "missing.pt"}}})
+    assert not (tmp_path / "o").exists()
