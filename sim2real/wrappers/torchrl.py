@@ -93,14 +93,19 @@ class RandomizePhysicsTransform(Transform):
         return self.randomizer.current_params
 
     def _params_tensor(self, batch: torch.Size) -> torch.Tensor:
-        params = self.randomizer.current_params
-        values = [params.get(name, float("nan")) for name in self._names]
-        return torch.tensor(values, dtype=torch.float64).expand(*batch, len(values)).clone()
+        # Built once per episode (and after each step of a step-scheduled effect), copied per step.
+        cached = self.__dict__.get("_params_cache")
+        if cached is None:
+            params = self.randomizer.current_params
+            cached = torch.tensor([params.get(name, float("nan")) for name in self._names], dtype=torch.float64)
+            self.__dict__["_params_cache"] = cached
+        return cached.expand(*batch, cached.numel()).clone()
 
     # -- TorchRL hooks ---------------------------------------------------------------------------
     def _reset_env_preprocess(self, tensordict: TensorDictBase | None) -> TensorDictBase | None:
         handle = self._bound()
         self.randomizer.begin_episode()
+        self.__dict__["_params_cache"] = None
         if not handle.recompiles:
             self.randomizer.apply()
         return tensordict
@@ -113,6 +118,7 @@ class RandomizePhysicsTransform(Transform):
     def _inv_call(self, tensordict: TensorDictBase) -> TensorDictBase:
         if self.randomizer.has_step_effects:
             self.randomizer.step()
+            self.__dict__["_params_cache"] = None
         return tensordict
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
