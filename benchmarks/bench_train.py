@@ -41,6 +41,7 @@ from typing import Any
 import mujoco
 import numpy as np
 import torch
+from bench_overhead import cpu_model  # benchmarks/ is on sys.path when run as a script
 
 import sim2real as s2r
 from noise_models import ActionLatency, ActionNoise, Bias, Drift, Gaussian, ObservationLatency, ObservationNoise
@@ -63,17 +64,6 @@ def make_stack(obs_latency: int = 1, action_latency: int = 1) -> list[Any]:
         ObservationLatency(steps=obs_latency),
         ActionLatency(steps=action_latency),
     ]
-
-
-def cpu_model() -> str:
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def load() -> str:
