@@ -278,7 +278,7 @@ def measured(source: str | os.PathLike[str] | Mapping[str, Sequence[float]], nam
         "measured",
         returns={k: tuple(v) for k, v in returns.items()},
         successes={k: tuple(v) for k, v in successes.items()},
-        description=f"measured returns ({Path(where).name})",
+        description="measured returns" if isinstance(source, Mapping) else f"measured returns ({Path(where).name})",
     )
 
 
