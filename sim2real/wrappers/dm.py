@@ -26,7 +26,31 @@ from sim2real.wrappers.gym import require_physics
 __all__ = ["RandomizePhysicsDmEnv"]
 
 
-class RandomizePhysicsDmEnv(dm_env.Environment):
+class DmEnvWrapper(dm_env.Environment):
+    """Base of sim2real's dm_env wrappers: the wrapped env is ``self._env``; specs and any attribute the
+    wrapper does not define (``task``, ``control_timestep``, ``physics``...) come from it."""
+
+    _env: dm_env.Environment
+
+    def observation_spec(self) -> Any:
+        return self._env.observation_spec()
+
+    def action_spec(self) -> Any:
+        return self._env.action_spec()
+
+    def reward_spec(self) -> Any:
+        return self._env.reward_spec()
+
+    def discount_spec(self) -> Any:
+        return self._env.discount_spec()
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("__") or name == "_env":
+            raise AttributeError(name)
+        return getattr(self._env, name)
+
+
+class RandomizePhysicsDmEnv(DmEnvWrapper):
     """Draws physics effects at each ``reset()`` of a dm-control environment.
 
     A physics divergence ends the episode with a truncation timestep (``discount=1``, reward 0,
@@ -90,18 +114,6 @@ class RandomizePhysicsDmEnv(dm_env.Environment):
         self._reset_next_step = timestep.last()
         return timestep
 
-    def observation_spec(self) -> Any:
-        return self._env.observation_spec()
-
-    def action_spec(self) -> Any:
-        return self._env.action_spec()
-
-    def reward_spec(self) -> Any:
-        return self._env.reward_spec()
-
-    def discount_spec(self) -> Any:
-        return self._env.discount_spec()
-
     def restore_nominal(self) -> None:
         """Writes every touched model field back to its nominal value (bitwise)."""
         self.randomizer.restore_nominal()
@@ -111,9 +123,3 @@ class RandomizePhysicsDmEnv(dm_env.Environment):
             self._closed = True
             self._handle.detach(self.randomizer, self._hook)
         self._env.close()
-
-    def __getattr__(self, name: str) -> Any:
-        # Task-specific attributes (``task``, ``control_timestep``...) stay reachable.
-        if name.startswith("__") or name == "_env":
-            raise AttributeError(name)
-        return getattr(self._env, name)

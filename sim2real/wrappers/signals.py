@@ -45,6 +45,7 @@ import numpy as np
 from noise_models import ControlJitter, Layout, SignalCorruptor, SignalModel
 from noise_models.seeding import SeedLike
 from sim2real.physics import PhysicsHandle, find_physics
+from sim2real.wrappers.dm import DmEnvWrapper
 
 __all__ = ["CorruptSignals", "CorruptSignalsDmEnv", "SignalClock", "box_layout"]
 
@@ -375,7 +376,7 @@ class CorruptSignals(gym.Wrapper):
         super().close()
 
 
-class CorruptSignalsDmEnv(dm_env.Environment):
+class CorruptSignalsDmEnv(DmEnvWrapper):
     """:class:`CorruptSignals` for dm_env environments (dm-control suite and composer).
 
     dm_env timesteps carry no info dict: the draws are on :attr:`current_params`. Dict observations
@@ -460,25 +461,8 @@ class CorruptSignalsDmEnv(dm_env.Environment):
         self._reset_next_step = timestep.last()
         return self._observation(timestep, False)
 
-    def observation_spec(self) -> Any:
-        return self._env.observation_spec()
-
-    def action_spec(self) -> Any:
-        return self._env.action_spec()
-
-    def reward_spec(self) -> Any:
-        return self._env.reward_spec()
-
-    def discount_spec(self) -> Any:
-        return self._env.discount_spec()
-
     def close(self) -> None:
         if not self._closed:
             self._closed = True
             self.clock.close()
         self._env.close()
-
-    def __getattr__(self, name: str) -> Any:
-        if name.startswith("__") or name == "_env":
-            raise AttributeError(name)
-        return getattr(self._env, name)
