@@ -41,7 +41,7 @@ from typing import Any
 import mujoco
 import numpy as np
 import torch
-from bench_overhead import cpu_model  # benchmarks/ is on sys.path when run as a script
+from bench_overhead import cpu_model, make_stack_physics  # benchmarks/ is on sys.path when run as a script
 
 import sim2real as s2r
 from noise_models import ActionLatency, ActionNoise, Bias, Drift, Gaussian, ObservationLatency, ObservationNoise
@@ -53,13 +53,9 @@ DEFAULT_TASKS = ("dmc/reacher-easy",)
 
 def make_stack(obs_latency: int = 1, action_latency: int = 1) -> list[Any]:
     """The full issue-#3 stack: physics randomisation at reset, observation and action noise, both latencies."""
-    u = s2r.Uniform
     return [
-        s2r.Friction(scale=u(0.5, 1.5)),
-        s2r.Mass(scale=u(0.8, 1.2), bodies="*"),
-        s2r.Damping(scale=u(0.5, 2.0)),
-        s2r.ActuatorGain(scale=u(0.9, 1.1)),
-        ObservationNoise(Gaussian(std=0.01), Bias(u(-0.02, 0.02)), Drift(std=0.001)),
+        *make_stack_physics(),  # the physics DR of bench_overhead's full stack
+        ObservationNoise(Gaussian(std=0.01), Bias(s2r.Uniform(-0.02, 0.02)), Drift(std=0.001)),
         ActionNoise(Gaussian(std=0.05)),
         ObservationLatency(steps=obs_latency),
         ActionLatency(steps=action_latency),
