@@ -5,7 +5,15 @@
 #                                   embedded default; extra arguments go to it (e.g. --budget quick)
 #   SIM2REAL_SKIP_RUN=1 ./setup.sh  install only (CI does this)
 #
-# Environment: PYTHON (interpreter for the venv, default python3, >= 3.10), MUJOCO_GL (default egl).
+# Environment:
+#   PYTHON                    interpreter for the venv (default: python3.11, else python3; >= 3.10)
+#   SIM2REAL_TORCH_INDEX_URL  take torch 2.13.0 from this package index instead of the default sources, e.g.
+#                             https://download.pytorch.org/whl/cpu for PyTorch's CPU build (used only when set)
+#   MUJOCO_GL                 headless rendering backend for the main job (default egl)
+#
+# Python packages come from requirements.lock (every transitive dependency pinned with its sha256; refresh it
+# with scripts/refresh-lock.sh). The lock is for CPython 3.11; with another Python, setup.sh warns and installs
+# from pyproject.toml's ranges instead (not reproducible).
 # Safe to run again: every step checks what is already there.
 set -euo pipefail
 
@@ -66,7 +74,7 @@ python_ok() {
 
 find_python() {
     local candidate
-    for candidate in "${PYTHON:-}" python3 python3.13 python3.12 python3.11 python3.10; do
+    for candidate in "${PYTHON:-}" python3.11 python3 python3.13 python3.12 python3.10; do
         if [ -n "$candidate" ] && command -v "$candidate" >/dev/null 2>&1 && python_ok "$candidate"; then
             printf '%s\n' "$candidate"
             return 0
@@ -97,13 +105,62 @@ if [ ! -x .venv/bin/python ] || ! python_ok .venv/bin/python; then
 fi
 
 # --------------------------------------------------------------------------- Python packages
-PIP=(.venv/bin/python -m pip install --progress-bar off -c constraints.txt)
-# torch first and pinned: anything later that depends on torch then finds it satisfied instead of
-# pulling a multi-GB CUDA build.
-log "installing torch (CPU build, pinned in constraints.txt)"
-"${PIP[@]}" torch==2.13.0
-log "installing sim2real with the dev and ray extras"
-"${PIP[@]}" -e ".[dev,ray]"
+PIP=(.venv/bin/python -m pip install --progress-bar off --disable-pip-version-check)
+TORCH=torch==2.13.0   # keep equal to constraints.txt and requirements.lock
+
+installed_torch() {
+    .venv/bin/python -c 'import importlib.metadata as m; print(m.version("torch"))' 2>/dev/null || true
+}
+
+
+venv_py="$(.venv/bin/python -c 'import sys; print(f"{sys.version_info[0]}.{sys.version_info[1]}")')"
+if [ "$venv_py" = "3.11" ]; then
+    # torch alone first, without its dependencies (the lock brings them, hashed). pip would take PyPI's CUDA build over
+    # a local CPU wheel in hash-checking mode, so the wheel is fetched here, checked against the lock's hashes, installed.
+    case "$(installed_torch)" in
+        2.13.0|2.13.0+*) log "torch $(installed_torch) already installed" ;;
+        *)
+            torch_dir="$(mktemp -d)"
+            torch_source=()
+            if [ -n "${SIM2REAL_TORCH_INDEX_URL:-}" ]; then
+                torch_source=(--index-url "$SIM2REAL_TORCH_INDEX_URL")
+                log "fetching $TORCH from SIM2REAL_TORCH_INDEX_URL=$SIM2REAL_TORCH_INDEX_URL"
+            else
+                log "fetching $TORCH (the CPU build where this machine has its wheel, else PyPI's build)"
+            fi
+            .venv/bin/python -m pip download --progress-bar off --disable-pip-version-check --no-deps \
+                "${torch_source[@]}" -d "$torch_dir" "$TORCH"
+            torch_wheel="$(ls "$torch_dir"/torch-*.whl)"
+            torch_sum="$(sha256sum "$torch_wheel" | cut -d' ' -f1)"
+            if grep -q "sha256:$torch_sum" requirements.lock; then
+                log "$(basename "$torch_wheel"): sha256 listed in requirements.lock"
+            elif [ -n "${SIM2REAL_TORCH_INDEX_URL:-}" ]; then
+                warn "$(basename "$torch_wheel") from SIM2REAL_TORCH_INDEX_URL is not in requirements.lock (sha256 $torch_sum);"
+                warn "installing it anyway because you chose that index."
+            else
+                echo "setup.sh: error: $(basename "$torch_wheel") has sha256 $torch_sum, which requirements.lock does not list." >&2
+                exit 2
+            fi
+            "${PIP[@]}" --no-deps "$torch_wheel"
+            rm -rf "$torch_dir"
+            ;;
+    esac
+    log "installing the locked dependencies (requirements.lock, hashes checked)"
+    "${PIP[@]}" --require-hashes --no-deps -r requirements.lock
+    # The lock holds torch's CPU dependencies only. Where PyPI's CUDA build of torch was taken (no CPU wheel on this
+    # machine and no SIM2REAL_TORCH_INDEX_URL), this adds its nvidia-* libraries; with the CPU build it is a no-op.
+    "${PIP[@]}" -c constraints.txt "$TORCH"
+    log "installing sim2real itself (editable)"
+    "${PIP[@]}" --no-deps --no-build-isolation -e .
+    .venv/bin/python -m pip check
+else
+    warn "requirements.lock is for CPython 3.11 and .venv has Python $venv_py:"
+    warn "installing from pyproject.toml's version ranges instead (newer releases may change results)."
+    warn "for the locked install: rm -rf .venv && PYTHON=python3.11 ./setup.sh"
+    # torch first and pinned: anything later that depends on torch then finds it satisfied.
+    "${PIP[@]}" -c constraints.txt "$TORCH"
+    "${PIP[@]}" -c constraints.txt -e ".[dev,ray]"
+fi
 
 export MUJOCO_GL="${MUJOCO_GL:-egl}"
 
