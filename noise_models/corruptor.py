@@ -52,8 +52,10 @@ class _Noise:
     side = ""
     _frozen = False
 
-    def __init__(self, *processes: Process, select: Selection = None) -> None:
+    def __init__(self, *processes: Process, select: Selection = None, clip: bool = True) -> None:
         owner = type(self).__name__
+        if not isinstance(clip, bool):
+            raise TypeError(f"`clip` must be a bool. Received {clip!r}.")
         if not processes:
             raise ValueError(f"{owner} needs at least one process, e.g. {owner}(Gaussian(std=0.01)).")
         for i, p in enumerate(processes):
@@ -70,14 +72,17 @@ class _Noise:
                 )
         self.processes = tuple(processes)
         self.select = check_selection(select)
+        self.clip = clip
 
     def _fields(self) -> tuple[Any, ...]:
-        return (self.processes, self.select)
+        return (self.processes, self.select, self.clip)
 
     def __repr__(self) -> str:
         args = [repr(p) for p in self.processes]
         if self.select is not None:
             args.append(f"select={self.select!r}")
+        if not self.clip:
+            args.append("clip=False")
         return f"{type(self).__name__}({', '.join(args)})"
 
     def __eq__(self, other: object) -> bool:
@@ -95,6 +100,8 @@ class _Noise:
         out: dict[str, Any] = {"type": type(self).__name__, "processes": [p.to_config() for p in self.processes]}
         if self.select is not None:
             out["select"] = list(self.select) if isinstance(self.select, tuple) else self.select
+        if not self.clip:
+            out["clip"] = False
         return out
 
 
@@ -104,9 +111,13 @@ class ObservationNoise(_Noise):
     Args:
         *processes: Gaussian, UniformNoise, Bias, Drift, Quantize, Dropout, Stuck, Outlier, Saturate, Scale.
         select: default selection for processes that have none (keys, indices or a slice).
+        clip: keep what the noise changes inside the declared observation bounds, default True.
 
-    When the declared observation space has finite bounds, the result is clipped to them so the
-    space stays truthful (dm-control and gymnasium MuJoCo observations are unbounded: no clipping).
+    Clipping touches only what this model changed: an entry no process selects is never clipped,
+    and neither is an entry the env itself delivered outside its declared bounds (stale bounds), so
+    a pipeline whose noise is zero returns the observation unchanged. An entry inside the bounds
+    that the noise pushes out is clipped back, so the declared space stays truthful (dm-control and
+    gymnasium MuJoCo observations are unbounded: no clipping there).
 
     Example:
         >>> from noise_models import Gaussian, Quantize
@@ -116,8 +127,8 @@ class ObservationNoise(_Noise):
 
     side = "obs"
 
-    def __init__(self, *processes: Process, select: Selection = None) -> None:
-        super().__init__(*processes, select=select)
+    def __init__(self, *processes: Process, select: Selection = None, clip: bool = True) -> None:
+        super().__init__(*processes, select=select, clip=clip)
         object.__setattr__(self, "_frozen", True)
 
 
@@ -138,24 +149,8 @@ class ActionNoise(_Noise):
     side = "action"
 
     def __init__(self, *processes: Process, select: Selection = None, clip: bool = True) -> None:
-        super().__init__(*processes, select=select)
-        if not isinstance(clip, bool):
-            raise TypeError(f"`clip` must be a bool. Received {clip!r}.")
-        self.clip = clip
+        super().__init__(*processes, select=select, clip=clip)
         object.__setattr__(self, "_frozen", True)
-
-    def _fields(self) -> tuple[Any, ...]:
-        return (*super()._fields(), self.clip)
-
-    def to_config(self) -> dict[str, Any]:
-        out = super().to_config()
-        if not self.clip:
-            out["clip"] = False
-        return out
-
-    def __repr__(self) -> str:
-        text = super().__repr__()
-        return text if self.clip else text[:-1] + ", clip=False)"
 
 
 SignalModel = ObservationNoise | ActionNoise | ObservationLatency | ActionLatency | SampleAndHold | ControlJitter
@@ -224,10 +219,22 @@ class _Pipeline:
         self.stages: list[Any] = []
         self.r = BLOCK
         self.block = -1
-        clip = getattr(noise, "clip", True) and layout.low is not None
+        clip = noise.clip and layout.low is not None
         # Bounds in the signal's dtype: mixed-dtype ufuncs take numpy's slow casting path.
-        self.low = np.asarray(layout.low, dtype=dtype) if clip else None
-        self.high = np.asarray(layout.high, dtype=dtype) if clip else None
+        low = np.asarray(layout.low, dtype=dtype) if clip else None
+        high = np.asarray(layout.high, dtype=dtype) if clip else None
+        # Observations: only the entries some process selects are clipped, and only where the env's own
+        # value lies inside the bounds (see ObservationNoise); actions are clipped whole to the actuators' range.
+        self.guard = isinstance(noise, ObservationNoise)
+        if clip and self.guard:
+            chosen = np.zeros(layout.size, dtype=bool)
+            for idx in self.indices:
+                chosen[idx] = True
+            low = np.where(chosen, low, -np.inf).astype(dtype)  # type: ignore[arg-type]
+            high = np.where(chosen, high, np.inf).astype(dtype)  # type: ignore[arg-type]
+            if not (np.isfinite(low).any() or np.isfinite(high).any()):
+                low = high = None
+        self.low, self.high = low, high
 
     def regenerate(self) -> None:
         """New generators after the streams were re-rooted (``reset(seed=...)``)."""
@@ -283,7 +290,7 @@ class _Pipeline:
         if simple:  # one fused affine stage (no gain): one add per step, then the clip if any
             w = x + self.stages[0].rows[r]
             if simple == 2:
-                _clip(w, self.low, self.high, out=w)
+                self._clip(x, w)
             return w
         if self.first_affine:
             w = self.stages[0].apply(x, r)
@@ -297,8 +304,15 @@ class _Pipeline:
             else:
                 stage.apply(w, r)
         if self.low is not None:
-            _clip(w, self.low, self.high, out=w)
+            self._clip(x, w)
         return w
+
+    def _clip(self, x: np.ndarray, w: np.ndarray) -> None:
+        low, high = self.low, self.high
+        if not self.guard:
+            _clip(w, low, high, out=w)
+            return
+        np.copyto(w, _clip(w, low, high), where=(x >= low) & (x <= high))
 
 
 class SignalCorruptor:
@@ -430,6 +444,7 @@ class SignalCorruptor:
         self.timestep = timestep
         self.nominal_substeps = int(substeps) if physics else 1
         self.obs_layout, self.action_layout = obs, action
+        self._action_flat = (action.size,) if action is not None else None
         self.obs_dtype, self.action_dtype = np.dtype(obs_dtype), np.dtype(action_dtype)
         self._obs_pipes = [
             _Pipeline(n, names, obs, self.obs_dtype, self)  # type: ignore[arg-type]
@@ -630,6 +645,12 @@ class SignalCorruptor:
     def act(self, action: np.ndarray) -> np.ndarray:
         """The action the env gets for the policy's ``action`` (noise; and latency when time counts
         control steps)."""
+        flat = self._action_flat
+        if action.shape != flat and flat is not None:
+            raise ValueError(
+                f"`action` must be a flat array of shape {self._action_flat} (the action layout). "
+                f"Received an array of shape {action.shape}."
+            )
         for pipe in self._action_pipes:
             action = pipe(action)
         if self._cmd_delay is not None and not self.physics_time:

@@ -51,7 +51,7 @@ def merge_report(info: dict[str, Any], report: dict[str, Any]) -> None:
     info["sim2real"] = merged
 
 
-class RandomizePhysics(gym.Wrapper):
+class RandomizePhysics(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """Draws the effects' values at every reset (or on their schedule) and writes them into the
     env's MuJoCo model; reports them in ``info["sim2real"]``.
 
@@ -68,6 +68,8 @@ class RandomizePhysics(gym.Wrapper):
     """
 
     def __init__(self, env: gym.Env, effects: Sequence[Effect], seed: SeedLike = None) -> None:
+        # Recorded so a spec'd env can be recreated (``env.spec.make()``, gymnasium's checker); effects are values.
+        gym.utils.RecordConstructorArgs.__init__(self, effects=tuple(effects), seed=seed)
         super().__init__(env)
         self.randomizer = PhysicsRandomizer(effects, seed)
         self._handle = require_physics(env, self.randomizer.effects)

@@ -47,7 +47,7 @@ from noise_models.seeding import SeedLike
 from sim2real.physics import PhysicsHandle, find_physics
 from sim2real.wrappers.dm import DmEnvWrapper
 
-__all__ = ["CorruptSignals", "CorruptSignalsDmEnv", "SignalClock", "box_layout"]
+__all__ = ["CorruptSignals", "CorruptSignalsDmEnv", "SignalClock", "box_layout", "wrong_action_shape"]
 
 
 def _finite_bounds(low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -229,6 +229,11 @@ class SignalClock:
             self._hook = None
 
 
+def wrong_action_shape(received: tuple[int, ...], expected: tuple[int, ...]) -> str:
+    """The message for an action whose shape is not the declared one (noise and latency layers)."""
+    return f"`action` must have the shape of the env's action space, {expected}. Received an array of shape {received}."
+
+
 def _control_dt(env: Any) -> float | None:
     for obj in (env, getattr(env, "unwrapped", None)):
         for name in ("dt", "control_timestep"):
@@ -266,7 +271,7 @@ def _gym_signal(space: gym.Space, keys: tuple[tuple[str, slice, tuple[int, ...]]
     return None, None, None
 
 
-class CorruptSignals(gym.Wrapper):
+class CorruptSignals(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """Applies noise and timing models (:mod:`noise_models`) to a gymnasium env's observations and
     actions; reports every per-episode draw in ``info["sim2real"]["params"]``.
 
@@ -277,11 +282,13 @@ class CorruptSignals(gym.Wrapper):
     """
 
     def __init__(self, env: gym.Env, models: Sequence[SignalModel], seed: SeedLike = None) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self, models=tuple(models), seed=seed)
         super().__init__(env)
         self.corruptor = SignalCorruptor(models, seed)
         keys = getattr(env.unwrapped, "observation_layout", ())
         obs_layout, self._obs_codec, obs_dtype = _gym_signal(env.observation_space, keys)
         act_layout, self._act_codec, act_dtype = _gym_signal(env.action_space)
+        self._act_shape = tuple(env.action_space.shape or ())
         if self.corruptor.has_action and not isinstance(env.action_space, gym.spaces.Box):
             raise TypeError(f"action models need a Box action space. Received {env.action_space!r}.")
         self.clock = SignalClock(env, self.corruptor, obs_layout, act_layout, obs_dtype, act_dtype)
@@ -337,11 +344,12 @@ class CorruptSignals(gym.Wrapper):
         c = self.corruptor
         clock = self.clock
         if self._has_action:
+            if type(action) is not np.ndarray:
+                action = np.asarray(action, dtype=c.action_dtype)
+            if action.shape != self._act_shape:  # one tuple compare: numpy's broadcasting errors name nothing
+                raise ValueError(wrong_action_shape(action.shape, self._act_shape))
             codec = self._act_codec
-            if codec is None:
-                action = c.act(action if type(action) is np.ndarray else np.asarray(action, dtype=c.action_dtype))
-            else:
-                action = c.act(np.reshape(action, -1)).reshape(codec)
+            action = c.act(action) if codec is None else c.act(action.reshape(-1)).reshape(codec)
         clock._control += 1
         clock._passed = 0
         clock._in_step = True
@@ -410,7 +418,7 @@ class CorruptSignalsDmEnv(DmEnvWrapper):
             np.broadcast_to(getattr(aspec, "maximum", np.inf), aspec.shape),
         )
         act_layout = Layout(int(np.prod(aspec.shape)), low=low, high=high)
-        self._action_shape = aspec.shape
+        self._action_shape = tuple(aspec.shape)
         self.clock = SignalClock(env, self.corruptor, obs_layout, act_layout, dtype, aspec.dtype)
         self._reset_next_step = True
         self._has_obs = self.corruptor.has_observation
@@ -447,8 +455,10 @@ class CorruptSignalsDmEnv(DmEnvWrapper):
         if self._reset_next_step:
             return self.reset()
         if self._has_action:
-            action = self.corruptor.act(np.reshape(np.asarray(action, dtype=self.corruptor.action_dtype), -1))
-            action = action.reshape(self._action_shape)
+            action = np.asarray(action, dtype=self.corruptor.action_dtype)
+            if action.shape != self._action_shape:
+                raise ValueError(wrong_action_shape(action.shape, self._action_shape))
+            action = self.corruptor.act(action.reshape(-1)).reshape(self._action_shape)
         self.clock.begin_step()
         try:
             timestep = self._env.step(action)

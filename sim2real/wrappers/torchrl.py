@@ -311,6 +311,11 @@ class CorruptSignalsTransform(Transform):
         clock = self._bound()
         if self.corruptor.has_action:
             action = tensordict.get("action")
+            shape = tuple(action.shape[len(tensordict.batch_size) :])
+            if shape != self._action_shape:
+                from sim2real.wrappers.signals import wrong_action_shape
+
+                raise ValueError(wrong_action_shape(shape, self._action_shape))
             out = self.corruptor.act(action.detach().cpu().numpy().reshape(-1))
             tensordict.set("action", torch.from_numpy(out.reshape(action.shape)).to(action.dtype))
         clock.begin_step()

@@ -1,0 +1,182 @@
+"""Wrappers on envs nobody here tuned for (issue 16 §2-§3): spec'd gymnasium envs and recreation,
+observation bounds that are stale, mocap-driven arms, tasks whose own reset writes a randomised
+field, divergence during reset, and wrong-shaped actions."""
+
+from __future__ import annotations
+
+import pickle
+from typing import Any
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+import pytest
+
+import sim2real as s2r
+from noise_models import ActionLatency, ActionNoise, Bias, Gaussian, ObservationLatency, ObservationNoise
+from randomizers import Uniform
+
+# -- spec'd envs: gymnasium's checker and recreation ------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "effects",
+    [
+        (s2r.Friction(scale=Uniform(0.5, 1.5)),),
+        (ObservationNoise(Gaussian(std=0.01)), ActionLatency(steps=2)),
+        (s2r.Mass(scale=Uniform(0.8, 1.2)), ObservationNoise(Gaussian(std=0.01)), ActionNoise(Gaussian(std=0.1))),
+    ],
+    ids=["physics", "signals", "both"],
+)
+def test_check_env_passes_on_a_spec_d_env(effects: tuple[Any, ...]) -> None:
+    from gymnasium.utils.env_checker import check_env
+
+    env = s2r.wrap(s2r.make("gym/Reacher-v5"), *effects, seed=0)
+    assert env.spec is not None and env.spec.additional_wrappers
+    check_env(env, skip_render_check=True)
+    env.close()
+
+
+def test_spec_d_env_is_recreated_with_the_same_effects() -> None:
+    effects = (s2r.Damping(scale=Uniform(0.5, 2.0)), ObservationNoise(Bias(0.25)))
+    env = s2r.wrap(s2r.make("gym/Reacher-v5"), *effects, seed=3)
+    spec = pickle.loads(pickle.dumps(env.spec))  # effects are values: the spec pickles
+    twin = spec.make()
+    assert type(twin) is type(env) and type(twin.env) is type(env.env)
+    assert twin.env.randomizer.effects == env.env.randomizer.effects
+    assert twin.corruptor.models == env.corruptor.models
+    obs, info = env.reset(seed=1)
+    obs2, info2 = twin.reset(seed=1)
+    assert info["sim2real"]["params"] == info2["sim2real"]["params"]
+    np.testing.assert_array_equal(obs, obs2)
+    env.close()
+    twin.close()
+
+
+# -- observation bounds that are stale ---------------------------------------------------------------
+
+STALE_XML = """
+<mujoco>
+  <option timestep="0.01"/>
+  <worldbody><body><joint name="slide" type="slide"/><geom size="0.1" mass="1"/></body></worldbody>
+  <actuator><motor joint="slide"/></actuator>
+</mujoco>
+"""
+
+
+class StaleBoundsEnv(gym.Env):
+    """Declares every observation inside [-1, 1], but its goal (entry 2) is at 5: the bounds are stale."""
+
+    def __init__(self) -> None:
+        self.model = mujoco.MjModel.from_xml_string(STALE_XML)
+        self.data = mujoco.MjData(self.model)
+        self.observation_space = gym.spaces.Box(-1.0, 1.0, (3,), np.float64)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float64)
+
+    def _obs(self) -> np.ndarray:
+        return np.array([0.5, 0.9, 5.0])
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict]:
+        super().reset(seed=seed)
+        mujoco.mj_resetData(self.model, self.data)
+        return self._obs(), {}
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict]:
+        self.data.ctrl[:] = action
+        mujoco.mj_step(self.model, self.data)
+        return self._obs(), 0.0, False, False, {}
+
+
+def test_zero_noise_leaves_a_stale_observation_unchanged() -> None:
+    env = s2r.wrap(StaleBoundsEnv(), ObservationNoise(Gaussian(std=0.0)), seed=0)
+    obs, _ = env.reset(seed=0)
+    np.testing.assert_array_equal(obs, [0.5, 0.9, 5.0])  # the goal was clipped to 1.0 before
+    obs, *_ = env.step(np.zeros(1))
+    np.testing.assert_array_equal(obs, [0.5, 0.9, 5.0])
+
+
+def test_unselected_entries_are_never_clipped_and_selected_ones_are() -> None:
+    env = s2r.wrap(StaleBoundsEnv(), ObservationNoise(Bias(0.3), select=[1]), seed=0)
+    obs, _ = env.reset(seed=0)
+    np.testing.assert_array_equal(obs, [0.5, 1.0, 5.0])  # 0.9 + 0.3 clipped to the bound, goal untouched
+
+
+def test_noise_on_an_entry_already_outside_its_bounds_is_not_clipped() -> None:
+    env = s2r.wrap(StaleBoundsEnv(), ObservationNoise(Bias(0.25)), seed=0)
+    obs, _ = env.reset(seed=0)
+    np.testing.assert_array_equal(obs, [0.75, 1.0, 5.25])
+
+
+def test_clip_false_turns_observation_clipping_off() -> None:
+    model = ObservationNoise(Bias(0.3), clip=False)
+    assert repr(model) == "ObservationNoise(Bias(offset=0.3), clip=False)"
+    assert model.to_config()["clip"] is False
+    assert model != ObservationNoise(Bias(0.3))
+    env = s2r.wrap(StaleBoundsEnv(), model, seed=0)
+    obs, _ = env.reset(seed=0)
+    np.testing.assert_allclose(obs, [0.8, 1.2, 5.3])
+
+
+def test_clip_must_be_a_bool() -> None:
+    with pytest.raises(TypeError, match=r"^`clip` must be a bool\. Received 1\.$"):
+        ObservationNoise(Bias(0.3), clip=1)  # type: ignore[arg-type]
+
+
+# -- wrong-shaped actions ------------------------------------------------------------------------------
+
+SHAPE_MESSAGE = "`action` must have the shape of the env's action space, (2,). Received an array of shape {}."
+
+
+@pytest.mark.parametrize("action", [np.zeros(3), [0.0], np.zeros((2, 1)), 0.0], ids=["3", "1", "2x1", "scalar"])
+@pytest.mark.parametrize("model", [ActionNoise(Gaussian(std=0.1)), ActionLatency(steps=3)], ids=["noise", "latency"])
+def test_wrong_shaped_action_names_expected_and_received_shape(action: Any, model: Any) -> None:
+    env = s2r.wrap(s2r.make("dmc/reacher-easy"), model, seed=0)
+    env.reset(seed=0)
+    with pytest.raises(ValueError) as err:
+        env.step(action)
+    assert str(err.value) == SHAPE_MESSAGE.format(np.shape(action))
+    env.close()
+
+
+def test_wrong_shaped_action_on_dm_env() -> None:
+    from dm_control import suite
+
+    env = s2r.wrap(suite.load("reacher", "easy"), ActionLatency(steps=1), seed=0)
+    env.reset()
+    with pytest.raises(ValueError) as err:
+        env.step(np.zeros(3))
+    assert str(err.value) == SHAPE_MESSAGE.format((3,))
+    env.close()
+
+
+def test_wrong_shaped_action_on_torchrl() -> None:
+    import torch
+    from torchrl.envs import DMControlEnv
+
+    env = s2r.wrap(DMControlEnv("reacher", "easy"), ActionNoise(Gaussian(std=0.1)), seed=0)
+    td = env.reset()
+    td["action"] = torch.zeros(3, dtype=torch.float64)
+    with pytest.raises(ValueError) as err:
+        env.step(td)
+    assert str(err.value) == SHAPE_MESSAGE.format((3,))
+
+
+def test_wrong_shaped_action_to_the_engine() -> None:
+    from noise_models import Layout, SignalCorruptor
+
+    c = SignalCorruptor([ActionNoise(Gaussian(std=0.1))], seed=0)
+    c.bind(obs=None, action=Layout(2), timestep=0.01)
+    c.begin_episode()
+    with pytest.raises(ValueError) as err:
+        c.act(np.zeros((1, 2)))
+    assert str(err.value) == (
+        "`action` must be a flat array of shape (2,) (the action layout). Received an array of shape (1, 2)."
+    )
+
+
+def test_observation_latency_still_passes_any_action() -> None:
+    # Only layers that read the action check its shape; the env validates the rest.
+    env = s2r.wrap(s2r.make("dmc/reacher-easy"), ObservationLatency(steps=2), seed=0)
+    env.reset(seed=0)
+    env.step([0.0, 0.0])
+    env.close()
