@@ -2,7 +2,12 @@
 
 A write goes to a temporary file in the destination folder, which is then renamed over the target, so a
 crash or Ctrl-C never leaves a half-written file. The file gets the usual permissions (``0o666`` minus the
-umask), not ``mkstemp``'s private ``0o600``.
+umask), not ``mkstemp``'s private ``0o600``; :func:`make_temp_dir` is the same for a folder (``0o777`` minus the
+umask, not ``mkdtemp``'s ``0o700``).
+
+The process umask is never read or changed: the temporary file or folder is created with ``0o666`` / ``0o777``
+and the kernel applies the umask itself, as for any ``open()``. (Reading it with ``os.umask`` means setting it,
+and another thread creating a file in that moment would get world-writable permissions.)
 
 Example:
     >>> import os, tempfile
@@ -15,17 +20,43 @@ Example:
 from __future__ import annotations
 
 import os
-import tempfile
+import secrets
 from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
-__all__ = ["atomic_write"]
+__all__ = ["atomic_write", "make_temp_dir"]
+
+_T = TypeVar("_T")
+_ATTEMPTS = 100
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
+def _unique(folder: Path, prefix: str, suffix: str, create: Callable[[Path], _T]) -> tuple[Path, _T]:
+    """Creates a new entry ``<prefix><random><suffix>`` in ``folder`` with ``create`` (which must fail with
+    ``FileExistsError`` on a taken name), as ``tempfile`` does, and returns its path and what ``create`` returned."""
+    for _ in range(_ATTEMPTS):
+        path = folder / f"{prefix}{secrets.token_hex(6)}{suffix}"
+        try:
+            return path, create(path)
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"no free temporary name in {str(folder)!r} after {_ATTEMPTS} attempts.")
+
+
+def make_temp_dir(parent: str | os.PathLike[str], *, prefix: str = ".", suffix: str = ".tmp") -> Path:
+    """A new, empty folder in ``parent`` with a unique name and the usual permissions (``0o777`` minus the umask).
+
+    Use it to stage files that are then moved into place with one rename; unlike ``tempfile.mkdtemp`` the folder is
+    not private (``0o700``), so it can become the final folder as it is.
+
+    Example:
+        >>> import tempfile
+        >>> folder = make_temp_dir(tempfile.mkdtemp(), prefix=".report.", suffix=".tmp")
+        >>> folder.is_dir(), folder.name.startswith(".report."), list(folder.iterdir())
+        (True, True, [])
+    """
+    path, _ = _unique(Path(parent), prefix, suffix, lambda p: os.mkdir(p, 0o777))
+    return path
 
 
 def atomic_write(
@@ -45,18 +76,20 @@ def atomic_write(
         target.parent.mkdir(parents=True, exist_ok=True)
     elif not target.parent.is_dir():
         raise FileNotFoundError(f"`out` directory {str(target.parent)!r} does not exist.")
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_BINARY", 0)
+    tmp, fd = _unique(target.parent, f".{target.name}.", ".tmp", lambda p: os.open(p, flags, 0o666))
     try:
         if callable(content):
+            mode = os.fstat(fd).st_mode & 0o777  # what the kernel gave: 0o666 minus the umask
             os.close(fd)
-            content(tmp)
+            content(str(tmp))
+            os.chmod(tmp, mode)  # in case the function replaced the file rather than writing into it
         else:
             with os.fdopen(fd, "wb") as handle:
                 handle.write(content.encode("utf-8") if isinstance(content, str) else content)
                 handle.flush()
                 os.fsync(handle.fileno())
-        os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, target)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise

@@ -17,7 +17,7 @@ import PIL.Image
 import pytest
 
 import sim2real as s2r
-import sim2real.report as report_module
+import sim2real.report.files as report_files
 from sim2real import metrics
 from sim2real.agents import ReachController
 from sim2real.evaluation import Evaluation, evaluate, grid, measured, nominal, randomized, real, sweep
@@ -403,14 +403,14 @@ def test_write_produces_exactly_the_files(tmp_path: Path, report: GapReport) -> 
 def test_interrupted_write_leaves_no_report(
     tmp_path: Path, report: GapReport, monkeypatch: pytest.MonkeyPatch, fail_on: str
 ) -> None:
-    real_write = report_module.atomic_write
+    real_write = report_files.atomic_write
 
     def flaky(path: object, content: object, **kwargs: object) -> None:
         if Path(str(path)).name == fail_on:
             raise KeyboardInterrupt
         real_write(path, content, **kwargs)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(report_module, "atomic_write", flaky)
+    monkeypatch.setattr(report_files, "atomic_write", flaky)
     with pytest.raises(KeyboardInterrupt):
         report.write(tmp_path / "out")
     assert list(tmp_path.iterdir()) == []
@@ -425,7 +425,7 @@ def test_interrupted_rewrite_keeps_the_previous_report(
     def broken(*args: object, **kwargs: object) -> None:
         raise OSError("disk full")
 
-    monkeypatch.setattr(report_module, "atomic_write", broken)
+    monkeypatch.setattr(report_files, "atomic_write", broken)
     with pytest.raises(OSError, match="disk full"):
         report.write(tmp_path / "out")
     assert (tmp_path / "out" / "report.json").read_text() == before

@@ -1,0 +1,275 @@
+"""The frozen result objects of the gap report: one dataclass per kind of number, with documented shapes.
+
+:class:`~sim2real.report.GapReport` holds tuples of these; :mod:`sim2real.report.statistics` computes them and
+:mod:`sim2real.report.rendering` and :mod:`sim2real.report.figures` show them.
+
+Example:
+    >>> from sim2real.report.results import ParameterDraws
+    >>> ParameterDraws("dof_damping[elbow]", low=0.5, mean=1.0, high=2.0, n=4).high
+    2.0
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from sim2real.metrics import Estimate, RobustnessRadius
+
+__all__ = [
+    "Agreement",
+    "ConditionInfo",
+    "ConditionStats",
+    "FitParameter",
+    "GapStats",
+    "GridMeans",
+    "Improvement",
+    "ParameterDraws",
+    "ReportFiles",
+    "RobustnessCurve",
+]
+
+
+@dataclass(frozen=True)
+class ConditionStats:
+    """Summary statistics of one policy on one (non-sweep) condition.
+
+    Attributes:
+        policy: policy name.
+        condition: condition name.
+        kind: the condition's kind (``nominal``, ``randomized``, ``real`` or ``measured``).
+        n: episodes (runs).
+        mean: mean return with a stratified-bootstrap interval.
+        iqm: interquartile mean with a stratified-bootstrap interval.
+        cvar: mean of the worst ``alpha`` fraction of returns, with an interval.
+        worst: the lowest return.
+        success: success rate with a Wilson interval, or None when the condition reported no successes.
+    """
+
+    policy: str
+    condition: str
+    kind: str
+    n: int
+    mean: Estimate
+    iqm: Estimate
+    cvar: Estimate
+    worst: float
+    success: Estimate | None
+
+    def statistic(self, name: str) -> Estimate:
+        """The ``mean`` or ``iqm`` estimate."""
+        return self.mean if name == "mean" else self.iqm
+
+
+@dataclass(frozen=True)
+class GapStats:
+    """The performance one policy loses from ``reference`` to ``target`` (:func:`sim2real.metrics.gap`).
+
+    Attributes:
+        policy: policy name.
+        reference: the reference condition (e.g. ``"sim"`` or ``"randomized"``).
+        target: the target condition (e.g. ``"real"``).
+        absolute: ``stat(reference) - stat(target)``; positive when the target does worse.
+        relative: ``absolute / |stat(reference)|`` (NaN when ``stat(reference)`` is 0).
+        paired: True when both conditions are simulated (row ``e`` is the same initial state), so runs were
+            resampled jointly; False for measured returns (resampled independently, counts may differ).
+        n_reference: runs on the reference.
+        n_target: runs on the target.
+        statistic: ``"mean"`` or ``"iqm"``.
+    """
+
+    policy: str
+    reference: str
+    target: str
+    absolute: Estimate
+    relative: Estimate
+    paired: bool
+    n_reference: int
+    n_target: int
+    statistic: str
+
+
+@dataclass(frozen=True)
+class RobustnessCurve:
+    """One policy's return along a one-parameter sweep, and its robustness radius.
+
+    Attributes:
+        policy: policy name.
+        sweep: the sweep's name.
+        axis: the swept parameter label, e.g. ``"Damping.scale"``.
+        values: grid values, strictly increasing, shape ``(K,)``.
+        conditions: the condition name at each grid value.
+        nominal: the unperturbed grid value.
+        points: the statistic at each grid value with its interval, shape ``(K,)``.
+        radius: the largest distance from ``nominal`` keeping ``fraction`` of the nominal return, or None (see
+            ``note``).
+        fraction: the fraction of the nominal return to keep.
+        note: why there is no radius ("" when there is one).
+        statistic: ``"mean"`` or ``"iqm"``.
+    """
+
+    policy: str
+    sweep: str
+    axis: str
+    values: tuple[float, ...]
+    conditions: tuple[str, ...]
+    nominal: float
+    points: tuple[Estimate, ...]
+    radius: RobustnessRadius | None
+    fraction: float
+    note: str
+    statistic: str
+
+    @property
+    def threshold(self) -> float | None:
+        """``fraction`` times the nominal return (the line the radius is measured against), or None."""
+        return None if self.radius is None else self.fraction * self.radius.nominal_return
+
+
+@dataclass(frozen=True)
+class GridMeans:
+    """One policy's statistic over a two-parameter grid (a heatmap).
+
+    Attributes:
+        policy: policy name.
+        grid: the grid's name.
+        axes: the two parameter labels (x, y).
+        x: x values, increasing, shape ``(I,)``.
+        y: y values, increasing, shape ``(J,)``.
+        values: ``values[i][j]`` is the statistic at ``(x[i], y[j])`` (NaN where the grid has no point).
+        nominal: the unperturbed ``(x, y)``.
+        statistic: ``"mean"`` or ``"iqm"``.
+    """
+
+    policy: str
+    grid: str
+    axes: tuple[str, str]
+    x: tuple[float, ...]
+    y: tuple[float, ...]
+    values: tuple[tuple[float, ...], ...]
+    nominal: tuple[float, float]
+    statistic: str
+
+
+@dataclass(frozen=True)
+class Agreement:
+    """Whether a simulated condition ranks the policies as the target does (SIMPLER's SRCC and MMRV).
+
+    Attributes:
+        reference: the simulated condition compared (e.g. ``"sim"``).
+        target: the target condition (e.g. ``"real"``).
+        policies: the policies compared (those with returns on both).
+        srcc: Pearson correlation of the per-policy statistic, or None when undefined (see ``note``).
+        mmrv: mean maximum rank violation (0 = same ranking), in return units.
+        note: why a value is missing ("" otherwise).
+    """
+
+    reference: str
+    target: str
+    policies: tuple[str, ...]
+    srcc: Estimate | None
+    mmrv: Estimate | None
+    note: str
+
+
+@dataclass(frozen=True)
+class Improvement:
+    """``P(x > y)``: the chance an episode of policy ``x`` beats one of policy ``y`` on ``condition``.
+
+    Attributes:
+        condition: the condition (the target).
+        x: first policy.
+        y: second policy.
+        probability: the estimate with a bootstrap interval; 0.5 means neither is better.
+    """
+
+    condition: str
+    x: str
+    y: str
+    probability: Estimate
+
+
+@dataclass(frozen=True)
+class ParameterDraws:
+    """The values one addressed parameter took over the episodes of one condition.
+
+    Attributes:
+        address: the parameter address, e.g. ``"dof_damping[elbow]"``.
+        low: smallest value drawn.
+        mean: mean value drawn.
+        high: largest value drawn.
+        n: episodes with a value.
+    """
+
+    address: str
+    low: float
+    mean: float
+    high: float
+    n: int
+
+
+@dataclass(frozen=True)
+class ConditionInfo:
+    """What a condition is, for the report.
+
+    Attributes:
+        name: condition name.
+        kind: condition kind.
+        description: one line.
+        simulated: False for measured returns.
+        hidden: the configuration is revealed only in the appendix.
+        config: the configuration as canonical JSON text (effects, params; measured returns left out).
+        draws: the parameter values drawn per episode, summarised.
+        sweep: the sweep or grid a point belongs to, else None.
+        value: the point's coordinates on the sweep's axes (empty otherwise).
+    """
+
+    name: str
+    kind: str
+    description: str
+    simulated: bool
+    hidden: bool
+    config: str
+    draws: tuple[ParameterDraws, ...]
+    sweep: str | None = None
+    value: tuple[float, ...] = ()
+
+
+@dataclass(frozen=True)
+class FitParameter:
+    """One parameter of a sysid fit.
+
+    Attributes:
+        address: parameter address.
+        estimate: fitted value.
+        stderr: standard error.
+        low: lower end of the 95% interval.
+        high: upper end of the 95% interval.
+        truth: the true value from the log's metadata (a simulated twin), or None. Shown only in the appendix.
+    """
+
+    address: str
+    estimate: float
+    stderr: float
+    low: float
+    high: float
+    truth: float | None
+
+
+@dataclass(frozen=True)
+class ReportFiles:
+    """The files :meth:`GapReport.write` wrote.
+
+    Attributes:
+        directory: the output directory.
+        html: ``report.html`` (self-contained).
+        markdown: ``report.md`` (links to ``figures/``).
+        json: ``report.json`` (written last: its presence marks a complete report).
+        figures: ``figures/<name>.png``, in :meth:`GapReport.figure_names` order.
+    """
+
+    directory: Path
+    html: Path
+    markdown: Path
+    json: Path
+    figures: tuple[Path, ...]
