@@ -1,5 +1,5 @@
-"""Signal pipelines and the engine that runs them: :class:`ObservationNoise`, :class:`ActionNoise`,
-:class:`SignalCorruptor`.
+"""The engine that runs signal pipelines: :class:`SignalCorruptor` (the pipelines themselves,
+:class:`ObservationNoise` and :class:`ActionNoise`, are values in :mod:`noise_models.pipelines`).
 
 A pipeline applies its processes in order to one signal. Consecutive additive and multiplicative
 processes (Gaussian, UniformNoise, Bias, Drift, Outlier, Scale) are fused into one affine map per
@@ -31,7 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from noise_models.processes import BLOCK, Compile, Part, Process
+from noise_models.pipelines import ActionNoise, ObservationNoise
+from noise_models.processes import BLOCK, Compile, Part
 from noise_models.seeding import SeedLike, StreamFactory, normalize_seed, reseeded_root
 from noise_models.timing import (
     ActionLatency,
@@ -43,115 +44,9 @@ from noise_models.timing import (
     TimeModel,
     sample_and_hold_updates,
 )
-from noise_models.values import Layout, Selection, check_selection, draw, selection_repr
+from noise_models.values import Layout, draw, selection_repr
 
 __all__ = ["ActionNoise", "ObservationNoise", "SignalCorruptor", "SignalModel"]
-
-
-class _Noise:
-    side = ""
-    _frozen = False
-
-    def __init__(self, *processes: Process, select: Selection = None, clip: bool = True) -> None:
-        owner = type(self).__name__
-        if not isinstance(clip, bool):
-            raise TypeError(f"`clip` must be a bool. Received {clip!r}.")
-        if not processes:
-            raise ValueError(f"{owner} needs at least one process, e.g. {owner}(Gaussian(std=0.01)).")
-        for i, p in enumerate(processes):
-            if not isinstance(p, Process):
-                raise TypeError(
-                    f"`processes[{i}]` of {owner} must be a noise process (Gaussian, UniformNoise, Bias, Drift, "
-                    f"Quantize, Dropout, Stuck, Outlier, Saturate, Scale, Deadzone, Sticky). Received {p!r}."
-                )
-            if self.side not in p.sides:
-                allowed = "Deadzone and Sticky act on actions only" if self.side == "obs" else ""
-                raise ValueError(
-                    f"`processes[{i}]` of {owner} is {type(p).__name__}, which does not apply to "
-                    f"{'observations' if self.side == 'obs' else 'actions'} ({allowed}). Received {p!r}."
-                )
-        self.processes = tuple(processes)
-        self.select = check_selection(select)
-        self.clip = clip
-
-    def _fields(self) -> tuple[Any, ...]:
-        return (self.processes, self.select, self.clip)
-
-    def __repr__(self) -> str:
-        args = [repr(p) for p in self.processes]
-        if self.select is not None:
-            args.append(f"select={self.select!r}")
-        if not self.clip:
-            args.append("clip=False")
-        return f"{type(self).__name__}({', '.join(args)})"
-
-    def __eq__(self, other: object) -> bool:
-        return type(other) is type(self) and self._fields() == other._fields()  # type: ignore[attr-defined]
-
-    def __hash__(self) -> int:
-        return hash(repr(self))
-
-    def __setattr__(self, key: str, value: object) -> None:
-        if self._frozen:
-            raise AttributeError(f"{type(self).__name__} is immutable; build a new one instead.")
-        super().__setattr__(key, value)
-
-    def to_config(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"type": type(self).__name__, "processes": [p.to_config() for p in self.processes]}
-        if self.select is not None:
-            out["select"] = list(self.select) if isinstance(self.select, tuple) else self.select
-        if not self.clip:
-            out["clip"] = False
-        return out
-
-
-class ObservationNoise(_Noise):
-    """A pipeline of noise processes applied, in order, to what the policy observes.
-
-    Args:
-        *processes: Gaussian, UniformNoise, Bias, Drift, Quantize, Dropout, Stuck, Outlier, Saturate, Scale.
-        select: default selection for processes that have none (keys, indices or a slice).
-        clip: keep what the noise changes inside the declared observation bounds, default True.
-
-    Clipping touches only what this model changed: an entry no process selects is never clipped,
-    and neither is an entry the env itself delivered outside its declared bounds (stale bounds), so
-    a pipeline whose noise is zero returns the observation unchanged. An entry inside the bounds
-    that the noise pushes out is clipped back, so the declared space stays truthful (dm-control and
-    gymnasium MuJoCo observations are unbounded: no clipping there).
-
-    Example:
-        >>> from noise_models import Gaussian, Quantize
-        >>> ObservationNoise(Gaussian(std=0.01), Quantize(0.001), select="position")
-        ObservationNoise(Gaussian(std=0.01), Quantize(resolution=0.001), select='position')
-    """
-
-    side = "obs"
-
-    def __init__(self, *processes: Process, select: Selection = None, clip: bool = True) -> None:
-        super().__init__(*processes, select=select, clip=clip)
-        object.__setattr__(self, "_frozen", True)
-
-
-class ActionNoise(_Noise):
-    """A pipeline of noise processes applied, in order, to the policy's action before the env gets it.
-
-    Args:
-        *processes: any process, including the action-only Deadzone and Sticky.
-        select: default selection (indices or a slice) for processes that have none.
-        clip: clip the result to the action space (actuators have limits), default True.
-
-    Example:
-        >>> from noise_models import Deadzone, Gaussian
-        >>> ActionNoise(Gaussian(std=0.05), Deadzone(0.01))
-        ActionNoise(Gaussian(std=0.05), Deadzone(width=0.01))
-    """
-
-    side = "action"
-
-    def __init__(self, *processes: Process, select: Selection = None, clip: bool = True) -> None:
-        super().__init__(*processes, select=select, clip=clip)
-        object.__setattr__(self, "_frozen", True)
-
 
 SignalModel = ObservationNoise | ActionNoise | ObservationLatency | ActionLatency | SampleAndHold | ControlJitter
 _MODEL_NAMES = "ObservationNoise, ActionNoise, ObservationLatency, ActionLatency, SampleAndHold, ControlJitter"
@@ -367,6 +262,7 @@ class SignalCorruptor:
         self.episode = -1
         self.current_params: dict[str, float] = {}
         self._bound = False
+        self.delays_actions = False
 
     @staticmethod
     def _names(side: str, pipelines: Sequence[ObservationNoise | ActionNoise]) -> list[list[str]]:
@@ -405,7 +301,9 @@ class SignalCorruptor:
     @property
     def needs_physics_hook(self) -> bool:
         """Whether the env's physics stepping must be intercepted (physics-rate action latency, jitter)."""
-        return self.physics_time and (ActionLatency in self.timing or ControlJitter in self.timing)
+        return self.physics_time and (
+            (ActionLatency in self.timing and not self.delays_actions) or ControlJitter in self.timing
+        )
 
     # -- binding ------------------------------------------------------------------------------
     def bind(
@@ -418,6 +316,7 @@ class SignalCorruptor:
         physics: bool = True,
         obs_dtype: Any = np.float64,
         action_dtype: Any = np.float64,
+        action_delay: str = "ctrl",
     ) -> None:
         """Resolves selections and the time base.
 
@@ -427,6 +326,10 @@ class SignalCorruptor:
             timestep: seconds per time step (the physics timestep with MuJoCo, else the control period).
             substeps: physics steps per control step (1 without MuJoCo).
             physics: whether time counts physics steps (MuJoCo found).
+            action_delay: where ActionLatency acts with MuJoCo: ``"ctrl"`` delays the actuator command
+                at physics rate (from inside the physics step); ``"action"`` delays the policy's action
+                by whole control steps before the env sees it, for envs whose action does not map onto
+                ``ctrl`` (mocap-driven hands). Without MuJoCo the action is always what is delayed.
 
         Raises:
             ValueError: a selection names unknown keys/indices, a latency is longer than its buffer, or
@@ -440,7 +343,11 @@ class SignalCorruptor:
             raise ValueError(
                 "ControlJitter changes the number of physics substeps, so it needs an env with MuJoCo inside."
             )
+        if action_delay not in ("ctrl", "action"):
+            raise ValueError(f"`action_delay` must be one of ['ctrl', 'action']. Received {action_delay!r}.")
         self.physics_time = physics
+        # Whether act() delays the action itself (control steps) rather than the env's ctrl (physics steps).
+        self.delays_actions = ActionLatency in self.timing and (not physics or action_delay == "action")
         self.timestep = timestep
         self.nominal_substeps = int(substeps) if physics else 1
         self.obs_layout, self.action_layout = obs, action
@@ -478,7 +385,7 @@ class SignalCorruptor:
         )
         self._cmd_delay: CommandDelay | None = None
         if ActionLatency in self.timing:
-            size = action.size if not physics else 0  # physics-level size is set by reset_commands
+            size = action.size if self.delays_actions else 0  # physics-level size is set by reset_commands
             self._cmd_delay = CommandDelay(self._capacity[ActionLatency], max(size, 1))
         self._bound = True
 
@@ -518,6 +425,7 @@ class SignalCorruptor:
             and regular
             and not self._act_jitter
             and self.physics_time
+            and not self.delays_actions
             and self._action_latency % n == 0
             else None
         )
@@ -544,6 +452,15 @@ class SignalCorruptor:
                 report[prefix] = steps * self.timestep
             if cls is ObservationLatency:
                 self._obs_latency = steps
+            elif self.physics_time and self.delays_actions:
+                # The action reaches the env once per control step: whole control steps of the nominal
+                # period, and the report says what is applied.
+                n = self.nominal_substeps
+                k = math.floor(steps / n + 0.5)
+                self._action_latency = k
+                report["action_latency_steps"] = k * n
+                report["action_latency"] = k * n * self.timestep  # type: ignore[operator]
+                report["action_latency_control_steps"] = k
             else:
                 self._action_latency = steps
             if model.jitter is not None:  # type: ignore[attr-defined]
@@ -653,9 +570,11 @@ class SignalCorruptor:
             )
         for pipe in self._action_pipes:
             action = pipe(action)
-        if self._cmd_delay is not None and not self.physics_time:
+        if self.delays_actions:
             t = self._control_step
             jitter = self._jitter(ActionLatency, t) if ActionLatency in self._jitter_blocks else 0
+            if jitter and self.physics_time:
+                jitter = math.floor(jitter / self.nominal_substeps + 0.5)
             if t == 0:
                 self._cmd_delay.reset(np.zeros(self.action_layout.size))  # type: ignore[union-attr]
             self._cmd_delay.push(action, t + self._action_latency + jitter)
@@ -666,7 +585,7 @@ class SignalCorruptor:
 
     def reset_commands(self, ctrl: np.ndarray) -> None:
         """Starts the physics-rate command buffer with the actuators' command at reset."""
-        if self._cmd_delay is not None:
+        if self._cmd_delay is not None and not self.delays_actions:
             if self._cmd_delay._values.shape[1] != ctrl.size:
                 self._cmd_delay = CommandDelay(self._cmd_delay.capacity, ctrl.size)
             self._cmd_delay.reset(ctrl)

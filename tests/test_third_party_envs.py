@@ -180,3 +180,111 @@ def test_observation_latency_still_passes_any_action() -> None:
     env.reset(seed=0)
     env.step([0.0, 0.0])
     env.close()
+
+
+# -- mocap-driven arms ---------------------------------------------------------------------------------
+
+MOCAP_XML = """
+<mujoco>
+  <option timestep="0.002" gravity="0 0 0"/>
+  <worldbody>
+    <body name="hand_target" mocap="true"/>
+    <body name="hand">
+      <freejoint/>
+      <geom type="box" size="0.02 0.02 0.02" mass="0.5"/>
+      <body name="finger" pos="0.03 0 0">
+        <joint name="grip" type="slide" axis="1 0 0" range="0 0.05"/>
+        <geom type="box" size="0.01 0.01 0.01" mass="0.05"/>
+      </body>
+    </body>
+  </worldbody>
+  <equality><weld body1="hand_target" body2="hand" solref="0.02 1"/></equality>
+  <actuator>{actuators}</actuator>
+</mujoco>
+"""
+GRIPPER = '<position name="grip" joint="grip" kp="100"/>'
+WRISTS = "".join(f'<motor name="wrist{i}" joint="grip" gear="0"/>' for i in range(3))
+
+
+class MocapArmEnv(gym.Env):
+    """A hand moved through a mocap weld, as manipulation suites do: ``step`` writes ``mocap_pos`` from
+    action[:3] and the gripper's ``ctrl`` from action[3], then calls ``mj_step`` itself (no hook).
+
+    With ``action_is_ctrl`` the model also has three inert actuators, so the action's size equals
+    ``model.nu`` and the env writes the whole action to ``ctrl`` too: only the weld reveals the mocap."""
+
+    frame_skip = 10
+
+    def __init__(self, action_is_ctrl: bool = False) -> None:
+        actuators = (WRISTS + GRIPPER) if action_is_ctrl else GRIPPER
+        self.model = mujoco.MjModel.from_xml_string(MOCAP_XML.format(actuators=actuators))
+        self.data = mujoco.MjData(self.model)
+        self.action_is_ctrl = action_is_ctrl
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (4,), np.float64)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (4,), np.float64)
+
+    def _obs(self) -> np.ndarray:
+        return np.concatenate([self.data.body("hand").xpos, self.data.qpos[7:8]])
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict]:
+        super().reset(seed=seed)
+        mujoco.mj_resetData(self.model, self.data)
+        mujoco.mj_forward(self.model, self.data)
+        return self._obs(), {}
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict]:
+        self.data.mocap_pos[0] = 0.1 * np.asarray(action[:3])
+        if self.action_is_ctrl:
+            self.data.ctrl[:] = action
+        else:
+            self.data.ctrl[0] = action[3]
+        mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
+        return self._obs(), 0.0, False, False, {}
+
+
+def _hand_path(env: gym.Env, actions: np.ndarray) -> np.ndarray:
+    env.reset(seed=0)
+    return np.array([env.step(a)[0] for a in actions])
+
+
+@pytest.mark.parametrize("action_is_ctrl", [False, True], ids=["size-differs", "mocap-weld"])
+def test_action_latency_delays_a_mocap_driven_hand_by_what_it_reports(action_is_ctrl: bool) -> None:
+    actions = np.random.default_rng(0).uniform(-1, 1, (12, 4))
+    env = s2r.wrap(MocapArmEnv(action_is_ctrl), ActionLatency(steps=20), seed=0)
+    _, info = env.reset(seed=0)
+    report = info["sim2real"]
+    assert report["action_latency_path"] == "action" == env.action_latency_path
+    params = report["params"]
+    assert (params["action_latency_steps"], params["action_latency_control_steps"]) == (20, 2)
+    assert params["action_latency"] == pytest.approx(0.04)
+    wrapped = _hand_path(env, actions)
+    bare = _hand_path(MocapArmEnv(action_is_ctrl), actions)
+    delayed = _hand_path(MocapArmEnv(action_is_ctrl), np.vstack([np.zeros((2, 4)), actions[:-2]]))
+    assert not np.allclose(wrapped[:, :3], bare[:, :3])  # before: the hand moved exactly as without latency
+    np.testing.assert_array_equal(wrapped, delayed)  # hand and gripper, 2 control steps = 20 physics steps late
+
+
+def test_mocap_latency_is_rounded_to_whole_control_steps_and_reported_as_applied() -> None:
+    env = s2r.wrap(MocapArmEnv(), ActionLatency(steps=14), seed=0)
+    _, info = env.reset(seed=0)
+    params = info["sim2real"]["params"]
+    assert (params["action_latency_steps"], params["action_latency_control_steps"]) == (10, 1)
+    actions = np.random.default_rng(1).uniform(-1, 1, (5, 4))
+    delayed = _hand_path(MocapArmEnv(), np.vstack([np.zeros((1, 4)), actions[:-1]]))
+    np.testing.assert_array_equal(_hand_path(env, actions), delayed)
+
+
+def test_ctrl_driven_env_keeps_physics_rate_latency() -> None:
+    env = s2r.wrap(s2r.make("dmc/reacher-easy"), ActionLatency(steps=3), seed=0)
+    _, info = env.reset(seed=0)
+    assert info["sim2real"]["action_latency_path"] == "ctrl"
+    assert "action_latency_control_steps" not in info["sim2real"]["params"]
+    env.close()
+
+
+def test_dm_env_reports_the_latency_path() -> None:
+    from dm_control import suite
+
+    dm = s2r.wrap(suite.load("reacher", "easy"), ActionLatency(steps=3), seed=0)
+    assert dm.action_latency_path == "ctrl"
+    dm.close()

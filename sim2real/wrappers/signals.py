@@ -40,14 +40,22 @@ from typing import Any
 
 import dm_env
 import gymnasium as gym
+import mujoco
 import numpy as np
 
-from noise_models import ControlJitter, Layout, SignalCorruptor, SignalModel
+from noise_models import ActionLatency, ControlJitter, Layout, SignalCorruptor, SignalModel
 from noise_models.seeding import SeedLike
 from sim2real.physics import PhysicsHandle, find_physics
 from sim2real.wrappers.dm import DmEnvWrapper
 
-__all__ = ["CorruptSignals", "CorruptSignalsDmEnv", "SignalClock", "box_layout", "wrong_action_shape"]
+__all__ = [
+    "CorruptSignals",
+    "CorruptSignalsDmEnv",
+    "SignalClock",
+    "action_delay_path",
+    "box_layout",
+    "wrong_action_shape",
+]
 
 
 def _finite_bounds(low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -122,6 +130,22 @@ class SignalClock:
             substeps = 1
         self.timestep = timestep
         self.nominal = substeps
+        #: Where ActionLatency acts: "ctrl" (the actuator command, at physics rate), "action" (the policy's
+        #: action, by whole control steps) or None without ActionLatency. See :func:`action_delay_path`.
+        self.action_path: str | None = None
+        if ActionLatency in corruptor.timing:
+            self.action_path = "action" if handle is None else action_delay_path(handle.model, action)
+            if handle is not None and self.action_path == "action" and handle.substeps is None:
+                # Physics steps per action are needed to delay actions by the drawn physics-step latency.
+                dt = _control_dt(env)
+                if dt is None or timestep is None:
+                    raise TypeError(
+                        "ActionLatency delays this env's action (it does not map onto `ctrl`), which needs the "
+                        "physics steps per action: give the env a `frame_skip` (or `n_substeps`) attribute or a "
+                        f"`dt`. Received an env of type {type(env).__qualname__} with neither."
+                    )
+                substeps = max(1, round(dt / timestep))
+                self.nominal = substeps
         corruptor.bind(
             obs=obs,
             action=action,
@@ -130,6 +154,7 @@ class SignalClock:
             physics=handle is not None,
             obs_dtype=obs_dtype,
             action_dtype=action_dtype,
+            action_delay=self.action_path or "ctrl",
         )
         self._remove: Any = None
         self._hook: Any = None
@@ -137,7 +162,7 @@ class SignalClock:
             self._hook = handle.on_recompile(lambda model, data: None)  # keeps handle.data current
         if corruptor.needs_physics_hook:
             self._remove = handle.intercept_step(self._stepper)  # type: ignore[union-attr]
-        self._latency = corruptor.has_action and handle is not None
+        self._latency = corruptor.has_action and handle is not None and self.action_path != "action"
         # Composer steps one substep at a time and its hooks may rewrite ctrl between substeps.
         self._whole_steps = handle is not None and not handle.recompiles
         self._fixed = self._latency and ControlJitter not in corruptor.timing
@@ -229,6 +254,30 @@ class SignalClock:
             self._hook = None
 
 
+def action_delay_path(model: Any, action: Layout | None) -> str:
+    """Where ActionLatency must act on an env with MuJoCo inside: ``"ctrl"`` when the env's action is
+    its actuator command, ``"action"`` when it is not.
+
+    The action does not map onto ``ctrl`` when its size differs from ``model.nu``, or when a mocap
+    body is welded to the robot: such envs move the hand by writing ``data.mocap_pos``/``mocap_quat``
+    in their own Python ``step``, which a physics-rate ``ctrl`` delay never reaches (only a gripper
+    on ``ctrl`` would be delayed). There the policy's action is delayed instead, by whole control steps.
+    """
+    if action is None or action.size != model.nu:
+        return "action"
+    weld = int(mujoco.mjtEq.mjEQ_WELD)
+    site = int(mujoco.mjtObj.mjOBJ_SITE)
+    for i in range(model.neq):
+        if int(model.eq_type[i]) != weld:
+            continue
+        ends = (int(model.eq_obj1id[i]), int(model.eq_obj2id[i]))
+        if int(model.eq_objtype[i]) == site:
+            ends = tuple(int(model.site_bodyid[j]) for j in ends)
+        if any(model.body_mocapid[b] >= 0 for b in ends):
+            return "action"
+    return "ctrl"
+
+
 def wrong_action_shape(received: tuple[int, ...], expected: tuple[int, ...]) -> str:
     """The message for an action whose shape is not the declared one (noise and latency layers)."""
     return f"`action` must have the shape of the env's action space, {expected}. Received an array of shape {received}."
@@ -275,6 +324,15 @@ class CorruptSignals(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """Applies noise and timing models (:mod:`noise_models`) to a gymnasium env's observations and
     actions; reports every per-episode draw in ``info["sim2real"]["params"]``.
 
+    With ActionLatency, ``info["sim2real"]["action_latency_path"]`` says what is delayed (also
+    :attr:`action_latency_path`): ``"ctrl"``, the actuator command at physics rate, or ``"action"``,
+    the policy's action by whole control steps, for envs whose action does not map onto ``ctrl``
+    (a size other than ``model.nu``, or a hand moved through a mocap weld; see
+    :func:`action_delay_path`). On the ``"action"`` path the drawn latency is rounded to whole
+    control steps, reported as applied (``action_latency_steps`` in physics steps,
+    ``action_latency`` in seconds, ``action_latency_control_steps``), and the env gets a zero action
+    until the first action arrives.
+
     Args:
         env: any gymnasium env with Box (or Dict of Box) observations and a Box action space.
         models: ObservationNoise, ActionNoise, ObservationLatency, ActionLatency, SampleAndHold, ControlJitter.
@@ -296,12 +354,18 @@ class CorruptSignals(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._has_action = self.corruptor.has_action
         self._obs_time = self.corruptor.observation_needs_time
         self._jitter = self.corruptor.needs_physics_hook and ControlJitter in self.corruptor.timing
+        self._extra_report = self._jitter or self.clock.action_path is not None
         self._closed = False
 
     @property
     def current_params(self) -> dict[str, float]:
         """Name -> value drawn for this episode."""
         return self.corruptor.current_params
+
+    @property
+    def action_latency_path(self) -> str | None:
+        """``"ctrl"`` or ``"action"``: what ActionLatency delays (None without it)."""
+        return self.clock.action_path
 
     def _obs_in(self, obs: Any) -> np.ndarray:
         codec = self._obs_codec
@@ -328,6 +392,8 @@ class CorruptSignals(gym.Wrapper, gym.utils.RecordConstructorArgs):
             report["params"].update(self.corruptor.current_params)
         if self._jitter:
             report["substeps"] = self.clock._target  # this control step's draw
+        if self.clock.action_path is not None:
+            report["action_latency_path"] = self.clock.action_path
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
         c = self.corruptor
@@ -365,7 +431,7 @@ class CorruptSignals(gym.Wrapper, gym.utils.RecordConstructorArgs):
             else:
                 obs = self._obs_out(c.observe(self._obs_in(obs), now), obs)
         report = info.get("sim2real")
-        if report is None or self._jitter:
+        if report is None or self._extra_report:
             self._report(info)
         else:  # the inner wrapper built fresh dicts for this call: extend them in place
             report["params"].update(c.current_params)
@@ -433,6 +499,11 @@ class CorruptSignalsDmEnv(DmEnvWrapper):
         merged = dict(inner) if isinstance(inner, dict) else {}
         merged.update(self.corruptor.current_params)
         return merged
+
+    @property
+    def action_latency_path(self) -> str | None:
+        """``"ctrl"`` or ``"action"``: what ActionLatency delays (None without it); see :class:`CorruptSignals`."""
+        return self.clock.action_path
 
     def _observation(self, timestep: dm_env.TimeStep, first: bool) -> dm_env.TimeStep:
         if not self._has_obs:

@@ -265,6 +265,12 @@ class CorruptSignalsTransform(Transform):
         return self._clock
 
     @property
+    def action_latency_path(self) -> str | None:
+        """``"ctrl"`` or ``"action"``: what ActionLatency delays (None without it); see
+        :class:`~sim2real.wrappers.CorruptSignals`."""
+        return self._bound().action_path
+
+    @property
     def param_names(self) -> tuple[str, ...]:
         """The name of each entry of ``"sim2real_signal_params"``."""
         self._bound()
