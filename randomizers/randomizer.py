@@ -62,11 +62,10 @@ SET_CONST_FIELDS = (
 )
 
 
-
 class _Slot:
     """Mutable per-effect state that survives a rebind (composer recompiles every episode)."""
 
-    __slots__ = ("binding", "draws", "effect", "gen", "name", "next_time", "resample", "steps")
+    __slots__ = ("binding", "draws", "effect", "gen", "name", "next_time", "resample", "steps", "written")
 
     def __init__(self, effect: Effect, name: str, gen: np.random.Generator) -> None:
         self.effect = effect
@@ -77,6 +76,7 @@ class _Slot:
         self.resample = 0
         self.steps = 0
         self.next_time: float | None = None
+        self.written: np.ndarray | None = None
 
 
 class PhysicsRandomizer:
@@ -209,6 +209,7 @@ class PhysicsRandomizer:
                 raise RuntimeError("PhysicsRandomizer.apply() called before begin_episode().")
             values = binding.values(slot.draws)
             binding.apply(values)
+            slot.written = values
             params.update(zip(binding.addresses, values.tolist(), strict=True))
         if self._set_const:
             mujoco.mj_setConst(self.model, self._scratch)
@@ -242,6 +243,7 @@ class PhysicsRandomizer:
                 slot.draws = self._sample(slot)
                 values = binding.values(slot.draws)
                 binding.apply(values)
+                slot.written = values
                 if binding.needs_set_const:
                     mujoco.mj_setConst(self.model, self._scratch)
                 self.current_params = {
@@ -250,6 +252,29 @@ class PhysicsRandomizer:
                 }
                 changed = True
         return changed
+
+    def reapply_overwritten(self) -> tuple[str, ...]:
+        """Writes the values in use again where the model no longer holds them and returns their addresses.
+
+        An env's own reset may write a field an effect randomises (dm-control ``finger`` resets its hinge
+        damping); call this after it so the model holds what :attr:`current_params` reports.
+        ``mj_setConst`` runs again when a re-written effect needs it; nothing is written otherwise.
+        """
+        fixed: list[str] = []
+        set_const = False
+        for slot in self._slots:
+            binding, values = slot.binding, slot.written
+            if values is None or not isinstance(binding, Binding):
+                continue
+            held = binding._array[binding._targets]
+            if np.array_equal(held, values):
+                continue
+            fixed.extend(a for a, h, v in zip(binding.addresses, held.tolist(), values.tolist(), strict=True) if h != v)
+            binding.apply(values)
+            set_const = set_const or binding.needs_set_const
+        if set_const:
+            mujoco.mj_setConst(self.model, self._scratch)
+        return tuple(fixed)
 
     def restore_nominal(self) -> None:
         """Puts every touched model field (and any active push) back to its nominal value, bitwise."""
