@@ -264,7 +264,8 @@ class PhysicsRandomizer:
         set_const = False
         for slot in self._slots:
             binding, values = slot.binding, slot.written
-            if values is None or not isinstance(binding, Binding):
+            # Physics fields only: tasks reset those; visual bindings write more than one array.
+            if values is None or not isinstance(binding, Binding) or type(binding).__module__ != Binding.__module__:
                 continue
             held = binding._array[binding._targets]
             if np.array_equal(held, values):
