@@ -1,7 +1,8 @@
 """The ``sim2real`` command line: ``tasks``, ``demo``, ``visualize``, ``record`` and ``sysid fit``.
 
-Exit codes: 0 on success, 2 on a usage error or bad input (unknown task, bad config), with the
-message on stderr and no traceback.
+Exit codes: 0 on success, 2 on a usage error or bad input (unknown task, bad config, an output path that cannot
+be written), with one line on stderr and no traceback. Output paths are checked (:mod:`sim2real.output_paths`)
+before any work starts, and every file is written atomically, so a failure leaves nothing half-written.
 
 Example:
     >>> from sim2real.cli import main
@@ -37,6 +38,32 @@ Policy = Callable[[np.ndarray], np.ndarray]
 
 class _UsageError(Exception):
     """Bad input found after parsing; ``main`` prints it and returns 2."""
+
+
+def _check_outputs(files: dict[str, str | None], folder: tuple[str, str, bool] | None = None) -> None:
+    """Checks every output of a command (``{"--out": path, "--report": path}``, files; ``folder`` is
+    ``(argument, path, new)``) before any work, so a bad path fails at once and creates nothing."""
+    from sim2real.output_paths import OutputPathError, check_distinct, check_file, check_folder
+
+    given = {argument: path for argument, path in files.items() if path is not None}
+    try:
+        for argument, path in given.items():
+            check_file(path, argument)
+        check_distinct(given)
+        if folder is not None:
+            check_folder(folder[1], folder[0], new=folder[2])
+    except OutputPathError as err:
+        raise _UsageError(str(err)) from err
+
+
+def _writing(path: str | os.PathLike[str], write: Callable[[], Any]) -> Any:
+    """Runs ``write`` (an atomic write of ``path``); a failure of the file system (disk full, a folder removed
+    meanwhile) becomes one line and exit 2. The atomic writer has already removed its temporary file."""
+    try:
+        return write()
+    except OSError as err:
+        reason = err.strerror or str(err)
+        raise _UsageError(f"cannot write {os.fspath(path)!r}: {reason}.") from err
 
 
 def default_effects() -> list[Effect]:
@@ -209,7 +236,14 @@ def _build_parser() -> argparse.ArgumentParser:
         ),
     )
     evaluate.add_argument("--config", required=True, help="evaluation spec (YAML)")
-    evaluate.add_argument("--out", required=True, help="report folder")
+    evaluate.add_argument(
+        "--out",
+        required=True,
+        help=(
+            "report folder (created with its parents); in an existing folder only report.html, report.md, "
+            "report.json and figures/*.png are replaced, nothing else in it is touched"
+        ),
+    )
     evaluate.add_argument("--backend", choices=("serial", "local", "ray"), default="local", help="default: local")
     evaluate.add_argument("--workers", type=_int_at_least(1), default=None, help="processes (default: CPU count)")
     evaluate.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -224,7 +258,15 @@ def _build_parser() -> argparse.ArgumentParser:
         ),
     )
     study.add_argument("--task", default="dmc/reacher-easy", help="task with a bundled study (default: %(default)s)")
-    study.add_argument("--out", default="sim2real-study", help="study folder (default: %(default)s)")
+    study.add_argument(
+        "--out",
+        default=None,
+        help=(
+            "study folder: a new or empty folder (created with its parents). An existing folder that holds anything "
+            "is never overwritten: the command refuses with exit 2 before any work. Default: sim2real-study, or the "
+            "first free sim2real-study-2, -3, ... when it is taken, so a second run never touches the first"
+        ),
+    )
     study.add_argument("--budget", choices=("quick", "standard", "full"), default="standard", help="default: standard")
     study.add_argument("--backend", choices=("local", "ray", "serial"), default="local", help="default: local")
     study.add_argument("--seed", type=_int_at_least(0), default=0, help="default: %(default)s")
@@ -247,7 +289,13 @@ def _cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
         raise _UsageError(str(err)) from err
     except (SpecError, ValueError) as err:
         raise _UsageError(str(err)) from err
-    evaluation = spec.run(backend=args.backend, workers=args.workers, progress=not args.quiet)
+    _check_outputs({}, ("--out", args.out, False))
+    from sim2real.agents.checkpoint import CheckpointError
+
+    try:  # checkpoints are loaded and checked here, before any worker starts
+        evaluation = spec.run(backend=args.backend, workers=args.workers, progress=not args.quiet)
+    except CheckpointError as err:
+        raise _UsageError(str(err)) from err
     notes = options.pop("notes", ())
     notes = [notes] if isinstance(notes, str) else list(notes)
     try:
@@ -256,19 +304,22 @@ def _cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
         sheet = None
         notes.append(f"no contact sheet of the visual effects: {err}")
     report = GapReport.build(evaluation, fit=fit, contact_sheet=sheet, rng=spec.seed, notes=tuple(notes), **options)
-    files = report.write(Path(args.out))
+    files = _writing(args.out, lambda: report.write(Path(args.out)))
     print(report.summary(), file=out)
     print(f"wrote {files.html}", file=out)
     return 0
 
 
-def _cmd_study(args: argparse.Namespace, out: TextIO) -> int:
-    from sim2real.study import run_study
+def _cmd_study(args: argparse.Namespace, stdout: TextIO) -> int:
+    from sim2real.output_paths import free_folder
+    from sim2real.study import DEFAULT_OUT, run_study
 
+    out = args.out if args.out is not None else str(free_folder(DEFAULT_OUT))
+    _check_outputs({}, ("--out", out, True))
     try:
         result = run_study(
             args.task,
-            args.out,
+            out,
             budget=args.budget,
             backend=args.backend,
             seed=args.seed,
@@ -278,8 +329,10 @@ def _cmd_study(args: argparse.Namespace, out: TextIO) -> int:
         )
     except ValueError as err:
         raise _UsageError(str(err)) from err
-    print(result.summary, file=out)
-    print(f"report: {result.report}", file=out)
+    except OSError as err:
+        raise _UsageError(f"cannot write {out!r}: {err.strerror or err}.") from err
+    print(result.summary, file=stdout)
+    print(f"report: {result.report}", file=stdout)
     return 0
 
 
@@ -443,13 +496,17 @@ def _cmd_demo(args: argparse.Namespace, out: TextIO) -> int:
 
 
 def _cmd_visualize(args: argparse.Namespace, out: TextIO) -> int:
+    _check_outputs({"--out": args.out})
     effects = _load_demo_effects(args.config) if args.config is not None else []
     camera: int | str | None = args.camera
     if isinstance(camera, str) and camera.lstrip("-").isdigit():
         camera = int(camera)
     try:
-        sheet = sim2real.contact_sheet(
-            args.task, effects, n=args.n, seed=args.seed, size=(args.size, args.size), camera=camera, out=args.out
+        sheet = _writing(
+            args.out,
+            lambda: sim2real.contact_sheet(
+                args.task, effects, n=args.n, seed=args.seed, size=(args.size, args.size), camera=camera, out=args.out
+            ),
         )
     except (TypeError, ValueError, FileNotFoundError) as err:
         raise _UsageError(str(err)) from err
@@ -465,6 +522,7 @@ def _cmd_record(args: argparse.Namespace, out: TextIO) -> int:
     import sysid
     from sim2real.recording import record
 
+    _check_outputs({"--out": args.out})
     try:
         log = record(
             args.task,
@@ -478,9 +536,9 @@ def _cmd_record(args: argparse.Namespace, out: TextIO) -> int:
             obs_latency=args.obs_latency,
             amplitude=args.amplitude,
         )
-        sysid.save_log(log, args.out)
     except (TypeError, ValueError) as err:
         raise _UsageError(str(err)) from err
+    _writing(args.out, lambda: sysid.save_log(log, args.out))
     print(
         f"wrote {args.out}: {log.num_steps} rows ({args.episodes} episode(s) of {args.task}, policy {args.policy}); "
         f"true params {log.meta.get('true_params', {})}",
@@ -512,6 +570,7 @@ def _cmd_sysid(args: argparse.Namespace, out: TextIO) -> int:
 
     if args.sysid_command != "fit":
         raise _UsageError("choose a sysid command: `sim2real sysid fit LOG --task TASK --params ...`")
+    _check_outputs({"--out": args.out, "--report": args.report})
     try:
         env = make(args.task)
         handle = sim2real.find_physics(env)
@@ -527,9 +586,11 @@ def _cmd_sysid(args: argparse.Namespace, out: TextIO) -> int:
         raise _UsageError(f"cannot read the log: {err}") from err
     except (TypeError, ValueError) as err:  # LogError is a ValueError
         raise _UsageError(str(err)) from err
-    result.to_json(args.out)
-    if args.report:
-        atomic_write(args.report, _fit_report_html(result, args.task, args.log))
+    # The page is rendered before anything is written, so a failure while drawing it leaves no JSON behind.
+    page = _fit_report_html(result, args.task, args.log) if args.report else None
+    _writing(args.out, lambda: result.to_json(args.out))
+    if page is not None:
+        _writing(args.report, lambda: atomic_write(args.report, page))
     print(result.summary(), file=out)
     print(f"wrote {args.out}" + (f" and {args.report}" if args.report else ""), file=out)
     return 0

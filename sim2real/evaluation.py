@@ -714,6 +714,17 @@ def _policies(policies: Any) -> tuple[tuple[str, Any], ...]:
     return tuple((n, p.source if isinstance(p, BatchedPolicy) and p.source is not None else p) for n, p in items)
 
 
+def _check_checkpoints(named: tuple[tuple[str, Any], ...], task: str) -> None:
+    """Loads every checkpoint path once here, so a broken, tampered or foreign one fails with one
+    ``CheckpointError`` before any worker starts (workers load them again from the path)."""
+    paths = [source for _, source in named if isinstance(source, (str, os.PathLike))]
+    if paths:
+        from sim2real.agents.checkpoint import load_checkpoint
+
+        for path in paths:
+            load_checkpoint(path, task=task)
+
+
 def evaluate(
     policies: Any,
     task: str,
@@ -747,6 +758,8 @@ def evaluate(
 
     Raises:
         ValueError: bad counts, duplicate names, an unknown backend.
+        sim2real.agents.CheckpointError: (a ``ValueError``) a checkpoint path that is broken, tampered with or
+            trained on another task; raised before any episode runs.
     """
     for argument, value, low in (("episodes", episodes, 1), ("batch", batch, 1)):
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
@@ -766,6 +779,7 @@ def evaluate(
     if duplicates:
         raise ValueError(f"`conditions` must have unique names. Received duplicates {duplicates}.")
     named = _policies(policies)
+    _check_checkpoints(named, task)
     policy_names = tuple(n for n, _ in named)
     options = _freeze(dict(task_options or {}))
     groups: dict[Any, list[Condition]] = {}

@@ -19,7 +19,9 @@ Stages (each prints its progress and time):
    ``report.json`` and ``figures/``, next to the fit (``sysid/fit.json``) and the calibrated config.
 
 Everything goes to a staging folder first and is moved into place at the end, so Ctrl-C or an error leaves
-no half-written study. The same seed reproduces ``report.json`` bitwise (wall-clock times are kept out of
+no half-written study. ``out`` is checked before any work: it must be a new or empty folder, because an existing
+folder that holds anything is never overwritten, emptied or deleted (without ``out``, the first free
+``sim2real-study``, ``sim2real-study-2``, ... is used). The same seed reproduces ``report.json`` bitwise (wall-clock times are kept out of
 it), on either backend.
 
 Example (the CI-sized budget, in a temporary folder):
@@ -49,6 +51,7 @@ import yaml
 
 __all__ = [
     "BUDGETS",
+    "DEFAULT_OUT",
     "DEFAULT_TASK",
     "Budget",
     "StudyProfile",
@@ -61,6 +64,8 @@ __all__ = [
 ]
 
 DEFAULT_TASK = "dmc/reacher-easy"
+#: The study folder when none is given (or the first free ``sim2real-study-2``, ``-3``, ... when it is taken).
+DEFAULT_OUT = "sim2real-study"
 PROFILES = Path(__file__).resolve().parent / "data" / "study"
 ROLES = ("nominal", "randomized", "calibrated")
 
@@ -445,7 +450,7 @@ def _check(budget: str, backend: str, seed: Any) -> Budget:
 
 def run_study(
     task: str = DEFAULT_TASK,
-    out: str | os.PathLike[str] = "sim2real-study",
+    out: str | os.PathLike[str] | None = None,
     *,
     budget: str = "standard",
     backend: str = "local",
@@ -458,7 +463,8 @@ def run_study(
 
     Args:
         task: a task with a bundled profile (:func:`study_tasks`).
-        out: the study folder (replaced atomically when it exists).
+        out: the study folder: a new or an empty folder (a folder that holds anything is never overwritten).
+            Default: the first free one of ``sim2real-study``, ``sim2real-study-2``, ...
         budget: one of :data:`BUDGETS` (``quick`` is what CI runs).
         backend: ``local`` (process pool), ``ray`` or ``serial``; the results are the same.
         seed: seeds the recording, the fit, the evaluation and the bootstrap (and training when it happens).
@@ -468,30 +474,63 @@ def run_study(
 
     Raises:
         ValueError: an unknown task, budget or backend, or a bad seed.
+        sim2real.output_paths.OutputPathError: (a ``ValueError``) ``out`` is an existing file or a folder that
+            is not empty, or it cannot be created or written; raised before any work.
     """
+    from sim2real.output_paths import check_folder, free_folder
+
     spec = _check(budget, backend, seed)
     profile = load_profile(task)
-    target = Path(out)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".partial", dir=target.parent))
+    target = check_folder(free_folder(DEFAULT_OUT) if out is None else out, "`out`", new=True)
+    staging = _staging(target)
     try:
         result = _run(profile, spec, staging, backend, seed, workers, progress, log)
-        _replace(staging, target)
+        final = _replace(staging, target)
     except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
+        shutil.rmtree(staging, ignore_errors=True)  # only our own hidden staging folder
         raise
-    return replace(result, out=target, report=target / "report.html")
+    if final != target and log is not None:
+        print(f"{str(target)!r} was taken while the study ran; the study is in {str(final)!r}", file=log)
+    return replace(result, out=final, report=final / "report.html")
 
 
-def _replace(staging: Path, target: Path) -> None:
-    """Moves ``staging`` to ``target``; an existing ``target`` is removed only after the move succeeded."""
-    old = None
-    if target.exists():
-        old = target.with_name(f".{target.name}.old-{os.getpid()}")
-        target.rename(old)
-    staging.rename(target)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
+def _staging(target: Path) -> Path:
+    """A hidden staging folder with the usual permissions: beside a new ``target`` (moved into place with one
+    rename), inside an existing empty one (its entries are moved up; the user's folder itself stays, which also
+    makes ``out="."`` work)."""
+    from randomizers.files import make_temp_dir
+
+    if target.is_dir():
+        return make_temp_dir(target, prefix=".sim2real-study.", suffix=".partial")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    return make_temp_dir(target.parent, prefix=f".{target.name}.", suffix=".partial")
+
+
+def _replace(staging: Path, target: Path) -> Path:
+    """Moves the finished study in ``staging`` into ``target`` and returns where it went.
+
+    Nothing that exists is ever overwritten: ``target`` must still be missing or empty (it was checked before the
+    study, but a user may have written to it since); otherwise the study goes to the first free ``target-N``.
+    """
+    from sim2real.output_paths import free_folder
+
+    if staging.parent == target:  # an existing empty folder: move the entries up, the report last
+        entries = sorted(staging.iterdir(), key=lambda p: p.name.startswith("report."))
+        if any((target / p.name).exists() for p in entries):
+            final = free_folder(target)
+            staging.rename(final)
+            return final
+        for entry in entries:
+            entry.rename(target / entry.name)
+        staging.rmdir()
+        return target
+    try:
+        staging.rename(target)  # fails (and changes nothing) unless target is missing or an empty folder
+    except OSError:
+        final = free_folder(target)
+        staging.rename(final)
+        return final
+    return target
 
 
 def _dispatch(fn: Callable[[Any], Any], items: list[Any], backend: str, workers: int | None, desc: str) -> list:

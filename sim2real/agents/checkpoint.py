@@ -13,6 +13,7 @@ mujoco, sim2real) and ``created`` (UTC, ISO 8601).
 from __future__ import annotations
 
 import datetime as _dt
+import math
 import os
 import platform
 import subprocess
@@ -172,8 +173,10 @@ def load_checkpoint(path: str | os.PathLike[str], *, task: str | None = None) ->
 
     Raises:
         FileNotFoundError: ``path`` does not exist.
-        CheckpointError: the file is corrupt or truncated, not a sim2real checkpoint, missing keys, holds
-            weights that do not fit its own architecture (tampered), or was trained on another task.
+        CheckpointError: the file is corrupt or truncated, not a sim2real checkpoint, missing keys, holds a key
+            of the wrong type or range (``obs_dim`` not an int >= 1, action bounds of different lengths or not
+            ``low < high``, ...), holds weights that do not fit its own architecture (tampered), or was trained on
+            another task.
     """
     import torch
 
@@ -199,17 +202,18 @@ def load_checkpoint(path: str | os.PathLike[str], *, task: str | None = None) ->
             f"checkpoint {str(file)!r} has format_version {data['format_version']!r}; this sim2real reads "
             f"{FORMAT_VERSION}."
         )
+    _check_fields(data, file)
     if task is not None and data["task"] != task:
         raise CheckpointError(f"checkpoint {str(file)!r} was trained on task {data['task']!r}, not on {task!r}.")
     try:
         config = config_class(data["algo"]).from_dict(data["config"], source=f"checkpoint {str(file)!r} config")
-    except ValueError as err:
-        raise CheckpointError(str(err)) from err
+    except (TypeError, ValueError) as err:
+        raise CheckpointError(f"checkpoint {str(file)!r}: {err}" if str(file) not in str(err) else str(err)) from err
     actor = build_actor(
         config.algo,
-        int(data["obs_dim"]),
-        data["action_low"],
-        data["action_high"],
+        data["obs_dim"],
+        [float(v) for v in data["action_low"]],
+        [float(v) for v in data["action_high"]],
         config.hidden_sizes,
         config.activation,
         config.init_log_std,
@@ -227,6 +231,59 @@ def load_checkpoint(path: str | os.PathLike[str], *, task: str | None = None) ->
         path=file,
         effects=data["effects"] if isinstance(data.get("effects"), str) else None,
     )
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _bounds(data: dict[str, Any], key: str, file: Path) -> list[float]:
+    value = data[key]
+    if (
+        not isinstance(value, (list, tuple))
+        or not value
+        or not all((_is_int(v) or isinstance(v, float)) and math.isfinite(v) for v in value)
+    ):
+        raise CheckpointError(
+            f"checkpoint {str(file)!r}: `{key}` must be a non-empty list of finite numbers. Received {value!r}."
+        )
+    return [float(v) for v in value]
+
+
+def _check_fields(data: dict[str, Any], file: Path) -> None:
+    """Every key has the type and range :func:`save_checkpoint` writes, so a tampered or foreign file fails here
+    with its name and the key, not inside torch or a worker process."""
+    where = f"checkpoint {str(file)!r}"
+    expected: tuple[tuple[str, Any, str], ...] = (
+        ("algo", str, "a str"),
+        ("task", (str, type(None)), "a str or None"),
+        ("config", dict, "a mapping"),
+        ("state_dict", dict, "a mapping of names to tensors"),
+        ("run_id", str, "a str"),
+        ("git_commit", (str, type(None)), "a str or None"),
+        ("versions", dict, "a mapping"),
+    )
+    for key, kind, text in expected:
+        if not isinstance(data[key], kind):
+            shown = repr(data[key]) if len(repr(data[key])) <= 60 else f"a {type(data[key]).__name__}"
+            raise CheckpointError(f"{where}: `{key}` must be {text}. Received {shown}.")
+    if "effects" in data and not isinstance(data["effects"], (str, type(None))):
+        raise CheckpointError(f"{where}: `effects` must be a str or None. Received {data['effects']!r}.")
+    for key, low in (("obs_dim", 1), ("seed", 0)):
+        if not _is_int(data[key]) or data[key] < low:
+            raise CheckpointError(f"{where}: `{key}` must be an int >= {low}. Received {data[key]!r}.")
+    action_low = _bounds(data, "action_low", file)
+    action_high = _bounds(data, "action_high", file)
+    if len(action_low) != len(action_high):
+        raise CheckpointError(
+            f"{where}: `action_low` and `action_high` must have the same length. Received {len(action_low)} and "
+            f"{len(action_high)}."
+        )
+    for i, (lo, hi) in enumerate(zip(action_low, action_high, strict=True)):
+        if not lo < hi:
+            raise CheckpointError(
+                f"{where}: `action_low` must be < `action_high` in every entry. Received {lo!r} >= {hi!r} at index {i}."
+            )
 
 
 def _load_weights(actor: Any, state: Any, file: Path) -> None:

@@ -39,7 +39,11 @@ def build_parser(prog: str = "sim2real train") -> argparse.ArgumentParser:
     )
     parser.add_argument("--agent-config", default=None, help="PPO/SAC hyperparameters YAML (its `algo` must match)")
     parser.add_argument("--seed", type=int, default=0, help="seed of weights, exploration, env and effects")
-    parser.add_argument("--out", required=True, help="checkpoint file to write (e.g. ckpt.pt)")
+    parser.add_argument(
+        "--out",
+        required=True,
+        help="checkpoint file to write atomically (e.g. ckpt.pt); the path is checked before training starts",
+    )
     parser.add_argument("--log-dir", default=None, help="CSV logger root (default ./sim2real_runs)")
     parser.add_argument("--no-log", action="store_true", help="do not write logger files")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -47,9 +51,22 @@ def build_parser(prog: str = "sim2real train") -> argparse.ArgumentParser:
 
 
 def _fail(parser: argparse.ArgumentParser, message: str) -> int:
-    parser.print_usage(sys.stderr)
-    print(f"{parser.prog}: error: {message}", file=sys.stderr)
+    print(f"{parser.prog}: error: {message}", file=sys.stderr)  # one line, like every sim2real command
     return 2
+
+
+def _check_paths(args: argparse.Namespace) -> str | None:
+    """The checkpoint file and the logger folder, checked before training (see :mod:`sim2real.output_paths`);
+    returns the error message, or None."""
+    from sim2real.output_paths import OutputPathError, check_file, check_folder
+
+    try:
+        check_file(args.out, "--out")
+        if not args.no_log and args.log_dir is not None:
+            check_folder(args.log_dir, "--log-dir")
+    except OutputPathError as err:
+        return str(err)
+    return None
 
 
 def cli_train(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
@@ -92,6 +109,9 @@ def cli_train(argv: Sequence[str] | None = None, out: TextIO | None = None) -> i
             return _fail(parser, f"--config: {err}")
     import sim2real
 
+    path_error = _check_paths(args)
+    if path_error is not None:
+        return _fail(parser, path_error)
     try:
         sim2real.make(args.task).close()
     except (TypeError, ValueError) as err:
@@ -108,7 +128,10 @@ def cli_train(argv: Sequence[str] | None = None, out: TextIO | None = None) -> i
         logger=None if args.no_log else "csv",
         log_dir=args.log_dir,
     )
-    result.save(args.out)
+    try:
+        result.save(args.out)
+    except OSError as err:  # the atomic writer has removed its temporary file
+        return _fail(parser, f"cannot write {args.out!r}: {err.strerror or err}.")
     returns = [r for r in result.metrics.get("episode_return", ()) if r == r]
     first = f"{returns[0]:.3f}" if returns else "n/a"
     last = f"{returns[-1]:.3f}" if returns else "n/a"

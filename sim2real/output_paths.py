@@ -1,0 +1,179 @@
+"""Output paths, checked before any work starts: the one place that decides whether a command may write there.
+
+Every command that writes (``record``, ``sysid fit``, ``train``, ``visualize``, ``evaluate``, ``study``) and
+:func:`sim2real.study.run_study` call :func:`check_file` / :func:`check_folder` on each of their outputs *before*
+recording, fitting, training or evaluating, so a bad path costs nothing and leaves nothing behind. The checks
+create nothing: missing parent folders are created later, by the writer (:func:`randomizers.files.atomic_write`).
+
+What is checked:
+
+- the path is not empty, and a file output does not name a folder (``.``, ``..``, a trailing ``/``, an existing
+  folder), nor a folder output an existing file;
+- the nearest existing folder above it is a folder (not a file: ``afile/r.json`` can never be created) and is
+  writable, as is an existing output folder;
+- with ``new=True`` (the study), an existing folder must be empty: a folder that holds anything is never
+  overwritten, emptied or deleted (the error names a free sibling to use instead).
+
+Example:
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> root = Path(tempfile.mkdtemp())
+    >>> check_file(root / "logs" / "run.npz", "--out") == root / "logs" / "run.npz"
+    True
+    >>> (root / "note.txt").write_text("mine")
+    4
+    >>> check_file(root / "note.txt" / "run.npz", "--out")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    sim2real.output_paths.OutputPathError: --out must be in a folder that exists or can be created; '.../note.txt' is a file. Received '.../note.txt/run.npz'.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from pathlib import Path
+
+__all__ = ["OutputPathError", "check_distinct", "check_file", "check_folder", "free_folder"]
+
+
+class OutputPathError(ValueError):
+    """An output path that cannot be written, or that would overwrite a folder; raised before any work."""
+
+
+def _text(path: str | os.PathLike[str]) -> str:
+    return os.fspath(path)
+
+
+def _writable(folder: Path) -> bool:
+    return os.access(folder, os.W_OK | os.X_OK)
+
+
+def _check_above(path: Path, text: str, argument: str) -> None:
+    """The nearest existing folder above ``path`` is a folder and writable (what is missing can be created)."""
+    for probe in path.parents:  # lexical: 'a/b/c' -> 'a/b', 'a', '.'; the OS resolves '..' and links
+        try:
+            if not probe.exists():  # False also when a file is on the way ('afile/x')
+                continue
+        except OSError:  # a folder on the way that cannot be searched
+            raise OutputPathError(
+                f"{argument} must be in a writable folder; {str(probe)!r} cannot be read. Received {text!r}."
+            ) from None
+        if not probe.is_dir():
+            raise OutputPathError(
+                f"{argument} must be in a folder that exists or can be created; {str(probe)!r} is a file. "
+                f"Received {text!r}."
+            )
+        if not _writable(probe):
+            raise OutputPathError(
+                f"{argument} must be in a writable folder; {str(probe)!r} is not writable. Received {text!r}."
+            )
+        return
+
+
+def check_file(path: str | os.PathLike[str], argument: str = "`out`") -> Path:
+    """Checks that a file can be written (atomically, by a rename in its folder) at ``path``.
+
+    An existing file is allowed: the writer replaces it in one rename.
+
+    Args:
+        path: the output file.
+        argument: how the caller names the argument in messages (``"--out"``, ``"`out`"``).
+
+    Returns:
+        ``path`` as a :class:`~pathlib.Path`.
+
+    Raises:
+        OutputPathError: ``path`` is empty or names a folder, or its folder cannot be created or written.
+    """
+    text = _text(path)
+    if not text:
+        raise OutputPathError(f"{argument} must be a file path. Received ''.")
+    target = Path(text)
+    if target.name in ("", ".", "..") or text.endswith(("/", os.sep)) or target.is_dir():
+        raise OutputPathError(f"{argument} must name a file, not a folder. Received {text!r}.")
+    _check_above(target, text, argument)
+    return target
+
+
+def check_folder(path: str | os.PathLike[str], argument: str = "`out`", *, new: bool = False) -> Path:
+    """Checks that a folder of outputs can be written at ``path`` (staged beside it, then moved into place).
+
+    Args:
+        path: the output folder.
+        argument: how the caller names the argument in messages.
+        new: the folder must not exist or be empty (a folder that holds anything is never overwritten).
+
+    Returns:
+        ``path`` as a :class:`~pathlib.Path`.
+
+    Raises:
+        OutputPathError: ``path`` is empty or an existing file, its parent cannot be created or written, it is
+            an existing folder that is not writable, or (``new``) an existing folder that is not empty.
+    """
+    text = _text(path)
+    if not text:
+        raise OutputPathError(f"{argument} must be a folder path. Received ''.")
+    target = Path(text)
+    if target.exists() and not target.is_dir():
+        raise OutputPathError(f"{argument} must name a folder, not an existing file. Received {text!r}.")
+    if target.is_dir():
+        if new:
+            entries = sum(1 for _ in target.iterdir())
+            if entries:
+                raise OutputPathError(
+                    f"{argument} must be a new or empty folder (an existing folder is never overwritten). Received "
+                    f"{text!r}, which holds {entries} {'entry' if entries == 1 else 'entries'}; choose another "
+                    f"{argument}, e.g. {str(free_folder(target))!r}."
+                )
+        if not _writable(target):
+            raise OutputPathError(f"{argument} must be a writable folder. Received {text!r}, which is not writable.")
+        if new:  # an existing empty folder is written in place (staged inside it), its parent is not needed
+            return target
+    _check_above(target, text, argument)
+    return target
+
+
+def check_distinct(outputs: Mapping[str, str | os.PathLike[str]]) -> None:
+    """Checks that the outputs of one command (argument -> path) are different files.
+
+    Raises:
+        OutputPathError: two arguments name the same path.
+    """
+    seen: dict[str, str] = {}
+    for argument, path in outputs.items():
+        key = os.path.abspath(_text(path))
+        if key in seen:
+            raise OutputPathError(f"{argument} must differ from {seen[key]}. Received {_text(path)!r} for both.")
+        seen[key] = argument
+
+
+def free_folder(path: str | os.PathLike[str]) -> Path:
+    """``path`` if it is free (missing or an empty folder), else the first free ``path-2``, ``path-3``, ...
+
+    A path without a usable name (``.``, ``..``) gets a free ``sim2real-study`` folder inside it.
+
+    Example:
+        >>> import tempfile
+        >>> root = Path(tempfile.mkdtemp())
+        >>> (root / "study").mkdir(); (root / "study" / "a.txt").write_text("x")
+        1
+        >>> free_folder(root / "study").name, free_folder(root / "other").name
+        ('study-2', 'other')
+    """
+    base = Path(_text(path))
+    if base.name in ("", ".", ".."):
+        base = base / "sim2real-study"
+
+    def free(candidate: Path) -> bool:
+        try:
+            return not candidate.exists() or (candidate.is_dir() and not any(candidate.iterdir()))
+        except OSError:
+            return False
+
+    if free(base):
+        return base
+    number = 2
+    while not free(base.with_name(f"{base.name}-{number}")):
+        number += 1
+    return base.with_name(f"{base.name}-{number}")
