@@ -40,6 +40,18 @@ def _random_state(env: Any) -> np.random.RandomState | None:
     return state if isinstance(state, np.random.RandomState) else None
 
 
+def suite_observation(env: Any) -> Any:
+    """A dm-control suite env's observation of its current physics state (None for other envs)."""
+    from dm_control.rl import control
+
+    if not isinstance(env, control.Environment):
+        return None
+    observation = env.task.get_observation(env.physics)
+    if getattr(env, "_flat_observation", False):
+        observation = control.flatten_observation(observation)
+    return observation
+
+
 def _physics_error() -> type[Exception]:
     from dm_control.rl.control import PhysicsError
 
@@ -173,6 +185,15 @@ class DmEnvToGym(gym.Env):
             terminated = timestep.discount == 0.0
             truncated = not terminated
         return obs, float(timestep.reward or 0.0), terminated, truncated, {}
+
+    def observe(self) -> Any:
+        """The observation of the current physics state, computed again (dm-control suite tasks), or None
+        where recomputing it is not side-effect free (composer observables are buffered and noisy)."""
+        observation = suite_observation(self.dm_env)
+        if observation is None:
+            return None
+        self._last_obs = self._observation(observation)
+        return self._last_obs
 
     def render(self) -> np.ndarray | None:  # type: ignore[override]
         """An RGB frame (``height`` x ``width`` x 3, uint8) when ``render_mode="rgb_array"``."""

@@ -288,3 +288,91 @@ def test_dm_env_reports_the_latency_path() -> None:
     dm = s2r.wrap(suite.load("reacher", "easy"), ActionLatency(steps=3), seed=0)
     assert dm.action_latency_path == "ctrl"
     dm.close()
+
+
+# -- reported draws are what the model holds -------------------------------------------------------------
+
+DRAW_EFFECTS = (
+    s2r.Damping(scale=Uniform(5.0, 50.0)),  # finger-spin's reset writes hinge damping = 0.03
+    s2r.Mass(scale=Uniform(0.5, 2.0)),
+    s2r.Friction(scale=Uniform(0.5, 1.5)),
+)
+
+
+def _held(model: mujoco.MjModel, address: str) -> float:
+    """The live model's value at ``address``, read independently of randomizers (the test's oracle)."""
+    field, element, *index = address.replace("]", "").split("[")
+    kind = {"dof": mujoco.mjtObj.mjOBJ_JOINT, "body": mujoco.mjtObj.mjOBJ_BODY, "geom": mujoco.mjtObj.mjOBJ_GEOM}
+    prefix = field.split("_")[0]
+    i = mujoco.mj_name2id(model, kind[prefix], element)
+    row = model.jnt_dofadr[i] if prefix == "dof" else i
+    value = getattr(model, field)[row]
+    return float(value[int(index[0])] if index else value)
+
+
+def _assert_model_holds(model: mujoco.MjModel, params: dict[str, float]) -> None:
+    assert params
+    wrong = {a: (v, _held(model, a)) for a, v in params.items() if _held(model, a) != v}
+    assert not wrong, f"reported != held: {wrong}"
+
+
+SUITE_TASKS = [("finger", "spin"), ("cartpole", "swingup"), ("cheetah", "run")]
+
+
+@pytest.mark.parametrize(("domain", "task"), SUITE_TASKS)
+def test_gymnasium_reports_what_the_model_holds_after_reset(domain: str, task: str) -> None:
+    from dm_control import suite
+
+    from sim2real.adapters import DmEnvToGym
+
+    env = s2r.wrap(DmEnvToGym(suite.load(domain, task)), *DRAW_EFFECTS, seed=0)
+    model = s2r.find_physics(env).model
+    for episode in range(3):
+        obs, info = env.reset(seed=episode)
+        _assert_model_holds(model, info["sim2real"]["params"])
+        _assert_model_holds(model, env.current_params)
+        np.testing.assert_array_equal(obs, env.unwrapped.observe())  # consistent with the model as applied
+        assert bool(info["sim2real"]["reapplied"]) == (domain == "finger")
+    if domain == "finger":
+        assert info["sim2real"]["reapplied"] == ("dof_damping[hinge]",)
+    env.close()
+
+
+@pytest.mark.parametrize(("domain", "task"), SUITE_TASKS)
+def test_dm_env_reports_what_the_model_holds_after_reset(domain: str, task: str) -> None:
+    from dm_control import suite
+
+    env = s2r.wrap(suite.load(domain, task), *DRAW_EFFECTS, seed=0)
+    for _ in range(3):
+        env.reset()
+        _assert_model_holds(env.physics.model.ptr, env.current_params)
+    env.close()
+
+
+@pytest.mark.parametrize(("domain", "task"), SUITE_TASKS)
+def test_torchrl_reports_what_the_model_holds_after_reset(domain: str, task: str) -> None:
+    from torchrl.envs import DMControlEnv
+
+    env = s2r.wrap(DMControlEnv(domain, task), *DRAW_EFFECTS, seed=0)
+    transform = env.transform
+    for _ in range(3):
+        td = env.reset()
+        model = transform._bound().model
+        _assert_model_holds(model, dict(zip(transform.param_names, td["sim2real_params"].tolist(), strict=True)))
+    env.close()
+
+
+def test_gymnasium_mujoco_env_reports_what_the_model_holds() -> None:
+    env = s2r.wrap(s2r.make("gym/Reacher-v5"), *DRAW_EFFECTS, seed=0)
+    _, info = env.reset(seed=0)
+    _assert_model_holds(env.unwrapped.model, info["sim2real"]["params"])
+    assert info["sim2real"]["reapplied"] == ()
+    env.close()
+
+
+def test_composer_task_reports_what_each_recompiled_model_holds() -> None:
+    env = s2r.wrap(s2r.make("dmc/jaco-reach_site"), s2r.Damping(scale=Uniform(0.5, 2.0)), seed=0)
+    for episode in range(2):
+        _, info = env.reset(seed=episode)
+        _assert_model_holds(s2r.find_physics(env).model, info["sim2real"]["params"])
+    env.close()

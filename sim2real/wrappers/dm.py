@@ -18,6 +18,7 @@ from collections.abc import Sequence
 from typing import Any
 
 import dm_env
+import mujoco
 
 from randomizers import Effect, PhysicsRandomizer
 from randomizers.seeding import SeedLike
@@ -54,7 +55,8 @@ class RandomizePhysicsDmEnv(DmEnvWrapper):
     """Draws physics effects at each ``reset()`` of a dm-control environment.
 
     A physics divergence ends the episode with a truncation timestep (``discount=1``, reward 0,
-    the last finite observation) and ``diverged = True``.
+    the last finite observation) and ``diverged = True``. Draws a task's own reset overwrote are
+    written again after it (addresses in ``reapplied``), as :class:`~sim2real.wrappers.RandomizePhysics` does.
 
     Args:
         env: a dm-control suite or composer environment.
@@ -73,6 +75,7 @@ class RandomizePhysicsDmEnv(DmEnvWrapper):
         self._last_obs: Any = None
         self._reset_next_step = True
         self.diverged = False
+        self.reapplied: tuple[str, ...] = ()
         self._closed = False
 
     @property
@@ -89,6 +92,16 @@ class RandomizePhysicsDmEnv(DmEnvWrapper):
         if self._hook is None:
             self.randomizer.apply()
         timestep = self._env.reset()
+        # The task's reset may overwrite a draw (finger's hinge damping): write it again, keep the state the
+        # task chose, recompute what derives from it (and the observation, for suite tasks).
+        self.reapplied = self.randomizer.reapply_overwritten()
+        if self.reapplied:
+            from sim2real.adapters import suite_observation
+
+            mujoco.mj_forward(self._handle.model, self._handle.data)
+            observation = suite_observation(self._env)
+            if observation is not None:
+                timestep = timestep._replace(observation=observation)
         self._last_obs = timestep.observation
         self._reset_next_step = False
         self.diverged = False

@@ -18,12 +18,35 @@ from collections.abc import Sequence
 from typing import Any
 
 import gymnasium as gym
+import mujoco
 
 from randomizers import Effect, PhysicsRandomizer
 from randomizers.seeding import SeedLike
 from sim2real.physics import PhysicsHandle, find_physics
 
-__all__ = ["RandomizePhysics", "merge_report", "require_physics"]
+__all__ = ["RandomizePhysics", "merge_report", "observe_again", "require_physics"]
+
+# Wrappers that hand the inner observation through unchanged, so it may be recomputed underneath them.
+_PASS_THROUGH = (
+    gym.wrappers.TimeLimit,
+    gym.wrappers.OrderEnforcing,
+    gym.wrappers.PassiveEnvChecker,
+)
+
+
+def observe_again(env: gym.Env) -> Any:
+    """The observation of the env's current physics state, computed again, or None where that cannot be
+    done faithfully (a wrapper that changes observations in between, an env that does not say how)."""
+    inner = env
+    while isinstance(inner, gym.Wrapper):
+        if not isinstance(inner, _PASS_THROUGH):
+            return None
+        inner = inner.env
+    observe = getattr(inner, "observe", None)  # sim2real's dm-control adapter
+    if callable(observe):
+        return observe()
+    get_obs = getattr(inner, "_get_obs", None)  # gymnasium's MuJoCo envs
+    return get_obs() if callable(get_obs) else None
 
 
 def require_physics(env: Any, effects: Sequence[Effect]) -> PhysicsHandle:
@@ -56,8 +79,16 @@ class RandomizePhysics(gym.Wrapper, gym.utils.RecordConstructorArgs):
     env's MuJoCo model; reports them in ``info["sim2real"]``.
 
     ``info["sim2real"]`` holds ``params`` (address -> value in use), ``events`` (pushes so far, as
-    :class:`randomizers.effects.PushEvent` tuples), ``episode`` and ``diverged``; every call returns
-    fresh dicts, so stored infos stay true.
+    :class:`randomizers.effects.PushEvent` tuples), ``episode``, ``diverged`` and ``reapplied``; every
+    call returns fresh dicts, so stored infos stay true.
+
+    Draws are written before the inner reset (so the task's reset runs on the randomised model) and
+    checked after it: a task whose own reset writes a randomised field (dm-control ``finger`` resets its
+    hinge damping) gets the draws written again, the addresses listed in ``reapplied``. The state the
+    task chose is kept; ``mj_forward`` recomputes what derives from it, and the reset observation is
+    recomputed where that is faithful (dm-control suite tasks and gymnasium MuJoCo envs under
+    pass-through wrappers); elsewhere it is the task's own, which differs only in force- or
+    acceleration-derived sensors. What is reported is always what the model holds.
     A diverged simulation ends the episode with ``truncated=True``, ``diverged=True`` and the last
     finite observation.
 
@@ -79,6 +110,7 @@ class RandomizePhysics(gym.Wrapper, gym.utils.RecordConstructorArgs):
         # envs need the warning counters read every step.
         self._read_warnings = self._handle.source == "gymnasium"
         self._diverged = False
+        self._reapplied: tuple[str, ...] = ()
         self._last_obs: Any = None
         self._closed = False
 
@@ -90,13 +122,27 @@ class RandomizePhysics(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def _info(self) -> dict[str, Any]:
         # Fresh dicts on every call: users keep infos, and gymnasium's checker rejects shared objects.
         r = self.randomizer
-        return {"params": r.current_params.copy(), "events": r.events, "episode": r.episode, "diverged": self._diverged}
+        return {
+            "params": r.current_params.copy(),
+            "events": r.events,
+            "episode": r.episode,
+            "diverged": self._diverged,
+            "reapplied": self._reapplied,
+        }
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
         self.randomizer.begin_episode(seed)
         if self._hook is None:
             self.randomizer.apply()
         obs, info = self.env.reset(seed=seed, options=options)
+        # The task's own reset may have written a randomised field (dm-control finger resets its hinge
+        # damping): write the draws again, keep the state the task chose, and recompute what derives from it.
+        self._reapplied = self.randomizer.reapply_overwritten()
+        if self._reapplied:
+            mujoco.mj_forward(self._handle.model, self._handle.data)
+            fresh = observe_again(self.env)
+            if fresh is not None:
+                obs = fresh
         self._last_obs = obs
         self._diverged = False
         merge_report(info, self._info())

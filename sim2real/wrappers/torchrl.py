@@ -57,6 +57,7 @@ class RandomizePhysicsTransform(Transform):
         self._handle: PhysicsHandle | None = None
         self._hook: Any = None
         self._names: tuple[str, ...] = ()
+        self.reapplied: tuple[str, ...] = ()
 
     # -- binding ---------------------------------------------------------------------------------
     def _bound(self) -> PhysicsHandle:
@@ -111,6 +112,16 @@ class RandomizePhysicsTransform(Transform):
         return tensordict
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        # Draws the task's own reset overwrote (finger's hinge damping) are written again; the state is kept
+        # and mj_forward recomputes what derives from it. The reset observation stays the base env's: a
+        # transform cannot recompute it without bypassing transforms before it; only force- or
+        # acceleration-derived sensors can differ.
+        self.reapplied = self.randomizer.reapply_overwritten()
+        if self.reapplied:
+            import mujoco
+
+            handle = self._bound()
+            mujoco.mj_forward(handle.model, handle.data)
         tensordict_reset.set(PARAMS_KEY, self._params_tensor(tensordict_reset.batch_size))
         tensordict_reset.set(DIVERGED_KEY, torch.zeros(*tensordict_reset.batch_size, 1, dtype=torch.bool))
         return tensordict_reset
