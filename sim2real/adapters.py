@@ -3,7 +3,8 @@
 :class:`DmEnvToGym` declares float32 ``Box`` spaces, flattens dict observations in spec order
 (or keeps them as a ``Dict`` space with ``flatten=False``), honours ``reset(seed=...)`` by
 re-seeding the task's own ``RandomState`` in place, ends an episode whose physics diverged with
-``truncated=True`` and ``info["diverged"] = True`` instead of raising, and exposes the dm_env and
+``truncated=True`` and ``info["diverged"] = True`` instead of raising (a reset that diverges
+returns ``info["diverged"] = True`` and its next step ends the episode), and exposes the dm_env and
 its physics.
 
 Example:
@@ -122,6 +123,7 @@ class DmEnvToGym(gym.Env):
         self._action_dtype = env.action_spec().dtype
         self._physics_error = _physics_error()
         self._last_obs: Any = None
+        self._reset_diverged = False
         physics = getattr(env, "physics", None)
         self.control_timestep: float | None = (
             float(env.control_timestep()) if hasattr(env, "control_timestep") else None
@@ -167,13 +169,41 @@ class DmEnvToGym(gym.Env):
                     "(expected a dm-control suite task's `random` or a composer env's `random_state`)."
                 )
             state.seed(int(np.random.SeedSequence(seed).generate_state(1)[0]))
-        timestep = self.dm_env.reset()
+        self._reset_diverged = False
+        try:
+            timestep = self.dm_env.reset()
+        except self._physics_error:
+            # The task's reset stepped the physics into divergence (e.g. settling under an extreme draw).
+            # As in step: flag it instead of raising; the next step ends the episode (truncated).
+            self._reset_diverged = True
+            obs = self._fallback_observation()
+            self._last_obs = obs
+            return obs, {"diverged": True}
         obs = self._observation(timestep.observation)
         self._last_obs = obs
         return obs, {}
 
+    def _fallback_observation(self) -> Any:
+        """The observation of the state MuJoCo fell back to, where finite; zeros otherwise."""
+        try:
+            observation = suite_observation(self.dm_env)
+        except Exception:  # a diverged physics may fail anywhere; the fallback covers it
+            observation = None
+        obs = None if observation is None else self._observation(observation)
+        flat = obs if self.flatten else (np.concatenate([np.ravel(v) for v in obs.values()]) if obs else None)
+        if obs is None or not np.isfinite(flat).all():
+            space = self.observation_space
+            obs = (
+                np.zeros(space.shape, np.float32)
+                if self.flatten
+                else {k: np.zeros(b.shape, np.float32) for k, b in space.items()}
+            )  # type: ignore[union-attr]
+        return obs
+
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
         """One control step; a physics divergence ends the episode (truncated) with the last good obs."""
+        if self._reset_diverged:  # nothing to step: the reset already diverged
+            return self._last_obs, 0.0, False, True, {"diverged": True}
         try:
             timestep = self.dm_env.step(np.asarray(action, dtype=self._action_dtype))
         except self._physics_error:

@@ -376,3 +376,95 @@ def test_composer_task_reports_what_each_recompiled_model_holds() -> None:
         _, info = env.reset(seed=episode)
         _assert_model_holds(s2r.find_physics(env).model, info["sim2real"]["params"])
     env.close()
+
+
+# -- divergence during reset ---------------------------------------------------------------------------
+
+STIFF = s2r.Stiffness(set=1e9)  # cheetah settles its physics inside reset: this blows up there
+
+
+def test_gymnasium_flags_a_reset_that_diverges_and_truncates_next_step() -> None:
+    from dm_control import suite
+
+    from sim2real.adapters import DmEnvToGym
+
+    env = s2r.wrap(DmEnvToGym(suite.load("cheetah", "run")), STIFF, seed=0)
+    obs, info = env.reset(seed=0)  # dm-control's PhysicsError before
+    report = info["sim2real"]
+    assert report["diverged"] is True and "diverged" not in info
+    assert report["params"]["jnt_stiffness[rootz]"] == 1e9  # the draws that caused it
+    assert np.isfinite(obs).all()
+    obs2, reward, terminated, truncated, info = env.step(env.action_space.sample())
+    assert (reward, terminated, truncated, info["sim2real"]["diverged"]) == (0.0, False, True, True)
+    np.testing.assert_array_equal(obs2, obs)
+    env.close()
+
+
+def test_dm_env_flags_a_reset_that_diverges() -> None:
+    import dm_env
+    from dm_control import suite
+
+    env = s2r.wrap(suite.load("cheetah", "run"), STIFF, seed=0)
+    timestep = env.reset()
+    assert timestep.step_type == dm_env.StepType.FIRST and env.diverged
+    assert env.current_params["jnt_stiffness[rootz]"] == 1e9
+    timestep = env.step(np.zeros(6))
+    assert (timestep.step_type, timestep.discount, timestep.reward) == (dm_env.StepType.LAST, 1.0, 0.0)
+    env.close()
+
+
+def test_torchrl_flags_a_reset_that_diverges() -> None:
+    from torchrl.envs import DMControlEnv
+
+    env = s2r.wrap(DMControlEnv("cheetah", "run"), STIFF, seed=0)
+    td = env.reset()
+    assert td["sim2real_diverged"].tolist() == [True]
+    td = env.rand_step(td)
+    assert td["next", "truncated"].tolist() == [True] and td["next", "sim2real_diverged"].tolist() == [True]
+
+
+def test_a_healthy_reset_is_not_flagged() -> None:
+    env = s2r.wrap(s2r.make("dmc/reacher-easy"), s2r.Stiffness(set=1.0), seed=0)
+    _, info = env.reset(seed=0)
+    assert info["sim2real"]["diverged"] is False
+    assert env.step(np.zeros(2))[3] is False
+    env.close()
+
+
+# -- env shapes ActionLatency refuses ------------------------------------------------------------------
+
+
+class DictActionEnv(gym.Env):
+    observation_space = gym.spaces.Box(-np.inf, np.inf, (1,), np.float64)
+    action_space = gym.spaces.Dict({"arm": gym.spaces.Box(-1.0, 1.0, (2,), np.float64)})
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict]:
+        return np.zeros(1), {}
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict]:
+        return np.zeros(1), 0.0, False, False, {}
+
+
+class UnreachableStepEnv(StaleBoundsEnv):
+    """Its action is its ctrl, but it steps MuJoCo from plain Python: no hook to delay ctrl at physics rate."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (3,), np.float64)
+
+
+def test_action_latency_refuses_a_dict_action_space() -> None:
+    with pytest.raises(TypeError) as err:
+        s2r.wrap(DictActionEnv(), ActionLatency(steps=1), seed=0)
+    assert str(err.value) == f"action models need a Box action space. Received {DictActionEnv.action_space!r}."
+
+
+def test_action_latency_refuses_an_unreachable_physics_step() -> None:
+    with pytest.raises(TypeError) as err:
+        s2r.wrap(UnreachableStepEnv(), ActionLatency(steps=1), seed=0)
+    assert str(err.value) == (
+        f"{UnreachableStepEnv.__module__}.UnreachableStepEnv steps MuJoCo without a hook sim2real can intercept "
+        "(gymnasium's MujocoEnv._step_mujoco_simulation, a `_simulate(nstep)` method, or dm-control's "
+        "Physics.step), so physics-rate action latency and ControlJitter cannot reach it. Give the env a "
+        "`_simulate(nstep)` method that calls mujoco.mj_step."
+    )

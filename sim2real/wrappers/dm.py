@@ -55,7 +55,9 @@ class RandomizePhysicsDmEnv(DmEnvWrapper):
     """Draws physics effects at each ``reset()`` of a dm-control environment.
 
     A physics divergence ends the episode with a truncation timestep (``discount=1``, reward 0,
-    the last finite observation) and ``diverged = True``. Draws a task's own reset overwrote are
+    the last finite observation) and ``diverged = True``; a reset that diverges returns a first
+    timestep (the observation of the state MuJoCo fell back to) with ``diverged = True``, and the next
+    step is that truncation. Draws a task's own reset overwrote are
     written again after it (addresses in ``reapplied``), as :class:`~sim2real.wrappers.RandomizePhysics` does.
 
     Args:
@@ -91,7 +93,22 @@ class RandomizePhysicsDmEnv(DmEnvWrapper):
         self.randomizer.begin_episode()
         if self._hook is None:
             self.randomizer.apply()
-        timestep = self._env.reset()
+        from dm_control.rl.control import PhysicsError
+
+        try:
+            timestep = self._env.reset()
+        except PhysicsError:
+            # Flagged, not raised (the draws are on current_params); the next step is a truncation.
+            from sim2real.adapters import suite_observation
+
+            try:
+                observation = suite_observation(self._env)
+            except Exception:  # a diverged physics may fail anywhere; the fallback covers it
+                observation = None
+            self._last_obs = observation
+            self._reset_next_step = False
+            self.diverged = True
+            return dm_env.restart(observation)
         # The task's reset may overwrite a draw (finger's hinge damping): write it again, keep the state the
         # task chose, recompute what derives from it (and the observation, for suite tasks).
         self.reapplied = self.randomizer.reapply_overwritten()
@@ -112,6 +129,9 @@ class RandomizePhysicsDmEnv(DmEnvWrapper):
 
         if self._reset_next_step:
             return self.reset()
+        if self.diverged:  # the reset diverged: end the episode without stepping
+            self._reset_next_step = True
+            return dm_env.truncation(0.0, self._last_obs)
         if self._step_effects:
             self.randomizer.step()
         try:

@@ -90,7 +90,10 @@ class RandomizePhysics(gym.Wrapper, gym.utils.RecordConstructorArgs):
     pass-through wrappers); elsewhere it is the task's own, which differs only in force- or
     acceleration-derived sensors. What is reported is always what the model holds.
     A diverged simulation ends the episode with ``truncated=True``, ``diverged=True`` and the last
-    finite observation.
+    finite observation. A reset that diverges (e.g. a task that settles its physics under
+    ``Stiffness(set=1e9)``) returns ``diverged=True`` with the draws that caused it in ``params`` and
+    the observation of the state MuJoCo fell back to; the next step ends the episode (``truncated=True``)
+    without stepping.
 
     Args:
         env: a gymnasium env with MuJoCo inside (see :func:`sim2real.find_physics`).
@@ -111,6 +114,7 @@ class RandomizePhysics(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._read_warnings = self._handle.source == "gymnasium"
         self._diverged = False
         self._reapplied: tuple[str, ...] = ()
+        self._reset_diverged = False
         self._last_obs: Any = None
         self._closed = False
 
@@ -144,11 +148,17 @@ class RandomizePhysics(gym.Wrapper, gym.utils.RecordConstructorArgs):
             if fresh is not None:
                 obs = fresh
         self._last_obs = obs
-        self._diverged = False
+        # A reset that diverges (a task settling its physics under an extreme draw) is flagged, not raised:
+        # the report names the draws, and the next step ends the episode with truncated=True.
+        self._diverged = self._reset_diverged = bool(info.pop("diverged", False)) or (
+            self._read_warnings and self._handle.diverged()
+        )
         merge_report(info, self._info())
         return obs, info
 
     def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
+        if self._reset_diverged:  # nothing to step: the reset diverged
+            return self._last_obs, 0.0, False, True, {"sim2real": self._info()}
         if self._step_effects:
             self.randomizer.step()
         obs, reward, terminated, truncated, info = self.env.step(action)

@@ -58,6 +58,7 @@ class RandomizePhysicsTransform(Transform):
         self._hook: Any = None
         self._names: tuple[str, ...] = ()
         self.reapplied: tuple[str, ...] = ()
+        self._reset_diverged = False
 
     # -- binding ---------------------------------------------------------------------------------
     def _bound(self) -> PhysicsHandle:
@@ -123,7 +124,11 @@ class RandomizePhysicsTransform(Transform):
             handle = self._bound()
             mujoco.mj_forward(handle.model, handle.data)
         tensordict_reset.set(PARAMS_KEY, self._params_tensor(tensordict_reset.batch_size))
-        tensordict_reset.set(DIVERGED_KEY, torch.zeros(*tensordict_reset.batch_size, 1, dtype=torch.bool))
+        # dm-control's exceptions are off (see _no_exceptions): a reset that diverged shows in the warnings.
+        self._reset_diverged = self._bound().diverged()
+        tensordict_reset.set(
+            DIVERGED_KEY, torch.full((*tensordict_reset.batch_size, 1), self._reset_diverged, dtype=torch.bool)
+        )
         return tensordict_reset
 
     def _inv_call(self, tensordict: TensorDictBase) -> TensorDictBase:
@@ -135,7 +140,7 @@ class RandomizePhysicsTransform(Transform):
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
         handle = self._bound()
         batch = next_tensordict.batch_size
-        diverged = handle.diverged()
+        diverged = handle.diverged() or self._reset_diverged
         next_tensordict.set(PARAMS_KEY, self._params_tensor(batch))
         next_tensordict.set(DIVERGED_KEY, torch.full((*batch, 1), diverged, dtype=torch.bool))
         if diverged:
