@@ -188,9 +188,10 @@ def load_checkpoint(path: str | os.PathLike[str], *, task: str | None = None) ->
     try:
         data = torch.load(file, map_location="cpu", weights_only=True)
     except Exception as err:  # torch raises RuntimeError, UnpicklingError, EOFError... for broken files
+        reason = str(err).strip().splitlines()[0] if str(err).strip() else ""
         raise CheckpointError(
-            f"checkpoint {str(file)!r} is corrupt or not a torch file ({type(err).__name__}: "
-            f"{str(err).splitlines()[0] if str(err) else ''})."
+            f"checkpoint {str(file)!r} is corrupt or not a torch file "
+            f"({type(err).__name__}{': ' + reason if reason else ''})."
         ) from err
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise CheckpointError(f"checkpoint {str(file)!r} is not a sim2real.agents checkpoint (no {FORMAT!r} marker).")
