@@ -106,3 +106,27 @@ def test_effects_that_do_not_fit_the_task_exit_2(tmp_path: Path, capsys: pytest.
     assert main(["demo", "--episodes", "1", "--config", str(config)]) == 2
     err = capsys.readouterr().err
     assert "'arm*' matches no body" in err
+
+
+def test_study_help_says_what_happens_to_an_existing_folder(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["study", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "An existing folder that holds anything is never overwritten: the command refuses with exit 2" in text
+    assert "the first free sim2real-study-2, -3, ..." in text
+    assert main(["evaluate", "--help"]) == 0
+    assert "nothing else in it is touched" in " ".join(capsys.readouterr().out.split())
+
+
+def test_train_checks_the_default_log_folder_first(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import sim2real.output_paths as output_paths
+
+    # Tests run as root, for whom every folder is writable: the check asks os.access, so make it say no for '.'.
+    monkeypatch.setattr(output_paths.os, "access", lambda path, mode: Path(path).resolve() != tmp_path.resolve())
+    monkeypatch.chdir(tmp_path)
+    assert main(["train", "--task", "sim2real/arm-reach", "--frames", "1", "--quiet", "--out", "/tmp/c.pt"]) == 2
+    assert capsys.readouterr().err == (
+        "sim2real train: error: --log-dir must be in a writable folder; '.' is not writable. Received 'sim2real_runs'.\n"
+    )
+    assert list(tmp_path.iterdir()) == []

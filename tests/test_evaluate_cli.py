@@ -60,3 +60,21 @@ def test_spec_errors_name_the_file_and_key(tmp_path: Path, capsys: pytest.Captur
     with pytest.raises(SpecError, match=r"policies.p.checkpoint: file '.*missing.pt' does not exist."):
         load_spec({"task": "sim2real/arm-reach", "policies": {"p": {"checkpoint": "missing.pt"}}})
     assert not (tmp_path / "o").exists()
+
+
+def test_evaluate_into_an_existing_folder_keeps_the_users_files(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "spec.yaml").write_text(
+        "task: sim2real/arm-reach\nepisodes: 1\nmax_steps: 2\npolicies: {s: baseline}\n"
+    )
+    out = tmp_path / "report"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    (out / "report.html").write_text("an older report")
+    argv = ["evaluate", "--config", str(tmp_path / "spec.yaml"), "--out", str(out), "--backend", "serial", "--quiet"]
+    assert cli.main(argv) == 0, capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["figures", "notes.txt", "report.html", "report.json", "report.md"]
+    assert (out / "notes.txt").read_text() == "mine"
+    assert "an older report" not in (out / "report.html").read_text()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["report", "spec.yaml"]  # no staging folder left

@@ -62,8 +62,8 @@ def _check_paths(args: argparse.Namespace) -> str | None:
 
     try:
         check_file(args.out, "--out")
-        if not args.no_log and args.log_dir is not None:
-            check_folder(args.log_dir, "--log-dir")
+        if not args.no_log:  # the logger's root, ./sim2real_runs by default
+            check_folder(args.log_dir if args.log_dir is not None else "sim2real_runs", "--log-dir")
     except OutputPathError as err:
         return str(err)
     return None
