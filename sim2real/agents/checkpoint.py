@@ -166,7 +166,7 @@ def load_checkpoint(path: str | os.PathLike[str], *, task: str | None = None) ->
 
     Args:
         path: the file.
-        task: when given, the checkpoint must have been trained on this task id.
+        task: when given, a checkpoint that records its task must have been trained on this task id.
 
     Returns:
         A :class:`Checkpoint` whose ``policy`` is rebuilt from the config and loaded with the weights.
@@ -204,7 +204,8 @@ def load_checkpoint(path: str | os.PathLike[str], *, task: str | None = None) ->
             f"{FORMAT_VERSION}."
         )
     _check_fields(data, file)
-    if task is not None and data["task"] != task:
+    # A checkpoint saved without its task cannot be checked by name; evaluate() then checks its sizes.
+    if task is not None and data["task"] is not None and data["task"] != task:
         raise CheckpointError(f"checkpoint {str(file)!r} was trained on task {data['task']!r}, not on {task!r}.")
     try:
         config = config_class(data["algo"]).from_dict(data["config"], source=f"checkpoint {str(file)!r} config")
