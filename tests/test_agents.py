@@ -424,17 +424,34 @@ def test_cli_train_usage_errors(tmp_path: Path, capsys) -> None:
 # --------------------------------------------------------------------------- learning
 
 
-def test_ppo_learns_arm_reach() -> None:
-    """20k frames of PPO (about 30 s on 2 shared cores) move the arm clearly closer than random actions."""
+LEARN_SEEDS = (0, 1, 2, 3)
+EVAL_SEEDS = range(1000, 1010)
+
+
+def trained_return(seed: int) -> float:
+    """Mean return over :data:`EVAL_SEEDS` of a policy trained with :data:`LEARN_CONFIG` from ``seed`` (a worker)."""
     from sim2real.agents import train
 
-    result = train(ARM, LEARN_CONFIG, seed=0, progress=False, logger=None)
-    seeds = range(1000, 1010)
-    trained = episode_returns(ARM, as_policy(result), seeds)
-    random = episode_returns(ARM, as_policy(_RandomPolicy(-0.05, 0.05, 3, seed=0)), seeds)
-    # Returns are minus the summed distance (metres) over 200 steps: random actions stay near the start (~-100).
-    assert trained.mean() > random.mean() + 20, (trained.mean(), random.mean())
-    assert (trained > random).mean() >= 0.7, (trained, random)
+    result = train(ARM, LEARN_CONFIG, seed=seed, progress=False, logger=None)
+    return float(episode_returns(ARM, as_policy(result), EVAL_SEEDS).mean())
+
+
+def test_ppo_learns_arm_reach() -> None:
+    """20k frames of PPO move the arm clearly closer than random actions — on average over four training seeds.
+
+    One seed is not a test: measured with this config on the locked install (benchmarks/learn_spread.py, 2026-11-23),
+    the gain over random actions (returns are minus the summed distance in metres over 200 steps; random: -100.2)
+    was +35.5, +29.0, +23.2, +31.6, +1.0 for seeds 0-4 — about one run in five does not learn in 20k frames, and
+    numerics of another machine move single runs by ~30. The mean over four seeds stays above +15 unless three
+    of the four fail; no run may end worse than random.
+    """
+    from sim2real.parallel import run_tasks
+
+    random = float(episode_returns(ARM, as_policy(_RandomPolicy(-0.05, 0.05, 3, seed=0)), EVAL_SEEDS).mean())
+    trained = np.array(run_tasks(trained_return, LEARN_SEEDS, backend="local", workers=2).results)
+    gains = trained - random
+    assert gains.mean() > 15, (gains, random)
+    assert gains.min() > -5, (gains, random)
 
 
 # --------------------------------------------------------------------------- behaviour-cloning warm start
