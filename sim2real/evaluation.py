@@ -714,31 +714,6 @@ def _policies(policies: Any) -> tuple[tuple[str, Any], ...]:
     return tuple((n, p.source if isinstance(p, BatchedPolicy) and p.source is not None else p) for n, p in items)
 
 
-def _check_checkpoints(named: tuple[tuple[str, Any], ...], task: str, options: Mapping[str, Any]) -> None:
-    """Loads every checkpoint path once here, so a broken, tampered or foreign one (or one whose sizes do not
-    fit the task's spaces) fails with one ``CheckpointError`` before any worker starts (workers load them again)."""
-    paths = [source for _, source in named if isinstance(source, (str, os.PathLike))]
-    if not paths:
-        return
-    from sim2real.agents.checkpoint import CheckpointError, load_checkpoint
-    from sim2real.agents.nets import actor_dims
-    from sim2real.tasks import make
-
-    loaded = [(path, load_checkpoint(path, task=task)) for path in paths]
-    env = make(task, **options)
-    try:
-        obs, act = (int(np.prod(env.observation_space.shape)), int(np.prod(env.action_space.shape)))
-    finally:
-        env.close()
-    for path, ckpt in loaded:
-        obs_dim, low, _ = actor_dims(ckpt.policy)
-        if (obs_dim, len(low)) != (obs, act):
-            raise CheckpointError(
-                f"checkpoint {os.fspath(path)!r} takes observations of size {obs_dim} and gives actions of size "
-                f"{len(low)}; task {task!r} has {obs} and {act}."
-            )
-
-
 def evaluate(
     policies: Any,
     task: str,
@@ -793,7 +768,11 @@ def evaluate(
     if duplicates:
         raise ValueError(f"`conditions` must have unique names. Received duplicates {duplicates}.")
     named = _policies(policies)
-    _check_checkpoints(named, task, dict(task_options or {}))
+    paths = [source for _, source in named if isinstance(source, (str, os.PathLike))]
+    if paths:  # a broken, tampered or foreign checkpoint fails here, before any worker starts
+        from sim2real.agents.checkpoint import check_checkpoints
+
+        check_checkpoints(paths, task, dict(task_options or {}))
     policy_names = tuple(n for n, _ in named)
     options = _freeze(dict(task_options or {}))
     groups: dict[Any, list[Condition]] = {}

@@ -34,7 +34,15 @@ import os
 from collections.abc import Mapping
 from pathlib import Path
 
-__all__ = ["OutputPathError", "check_distinct", "check_file", "check_folder", "free_folder"]
+__all__ = [
+    "OutputPathError",
+    "check_distinct",
+    "check_file",
+    "check_folder",
+    "free_folder",
+    "publish_folder",
+    "staging_folder",
+]
 
 
 class OutputPathError(ValueError):
@@ -177,3 +185,45 @@ def free_folder(path: str | os.PathLike[str]) -> Path:
     while not free(base.with_name(f"{base.name}-{number}")):
         number += 1
     return base.with_name(f"{base.name}-{number}")
+
+
+def staging_folder(target: Path) -> Path:
+    """A hidden staging folder for the outputs that go to the folder ``target`` (checked with ``new=True``),
+    with the usual permissions (``0o777`` minus the umask, not ``mkdtemp``'s ``0o700``).
+
+    It is made beside a new ``target`` (moved into place with one rename), or inside an existing empty one (its
+    entries are moved up, so the user's folder itself stays, with its permissions; this also makes ``"."`` work
+    and needs no write access to the parent).
+    """
+    from randomizers.files import make_temp_dir
+
+    if target.is_dir():
+        return make_temp_dir(target, prefix=".sim2real-study.", suffix=".partial")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    return make_temp_dir(target.parent, prefix=f".{target.name}.", suffix=".partial")
+
+
+def publish_folder(staging: Path, target: Path) -> Path:
+    """Moves the finished outputs in ``staging`` (from :func:`staging_folder`) into ``target``; returns where
+    they went.
+
+    Nothing that exists is ever overwritten: ``target`` must still be missing or empty (it was checked before the
+    work, but a user may have written to it since); otherwise the outputs go to :func:`free_folder` of ``target``.
+    """
+    if staging.parent == target:  # an existing empty folder: move the entries up, the report last
+        entries = sorted(staging.iterdir(), key=lambda p: p.name.startswith("report."))
+        if any((target / p.name).exists() for p in entries):
+            final = free_folder(target)
+            staging.rename(final)
+            return final
+        for entry in entries:
+            entry.rename(target / entry.name)
+        staging.rmdir()
+        return target
+    try:
+        staging.rename(target)  # fails (and changes nothing) unless target is missing or an empty folder
+    except OSError:
+        final = free_folder(target)
+        staging.rename(final)
+        return final
+    return target

@@ -477,60 +477,21 @@ def run_study(
         sim2real.output_paths.OutputPathError: (a ``ValueError``) ``out`` is an existing file or a folder that
             is not empty, or it cannot be created or written; raised before any work.
     """
-    from sim2real.output_paths import check_folder, free_folder
+    from sim2real.output_paths import check_folder, free_folder, publish_folder, staging_folder
 
     spec = _check(budget, backend, seed)
     profile = load_profile(task)
     target = check_folder(free_folder(DEFAULT_OUT) if out is None else out, "`out`", new=True)
-    staging = _staging(target)
+    staging = staging_folder(target)
     try:
         result = _run(profile, spec, staging, backend, seed, workers, progress, log)
-        final = _replace(staging, target)
+        final = publish_folder(staging, target)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)  # only our own hidden staging folder
         raise
     if final != target and log is not None:
         print(f"{str(target)!r} was taken while the study ran; the study is in {str(final)!r}", file=log)
     return replace(result, out=final, report=final / "report.html")
-
-
-def _staging(target: Path) -> Path:
-    """A hidden staging folder with the usual permissions: beside a new ``target`` (moved into place with one
-    rename), inside an existing empty one (its entries are moved up; the user's folder itself stays, which also
-    makes ``out="."`` work)."""
-    from randomizers.files import make_temp_dir
-
-    if target.is_dir():
-        return make_temp_dir(target, prefix=".sim2real-study.", suffix=".partial")
-    target.parent.mkdir(parents=True, exist_ok=True)
-    return make_temp_dir(target.parent, prefix=f".{target.name}.", suffix=".partial")
-
-
-def _replace(staging: Path, target: Path) -> Path:
-    """Moves the finished study in ``staging`` into ``target`` and returns where it went.
-
-    Nothing that exists is ever overwritten: ``target`` must still be missing or empty (it was checked before the
-    study, but a user may have written to it since); otherwise the study goes to the first free ``target-N``.
-    """
-    from sim2real.output_paths import free_folder
-
-    if staging.parent == target:  # an existing empty folder: move the entries up, the report last
-        entries = sorted(staging.iterdir(), key=lambda p: p.name.startswith("report."))
-        if any((target / p.name).exists() for p in entries):
-            final = free_folder(target)
-            staging.rename(final)
-            return final
-        for entry in entries:
-            entry.rename(target / entry.name)
-        staging.rmdir()
-        return target
-    try:
-        staging.rename(target)  # fails (and changes nothing) unless target is missing or an empty folder
-    except OSError:
-        final = free_folder(target)
-        staging.rename(final)
-        return final
-    return target
 
 
 def _dispatch(fn: Callable[[Any], Any], items: list[Any], backend: str, workers: int | None, desc: str) -> list:

@@ -17,6 +17,7 @@ import math
 import os
 import platform
 import subprocess
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
@@ -24,7 +25,15 @@ from typing import Any
 
 from sim2real.agents.config import PPOConfig, SACConfig, config_class
 
-__all__ = ["FORMAT", "FORMAT_VERSION", "Checkpoint", "CheckpointError", "load_checkpoint", "save_checkpoint"]
+__all__ = [
+    "FORMAT",
+    "FORMAT_VERSION",
+    "Checkpoint",
+    "CheckpointError",
+    "check_checkpoints",
+    "load_checkpoint",
+    "save_checkpoint",
+]
 
 #: Marker stored under ``"format"``.
 FORMAT = "sim2real.agents.checkpoint"
@@ -233,6 +242,37 @@ def load_checkpoint(path: str | os.PathLike[str], *, task: str | None = None) ->
         path=file,
         effects=data["effects"] if isinstance(data.get("effects"), str) else None,
     )
+
+
+def check_checkpoints(
+    paths: Sequence[str | os.PathLike[str]], task: str, task_options: Mapping[str, Any] | None = None
+) -> None:
+    """Loads each checkpoint for ``task`` and checks that its sizes fit the task's spaces, so a broken, tampered,
+    foreign or mismatched one fails in the caller's process (``evaluate`` calls this before starting workers).
+
+    Raises:
+        FileNotFoundError: a path does not exist.
+        CheckpointError: see :func:`load_checkpoint`; or the policy's observation or action size differs from
+            the task's (``sim2real.make(task, **task_options)``).
+    """
+    from sim2real.agents.nets import actor_dims
+    from sim2real.tasks import make
+
+    loaded = [(path, load_checkpoint(path, task=task)) for path in paths]
+    if not loaded:
+        return
+    env = make(task, **dict(task_options or {}))
+    try:
+        obs, act = math.prod(env.observation_space.shape or ()), math.prod(env.action_space.shape or ())
+    finally:
+        env.close()
+    for path, ckpt in loaded:
+        obs_dim, low, _ = actor_dims(ckpt.policy)
+        if (obs_dim, len(low)) != (obs, act):
+            raise CheckpointError(
+                f"checkpoint {os.fspath(path)!r} takes observations of size {obs_dim} and gives actions of size "
+                f"{len(low)}; task {task!r} has {obs} and {act}."
+            )
 
 
 def _is_int(value: Any) -> bool:
