@@ -22,7 +22,7 @@ SHIPPED = Path(__file__).resolve().parents[1] / "sim2real/data/study/dmc-reacher
 TASK = "dmc/reacher-easy"
 ARCH = "does not match its architecture: weight"
 
-Edit = Callable[[dict[str, Any]], None]
+Edit = Callable[[dict[str, Any]], object]
 
 
 def _set(key: str, value: Any) -> Edit:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import stat
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -105,7 +106,7 @@ CASES = [(name, path, message) for name in COMMANDS for path, message in _bad_pa
 
 
 @pytest.fixture
-def workdir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+def workdir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Path]:
     """A folder with a file, a non-empty folder, a "read-only" folder and the evaluation spec, as the cwd.
 
     The tests run as root, for whom every folder is writable, so a read-only folder is simulated by making
@@ -226,7 +227,7 @@ def fake_study(monkeypatch: pytest.MonkeyPatch) -> list[Path]:
 
     seen: list[Path] = []
 
-    def run(profile, budget, staging, backend, seed, workers, progress, log):  # type: ignore[no-untyped-def]
+    def run(profile, budget, staging, backend, seed, workers, progress, log):
         seen.append(staging)
         (staging / "sysid").mkdir()
         (staging / "sysid" / "fit.json").write_text("{}")
@@ -316,7 +317,7 @@ def test_study_never_overwrites_what_appeared_during_the_run(
 
     out = tmp_path / "study"
 
-    def run(profile, budget, staging, backend, seed, workers, progress, log):  # type: ignore[no-untyped-def]
+    def run(profile, budget, staging, backend, seed, workers, progress, log):
         (staging / "report.html").write_text("new")
         out.mkdir()
         (out / "notes.txt").write_text("written by the user meanwhile")
