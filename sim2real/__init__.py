@@ -68,7 +68,8 @@ from sim2real import metrics  # noqa: E402
 from sim2real.adapters import DmEnvToGym  # noqa: E402
 from sim2real.metrics import Estimate, FewSamplesWarning, Gap, RobustnessRadius  # noqa: E402
 from sim2real.physics import PhysicsHandle, find_physics  # noqa: E402
-from sim2real.pixels import ContactSheet, PixelObservation, contact_sheet, track_render_contexts  # noqa: E402
+from sim2real.pixels import PixelObservation, track_render_contexts  # noqa: E402
+from sim2real.sheets import ContactSheet, contact_sheet  # noqa: E402
 from sim2real.tasks import TASKS, make, task_ids  # noqa: E402
 from sim2real.wrapping import make_vec, wrap  # noqa: E402
 

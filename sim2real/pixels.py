@@ -1,4 +1,4 @@
-"""Image observations, live render contexts for texture uploads, and contact sheets.
+"""Image observations and live render contexts for texture uploads (contact sheets: :mod:`sim2real.sheets`).
 
 * :class:`PixelObservation` renders the env's MuJoCo scene into ``uint8`` image observations
   (``sim2real.make(task, pixels=True, size=(84, 84), camera=...)`` uses it); it works on every task
@@ -8,7 +8,6 @@
   :class:`randomizers.Texture` resample reaches every live ``MjrContext`` inside it (gymnasium's
   ``MujocoRenderer`` viewers, dm-control physics contexts, ``mujoco.Renderer`` objects such as the
   arm-reach renderer and :class:`PixelObservation`'s own). ``sim2real.make`` tracks what it makes.
-* :func:`contact_sheet` renders N randomised frames into one PNG (``sim2real visualize``).
 
 Example:
     >>> import sim2real as s2r
@@ -23,11 +22,8 @@ Example:
 from __future__ import annotations
 
 import difflib
-import os
 import weakref
-from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
-from pathlib import Path
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -35,17 +31,17 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from randomizers import Effect, add_texture_uploader, load_effects
-from randomizers.files import atomic_write
+from randomizers import add_texture_uploader
 from sim2real._gl import require_rendering
 from sim2real.physics import PhysicsHandle, find_physics
 
-__all__ = ["ContactSheet", "PixelObservation", "contact_sheet", "live_uploaders", "track_render_contexts"]
+__all__ = ["PixelObservation", "check_size", "live_uploaders", "track_render_contexts"]
 
 _CHILDREN = ("env", "_env", "dm_env", "base_env", "unwrapped", "physics", "mujoco_renderer", "_renderer", "renderer")
 
 
-def _check_size(size: object) -> tuple[int, int]:
+def check_size(size: object) -> tuple[int, int]:
+    """``(height, width)`` of an image as two ints >= 1, or a ValueError naming ``size``."""
     ok = (
         isinstance(size, (tuple, list))
         and len(size) == 2
@@ -235,7 +231,7 @@ class PixelObservation(gym.ObservationWrapper):
         pixels_only: bool = True,
     ) -> None:
         super().__init__(env)
-        self.size = _check_size(size)
+        self.size = check_size(size)
         if not isinstance(pixels_only, bool):
             raise TypeError(f"`pixels_only` must be a bool. Received {pixels_only!r}.")
         handle = find_physics(env)
@@ -290,112 +286,3 @@ class PixelObservation(gym.ObservationWrapper):
             self._renderer.close()
             self._renderer = None
         super().close()
-
-
-# ----------------------------------------------------------------------------- contact sheets
-
-
-@dataclass(frozen=True)
-class ContactSheet:
-    """N randomised frames of one task and the sheet image made of them.
-
-    Attributes:
-        frames: ``(n, height, width, 3)`` uint8, frame ``i`` from ``reset(seed=seed + i)``.
-        params: the values in use for each frame (``info["sim2real"]["params"]``).
-        image: the rendered sheet, ``(H, W, 3)`` uint8.
-        path: where the PNG was written (None when not written).
-    """
-
-    frames: np.ndarray
-    params: tuple[dict[str, float], ...]
-    image: np.ndarray
-    path: Path | None
-
-
-def _effects(effects: Iterable[Effect] | str | os.PathLike[str] | None) -> list[Effect]:
-    if effects is None:
-        return []
-    if isinstance(effects, (str, os.PathLike)):
-        return load_effects(Path(effects) if Path(effects).suffix in (".yaml", ".yml") else effects)
-    out = list(effects)
-    for i, e in enumerate(out):
-        if not isinstance(e, Effect):
-            raise TypeError(f"`effects[{i}]` must be an effect from randomizers. Received {e!r}.")
-    return out
-
-
-def contact_sheet(
-    task: str,
-    effects: Iterable[Effect] | str | os.PathLike[str] | None = None,
-    *,
-    n: int = 16,
-    seed: int = 0,
-    size: tuple[int, int] = (84, 84),
-    camera: int | str | None = None,
-    columns: int | None = None,
-    out: str | os.PathLike[str] | None = None,
-    title: str | None = None,
-) -> ContactSheet:
-    """Renders ``n`` randomised first frames of ``task`` into a grid (matplotlib, Agg).
-
-    Args:
-        task: a task id (``sim2real tasks``).
-        effects: effects, or a YAML file/string of them (:func:`randomizers.load_effects`);
-            None renders the nominal task.
-        n: number of frames; frame ``i`` is the first observation after ``reset(seed=seed + i)``.
-        seed: root seed of the effect streams and first reset seed.
-        size: ``(height, width)`` of each frame.
-        camera: camera name or id (default the model's first camera).
-        columns: grid columns (default ``ceil(sqrt(n))``).
-        out: PNG path, written atomically (temporary file, then rename); None writes nothing.
-        title: sheet title (default: task, effect count and seed).
-
-    Example:
-        >>> import sim2real as s2r
-        >>> sheet = s2r.contact_sheet("sim2real/arm-reach", [s2r.Light(scale=s2r.Uniform(0.2, 1.5))],
-        ...                           n=2, size=(24, 24))
-        >>> sheet.frames.shape, sheet.image.dtype, bool((sheet.frames[0] != sheet.frames[1]).any())
-        ((2, 24, 24, 3), dtype('uint8'), True)
-    """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    from sim2real.tasks import make
-    from sim2real.wrapping import wrap
-
-    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
-        raise ValueError(f"`n` must be an int >= 1. Received {n!r}.")
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise ValueError(f"`seed` must be an int >= 0. Received {seed!r}.")
-    if columns is not None and (isinstance(columns, bool) or not isinstance(columns, int) or columns < 1):
-        raise ValueError(f"`columns` must be None or an int >= 1. Received {columns!r}.")
-    size = _check_size(size)
-    chosen = _effects(effects)
-    env = wrap(make(task, pixels=True, size=size, camera=camera), *chosen, seed=seed)
-    frames, params = [], []
-    try:
-        for i in range(n):
-            obs, info = env.reset(seed=seed + i)
-            frames.append(obs)
-            params.append(dict(info.get("sim2real", {}).get("params", {})))
-    finally:
-        env.close()
-    cols = columns or int(np.ceil(np.sqrt(n)))
-    rows = int(np.ceil(n / cols))
-    fig = Figure(figsize=(1.6 * cols, 1.6 * rows + 0.4), dpi=100)
-    FigureCanvasAgg(fig)
-    for i in range(rows * cols):
-        ax = fig.add_subplot(rows, cols, i + 1)
-        ax.set_axis_off()
-        if i < n:
-            ax.imshow(frames[i], interpolation="nearest")
-            ax.set_title(f"seed {seed + i}", fontsize=7)
-    fig.suptitle(title or f"{task}: {len(chosen)} effect(s), seed {seed}", fontsize=9)
-    fig.tight_layout()
-    fig.canvas.draw()
-    image = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()  # type: ignore[attr-defined]
-    path = None
-    if out is not None:
-        path = Path(out)
-        atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"), make_parents=False)
-    return ContactSheet(np.stack(frames), tuple(params), image, path)

@@ -19,7 +19,7 @@ Example:
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -28,9 +28,12 @@ import numpy as np
 
 from randomizers import Effect, PhysicsRandomizer
 from randomizers.addressing import Address
+from sim2real.calibration import calibrate
 from sim2real.physics import PhysicsHandle, find_physics
 
 __all__ = ["RecordTrajectory", "calibrate", "parse_set", "record"]
+
+# `calibrate` lives beside the physics handle (sim2real.calibration); re-exported here, where it used to be.
 
 _SET = re.compile(r"^\s*(?P<address>[^=\s]+)\s*=\s*(?P<op>[*+]?)\s*(?P<value>[-+0-9.eE]+)\s*$")
 _OPS = {"*": "scale", "+": "add", "": "set"}
@@ -68,41 +71,6 @@ def parse_set(text: str) -> Effect:
             f"`--set` field must be one of {sorted(EFFECT_FIELDS)}. Received {address.field!r} in {text!r}."
         )
     return effect_for(address, _OPS[match["op"]], value)
-
-
-def calibrate(env: Any, params: Any) -> Any:
-    """Writes fitted parameter values into ``env``'s MuJoCo model (they become its nominal values).
-
-    Args:
-        env: any env :func:`sim2real.find_physics` understands.
-        params: a :class:`sysid.FitResult` or a mapping ``{address: value}`` (e.g. ``result.params``).
-
-    Returns:
-        ``env`` itself. On composer envs (which recompile every reset) the values are written again after
-        every recompile.
-    """
-    from sysid.params import ParameterSpace
-
-    values = getattr(params, "params", params)
-    if not isinstance(values, Mapping) or not values:
-        raise TypeError(
-            f"`params` must be a sysid.FitResult or a non-empty mapping {{address: value}}. Received {params!r}."
-        )
-    handle = find_physics(env)
-    if handle is None:
-        raise TypeError(f"`env` of type {type(env).__name__} has no MuJoCo model to calibrate.")
-    addresses = list(values)
-    vector = np.array([float(values[a]) for a in addresses])
-
-    def write(model: mujoco.MjModel) -> None:
-        bounds = {a: (min(v, 0.0) - 1.0, max(v, 0.0) + 1.0 + abs(v)) for a, v in zip(addresses, vector, strict=True)}
-        space = ParameterSpace(model, addresses, bounds)
-        space.writer(model)(space.values_from(dict(zip(addresses, vector, strict=True)), "params"))
-
-    write(handle.model)
-    if handle.recompiles:
-        handle.on_recompile(lambda model, data: write(model))
-    return env
 
 
 def _limits(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:

@@ -94,7 +94,7 @@ class EvaluationSpec:
         effects = self.visual_effects()
         if not effects:
             return None
-        from sim2real.pixels import contact_sheet
+        from sim2real.sheets import contact_sheet
 
         return contact_sheet(self.task, effects, n=n, seed=self.seed, size=(64, 64))
 

@@ -34,7 +34,7 @@ from sim2real.report.results import (
 from sim2real.report.statistics import report_fields
 
 if TYPE_CHECKING:
-    from sim2real.pixels import ContactSheet
+    from sim2real.sheets import ContactSheet
     from sysid.result import FitResult
 
 __all__ = ["GapReport"]
@@ -143,7 +143,7 @@ class GapReport:
         Args:
             evaluation: from :func:`sim2real.evaluation.evaluate`.
             fit: a :class:`sysid.result.FitResult` to report (estimates, intervals, the fit figure).
-            contact_sheet: a :class:`sim2real.pixels.ContactSheet` or an ``(H, W, 3)`` uint8 image.
+            contact_sheet: a :class:`sim2real.sheets.ContactSheet` or an ``(H, W, 3)`` uint8 image.
             reference: the nominal-sim condition; default ``"sim"`` if it is a nominal condition, else the first
                 nominal condition (none: no reference gaps).
             randomized: the randomised-sim condition; default ``"randomized"`` if it is one, else the first

@@ -271,7 +271,7 @@ def make(task_id: str, *, pixels: bool = False, params: Any = None, **options: A
         view = {k: options.pop(k) for k in ("size", "camera", "pixels_only") if k in options}
         env = PixelObservation(_make(task_id, **options), **view)
     if params is not None:
-        from sim2real.recording import calibrate
+        from sim2real.calibration import calibrate
 
         calibrate(env, params)
     return env
