@@ -437,21 +437,23 @@ def trained_return(seed: int) -> float:
 
 
 def test_ppo_learns_arm_reach() -> None:
-    """20k frames of PPO move the arm clearly closer than random actions — on average over four training seeds.
+    """20k frames of PPO move the arm clearly closer than random actions: judged over four training seeds.
 
-    One seed is not a test: measured with this config on the locked install (benchmarks/learn_spread.py, 2026-11-23),
-    the gain over random actions (returns are minus the summed distance in metres over 200 steps; random: -100.2)
-    was +35.5, +29.0, +23.2, +31.6, +1.0 for seeds 0-4 — about one run in five does not learn in 20k frames, and
-    numerics of another machine move single runs by ~30. The mean over four seeds stays above +15 unless three
-    of the four fail; no run may end worse than random.
+    One seed is not a test. Measured with this config on the locked install (benchmarks/learn_spread.py --seeds 0-7,
+    2026-11-23; returns are minus the summed distance in metres over 200 steps, random actions: -100.2), the gain
+    over random was +35.5, +29.0, +23.2, +31.6, +1.0, +27.9, +29.3, -8.5 for seeds 0-7: mean +21.1, sd 15.5, and
+    two runs in eight do not learn within 20k frames (another machine's numerics moved seed 0 alone from +35 to +6).
+    So the test asks that at least one of four runs learns clearly (gain > 20) and that the four beat random on
+    average: with one run in four failing independently, both fail together only when all four runs fail
+    (about 0.4%), while a PPO that does not learn (gains around 0 +- 10) fails the first.
     """
     from sim2real.parallel import run_tasks
 
     random = float(episode_returns(ARM, as_policy(_RandomPolicy(-0.05, 0.05, 3, seed=0)), EVAL_SEEDS).mean())
     trained = np.array(run_tasks(trained_return, LEARN_SEEDS, backend="local", workers=2).results)
     gains = trained - random
-    assert gains.mean() > 15, (gains, random)
-    assert gains.min() > -5, (gains, random)
+    assert gains.max() > 20, (gains, random)
+    assert gains.mean() > 0, (gains, random)
 
 
 # --------------------------------------------------------------------------- behaviour-cloning warm start
