@@ -57,6 +57,7 @@ __all__ = [
     "cvar",
     "gap",
     "iqm",
+    "iqm_point",
     "mean",
     "minimum_runs",
     "mmrv",
@@ -323,7 +324,16 @@ def _columns(
         counts = shared if shared is not None else _draw_counts(gen, n, num_resamples)
         points[j] = _window_mean(values, ones, lo, hi)[0]
         boots[:, j] = _window_mean(values, counts[:, order], lo, hi)
+    if statistic == "iqm":
+        # The same runs as the window, but summed as scipy sums them, so the point is rliable's to the last bit; the
+        # replicates keep the (equal up to rounding) window sums, which need no per-resample sort.
+        points = _trim_mean(x)
     return points, boots
+
+
+def _trim_mean(x: np.ndarray, axis: int | None = 0) -> np.ndarray:
+    """``scipy.stats.trim_mean(x, 0.25, axis)``: rliable's IQM, ``floor(n / 4)`` values cut from each end."""
+    return np.asarray(_stats.trim_mean(x, 0.25, axis=axis), dtype=np.float64)
 
 
 def _interval(boots: np.ndarray, confidence: float) -> tuple[float, float]:
@@ -402,8 +412,11 @@ def iqm(
 ) -> tuple[Estimate, ...]:
     """Interquartile mean of each condition with a bootstrap interval.
 
-    The IQM is rliable's: ``scipy.stats.trim_mean(x, 0.25)``, i.e. ``floor(num_runs / 4)`` runs cut from each end and
-    the rest averaged. It is robust to a few outlier episodes yet less noisy than the median.
+    The IQM is rliable's: ``floor(num_runs / 4)`` runs cut from each end and the rest averaged, robust to a few
+    outlier episodes yet less noisy than the median. The value is :func:`iqm_point`, bitwise equal to
+    ``scipy.stats.trim_mean(returns, 0.25, axis=0)`` (what rliable computes); each bootstrap replicate averages the
+    same window of its resample. As with ``trim_mean``, the last bit of a column can depend on the array's memory
+    layout (numpy sums a column of a C-ordered matrix run by run, a lone column pairwise).
 
     Args:
         returns: Array of shape ``(num_runs, num_conditions)``.
@@ -422,6 +435,25 @@ def iqm(
         10.5
     """
     return _per_condition("iqm", returns, "iqm", rng, confidence, num_resamples)
+
+
+def iqm_point(returns: ArrayLike) -> np.ndarray:
+    """Interquartile mean of each condition, without an interval: the value :func:`iqm` reports.
+
+    Bitwise equal to ``scipy.stats.trim_mean(returns, 0.25, axis=0)``, rliable's IQM: ``floor(num_runs / 4)`` runs
+    cut from each end (none below 4 runs) and the rest averaged.
+
+    Args:
+        returns: Array of shape ``(num_runs, num_conditions)``.
+
+    Returns:
+        Array of shape ``(num_conditions,)``.
+
+    Example:
+        >>> iqm_point([[1.0, 0.0], [2.0, 0.0], [3.0, 0.0], [100.0, 4.0], [4.0, 0.0]])  # one run cut from each end
+        array([3., 0.])
+    """
+    return _trim_mean(_runs_array(returns, "returns"))
 
 
 def cvar(
@@ -519,6 +551,8 @@ def aggregate(
     order = np.argsort(flat, kind="stable")
     lo, hi = _window(statistic, flat.size)
     value = _window_mean(flat[order], np.ones((1, flat.size)), lo, hi)[0]
+    if statistic == "iqm":
+        value = float(_trim_mean(x, axis=None))  # rliable's aggregate IQM, to the last bit (see _columns)
     boots = _window_mean(flat[order], counts[:, order], lo, hi)
     return _estimate(value, boots, confidence, flat.size)
 
@@ -629,6 +663,9 @@ def gap(
     gen = _generator(rng)
     _check_enough("gap", [x.shape[0]], confidence, num_resamples)
     points, boots = _columns(x[:, [reference, target]], statistic, gen, num_resamples, paired=bool(paired))
+    if statistic == "iqm":
+        # from the whole matrix, as iqm(returns) does: numpy's sums (hence trim_mean's last bit) depend on the layout
+        points = _trim_mean(x)[[reference, target]]
     return _gap(points, boots, 2 * x.shape[0], reference, target, bool(paired), statistic, confidence)
 
 

@@ -12,6 +12,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
 from scipy import stats
 
 from sim2real import metrics as m
@@ -38,6 +41,62 @@ def test_iqm_hand_computed_and_matches_rliable_trim_mean():
     data = np.random.default_rng(3).gamma(2.0, size=(37, 4))
     values = [e.value for e in m.iqm(data, rng=0)]
     np.testing.assert_allclose(values, stats.trim_mean(data, 0.25, axis=0), rtol=1e-12)
+
+
+# Matrices of returns as users have them: any run count (most not divisible by 4), ties, mixed magnitudes and signs.
+_RETURNS = hnp.arrays(
+    np.float64,
+    st.tuples(st.integers(1, 41), st.integers(1, 5)),
+    elements=st.one_of(
+        st.floats(-1e3, 1e3, allow_nan=False, width=64),
+        st.sampled_from([0.0, 1.0, -2.5, 0.1, 1e-9]),  # repeated values
+        st.floats(-1e9, 1e9, allow_nan=False, width=64),
+    ),
+)
+
+
+@pytest.mark.parametrize("layout", [np.ascontiguousarray, np.asfortranarray])
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(returns=_RETURNS)
+def test_iqm_point_is_bitwise_rliable_trim_mean(returns: np.ndarray, layout):
+    returns = layout(returns)  # numpy's sums depend on the memory layout; the same data is the same array
+    expected = stats.trim_mean(returns, 0.25, axis=0)  # what rliable's IQM computes
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FewSamplesWarning)
+        estimates = m.iqm(returns, rng=0, num_resamples=20)
+        (pooled,) = (m.aggregate(returns, statistic="iqm", rng=0, num_resamples=20),)
+    assert np.array_equal(np.array([e.value for e in estimates]), expected)  # bitwise, not approximately
+    assert np.array_equal(m.iqm_point(returns), expected)
+    assert pooled.value == stats.trim_mean(returns, 0.25, axis=None)  # rliable's aggregate IQM
+    for e in estimates:  # the interval is still the bootstrap's, around the same window of runs
+        assert e.low <= e.high and e.method == "percentile bootstrap" and e.n == returns.shape[0]
+        rounding = 1e-12 * np.abs(returns).max()
+        assert returns.min() - rounding <= e.low and e.high <= returns.max() + rounding
+
+
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(hnp.arrays(np.float64, st.tuples(st.integers(2, 41), st.just(2)), elements=st.floats(-1e3, 1e3)))
+def test_iqm_gaps_start_from_the_trim_mean_points(returns: np.ndarray):
+    ref, tgt = stats.trim_mean(returns, 0.25, axis=0)  # = iqm(returns), so a gap is the difference of two IQMs
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FewSamplesWarning)
+        paired = m.gap(returns, statistic="iqm", rng=0, num_resamples=20)
+        unpaired = m.unpaired_gap(returns[:, 0], returns[1:, 1], statistic="iqm", rng=0, num_resamples=20)
+    assert paired.absolute.value == ref - tgt
+    # a vector of runs is one condition, shape (num_runs, 1), as everywhere in sim2real.metrics
+    (alone,) = stats.trim_mean(returns[:, :1], 0.25, axis=0)
+    assert unpaired.absolute.value == alone - stats.trim_mean(returns[1:, 1:], 0.25, axis=0)[0]
+
+
+def test_iqm_point_errors():
+    with pytest.raises(ValueError) as caught:
+        m.iqm_point([1.0, 2.0])
+    assert (
+        str(caught.value) == "`returns` must be a 2-D array of shape (num_runs, num_conditions). Received shape (2,)."
+    )
+    with pytest.raises(ValueError) as caught:
+        m.iqm_point([[1.0], [math.inf]])
+    assert str(caught.value) == "`returns` must be finite. Received inf at run 1, column 0."
 
 
 def test_cvar_hand_computed_fractional_tail():
@@ -469,10 +528,10 @@ def test_results_are_frozen_dataclasses():
     est = m.mean(np.ones((20, 1)), rng=0)[0]
     assert (est.value, est.low, est.high) == (1.0, 1.0, 1.0)
     with pytest.raises(dataclasses.FrozenInstanceError):
-        est.value = 2.0  # type: ignore[misc]
+        est.value = 2.0
     g = m.gap(np.ones((20, 2)), rng=0)
     with pytest.raises(dataclasses.FrozenInstanceError):
-        g.paired = True  # type: ignore[misc]
+        g.paired = True
     assert dataclasses.asdict(g)["absolute"]["method"] == "percentile bootstrap"
     assert str(Estimate(0.5, 0.25, 0.75, 0.9, 10, "wilson")) == "0.5 [0.25, 0.75] (90% wilson, n=10)"
 

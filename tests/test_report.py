@@ -10,11 +10,12 @@ import re
 import warnings
 from html.parser import HTMLParser
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 import PIL.Image
 import pytest
+from scipy import stats
 
 import sim2real as s2r
 import sim2real.report.files as report_files
@@ -154,7 +155,7 @@ def test_json_is_bitwise_reproducible_and_rng_moves_intervals(evaluation: Evalua
 
 def test_values_match_direct_metric_calls(evaluation: Evaluation, report: GapReport) -> None:
     data = json.loads(report.to_json())
-    options = {"confidence": 0.95, "num_resamples": 2000}
+    options: dict[str, Any] = {"confidence": 0.95, "num_resamples": 2000}
     sim, target = evaluation.returns["reach"]["sim"], evaluation.returns["reach"]["real"]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", metrics.FewSamplesWarning)
@@ -223,7 +224,7 @@ def test_unpaired_gap_extends_gap_to_unequal_counts() -> None:
 def test_robustness_radius_and_agreement_match_metrics(positive: Evaluation) -> None:
     built = GapReport.build(positive, rng=2, fraction=0.8, num_resamples=1000)
     names = [c.name for c in positive.conditions if c.kind == "sweep"]
-    options = {"confidence": 0.95, "num_resamples": 1000}
+    options: dict[str, Any] = {"confidence": 0.95, "num_resamples": 1000}
     for policy in positive.policies:
         curve = built.curve(policy, "Damping.scale")
         direct = metrics.robustness_radius(
@@ -267,6 +268,11 @@ def test_iqm_statistic_flows_into_gaps_curves_and_heatmaps(evaluation: Evaluatio
     iqm_sim, iqm_real = built.stats_for("slow", "sim").iqm.value, built.stats_for("slow", "real").iqm.value
     assert g.absolute.value == pytest.approx(iqm_sim - iqm_real)
     assert built.curve("slow", "ActuatorGain.scale").points[1].value == pytest.approx(iqm_sim)
+    # every IQM of the report is rliable's, scipy.stats.trim_mean on the same runs (one condition: shape (n, 1))
+    assert iqm_sim == stats.trim_mean(evaluation.returns["slow"]["sim"][:, None], 0.25, axis=0)[0]
+    for c in (c for c in evaluation.conditions if c.sweep == heat.grid):
+        runs = np.asarray(evaluation.returns["slow"][c.name])[:, None]
+        assert heat.values[heat.x.index(c.value[0])][heat.y.index(c.value[1])] == stats.trim_mean(runs, 0.25, axis=0)[0]
 
 
 def test_summary_names_the_gap_per_policy(report: GapReport) -> None:
@@ -292,7 +298,7 @@ def test_argument_errors(evaluation: Evaluation) -> None:
     with pytest.raises(TypeError, match=r"`evaluation` must be a sim2real\.evaluation\.Evaluation\. Received dict"):
         GapReport.build({})  # type: ignore[arg-type]
     with pytest.raises(TypeError, match="`fit` must be a sysid FitResult"):
-        GapReport.build(evaluation, fit="fit.json")
+        GapReport.build(evaluation, fit="fit.json")  # type: ignore[arg-type]
 
 
 # ----------------------------------------------------------------------------------------------- rendering

@@ -47,7 +47,7 @@ from sim2real.report.results import (
 )
 
 if TYPE_CHECKING:
-    from sim2real.pixels import ContactSheet
+    from sim2real.sheets import ContactSheet
     from sysid.result import FitResult
 
 __all__ = ["MAIN_KINDS", "report_fields", "stream"]
@@ -532,8 +532,7 @@ class _Builder:
     def point(self, x: np.ndarray) -> float:
         if self.statistic == "mean":
             return float(x.mean())
-        cut = int(0.25 * x.size)  # as sim2real.metrics.iqm: floor(n / 4) runs cut from each end
-        return float(np.sort(x)[cut : x.size - cut].mean())
+        return float(metrics.iqm_point(x[:, None])[0])
 
     def grids(self) -> tuple[GridMeans, ...]:
         out = []
