@@ -56,7 +56,8 @@ _MODEL_NAMES = "ObservationNoise, ActionNoise, ObservationLatency, ActionLatency
 
 
 try:  # the clip ufunc itself: np.clip's Python dispatch costs more than the clipping
-    from numpy._core.umath import clip as _clip
+    # numpy's stubs do not declare the `clip` ufunc in umath, though numpy 2 exports it there.
+    from numpy._core.umath import clip as _clip  # type: ignore[attr-defined]
 except ImportError:  # pragma: no cover - numpy < 2
     from numpy.core.umath import clip as _clip  # type: ignore[no-redef]
 
@@ -385,6 +386,7 @@ class SignalCorruptor:
         )
         self._cmd_delay: CommandDelay | None = None
         if ActionLatency in self.timing:
+            assert action is not None  # ActionLatency without an action layout was refused above
             size = action.size if self.delays_actions else 0  # physics-level size is set by reset_commands
             self._cmd_delay = CommandDelay(self._capacity[ActionLatency], max(size, 1))
         self._bound = True
@@ -459,7 +461,7 @@ class SignalCorruptor:
                 k = math.floor(steps / n + 0.5)
                 self._action_latency = k
                 report["action_latency_steps"] = k * n
-                report["action_latency"] = k * n * self.timestep  # type: ignore[operator]
+                report["action_latency"] = k * n * self.timestep
                 report["action_latency_control_steps"] = k
             else:
                 self._action_latency = steps
@@ -575,6 +577,8 @@ class SignalCorruptor:
             jitter = self._jitter(ActionLatency, t) if ActionLatency in self._jitter_blocks else 0
             if jitter and self.physics_time:
                 jitter = math.floor(jitter / self.nominal_substeps + 0.5)
+            # delays_actions implies ActionLatency, for which bind() built the command delay.
+            assert self._cmd_delay is not None
             if t == 0:
                 self._cmd_delay.reset(np.zeros(self.action_layout.size))  # type: ignore[union-attr]
             self._cmd_delay.push(action, t + self._action_latency + jitter)

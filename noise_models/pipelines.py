@@ -55,7 +55,7 @@ class _Noise:
         return f"{type(self).__name__}({', '.join(args)})"
 
     def __eq__(self, other: object) -> bool:
-        return type(other) is type(self) and self._fields() == other._fields()  # type: ignore[attr-defined]
+        return type(other) is type(self) and self._fields() == other._fields()
 
     def __hash__(self) -> int:
         return hash(repr(self))

@@ -58,7 +58,7 @@ class FrozenValue:
         return f"{type(self).__name__}({', '.join(f'{k}={v!r}' for k, v in self._fields().items())})"
 
     def __eq__(self, other: object) -> bool:
-        return type(other) is type(self) and self._fields() == other._fields()  # type: ignore[attr-defined]
+        return type(other) is type(self) and self._fields() == other._fields()
 
     def __hash__(self) -> int:
         return hash((type(self).__name__, repr(self)))
@@ -193,7 +193,7 @@ def selection_repr(select: Selection) -> str:
 def check_selection(select: object, name: str = "select") -> Selection:
     """Validates the form of a selection (its names are checked against a layout later)."""
     if select is None or isinstance(select, (str, slice, range)):
-        return select  # type: ignore[return-value]
+        return select
     if isinstance(select, (int, np.integer)) and not isinstance(select, bool):
         return int(select)
     if isinstance(select, (list, tuple)) and select:
