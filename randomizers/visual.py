@@ -603,10 +603,10 @@ class _PoseBinding(Binding):
         self._pos = model.cam_pos[self.rows].copy()
         self._quat = model.cam_quat[self.rows].copy()
         self.nominal = np.concatenate([self._pos.reshape(-1), self._quat.reshape(-1)])
-        mats = np.zeros((len(self.rows), 9))
+        flat = np.zeros((len(self.rows), 9))
         for k, q in enumerate(self._quat):
-            mujoco.mju_quat2Mat(mats[k], q)
-        mats = mats.reshape(-1, 3, 3)
+            mujoco.mju_quat2Mat(flat[k], q)
+        mats = flat.reshape(-1, 3, 3)
         self._up = mats[:, :, 1]  # camera y axes in the parent frame
         forward = -mats[:, :, 2]
         if effect.look_at is not None:
@@ -801,7 +801,7 @@ def renderer_uploader(renderer: mujoco.Renderer) -> TextureUploader:
         context = getattr(renderer, "_mjr_context", None)
         if context is None or renderer.model is not model:
             return
-        renderer._gl_context.make_current()  # type: ignore[attr-defined]
+        renderer._gl_context.make_current()
         for texid in ids:
             mujoco.mjr_uploadTexture(model, context, int(texid))
 

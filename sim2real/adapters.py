@@ -190,15 +190,15 @@ class DmEnvToGym(gym.Env):
         except Exception:  # a diverged physics may fail anywhere; the fallback covers it
             observation = None
         obs = None if observation is None else self._observation(observation)
-        flat = obs if self.flatten else (np.concatenate([np.ravel(v) for v in obs.values()]) if obs else None)
-        if obs is None or not np.isfinite(flat).all():
-            space = self.observation_space
-            obs = (
-                np.zeros(space.shape, np.float32)
-                if self.flatten
-                else {k: np.zeros(b.shape, np.float32) for k, b in space.items()}
-            )  # type: ignore[union-attr]
-        return obs
+        if obs is not None:
+            flat = obs if self.flatten else np.concatenate([np.ravel(v) for v in obs.values()])
+            if np.isfinite(flat).all():
+                return obs
+        space = self.observation_space
+        if self.flatten:
+            return np.zeros(space.shape, np.float32)
+        assert isinstance(space, spaces.Dict)  # __init__ builds a Dict space whenever flatten is False
+        return {k: np.zeros(b.shape, np.float32) for k, b in space.items()}
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
         """One control step; a physics divergence ends the episode (truncated) with the last good obs."""
@@ -225,7 +225,7 @@ class DmEnvToGym(gym.Env):
         self._last_obs = self._observation(observation)
         return self._last_obs
 
-    def render(self) -> np.ndarray | None:  # type: ignore[override]
+    def render(self) -> np.ndarray | None:
         """An RGB frame (``height`` x ``width`` x 3, uint8) when ``render_mode="rgb_array"``."""
         if self.render_mode is None:
             return None

@@ -72,6 +72,7 @@ class FrozenMap(Mapping[str, Any]):
     worker processes."""
 
     __slots__ = ("_data",)
+    _data: dict[str, Any]
 
     def __init__(self, data: Mapping[str, Any]) -> None:
         object.__setattr__(self, "_data", dict(data))

@@ -15,6 +15,7 @@ Example:
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import torch
 from tensordict.nn import AddStateIndependentNormalScale, NormalParamExtractor, TensorDictModule
@@ -33,6 +34,10 @@ _ACTIVATIONS: dict[str, type[nn.Module]] = {"tanh": nn.Tanh, "relu": nn.ReLU, "e
 class Normalize(nn.Module):
     """Fixed affine input normalisation ``(x - loc) / scale``; ``loc`` and ``scale`` are buffers, so they
     travel in the state dict (and checkpoints) with the weights. Identity until :meth:`set_stats`."""
+
+    # Registered as buffers in __init__; declared so the type checker sees tensors, not Module.__getattr__.
+    loc: torch.Tensor
+    scale: torch.Tensor
 
     def __init__(self, dim: int) -> None:
         super().__init__()
@@ -129,7 +134,7 @@ def actor_dims(actor: nn.Module) -> tuple[int, list[float], list[float]]:
     Raises:
         TypeError: ``actor`` was not made by :func:`build_actor`.
     """
-    spec = getattr(actor, "spec", None)
+    spec: Any = getattr(actor, "spec", None)  # a TorchRL Composite when made by build_actor; checked below
     linear = next((m for m in actor.modules() if isinstance(m, nn.Linear)), None)
     try:
         action = spec["action"]

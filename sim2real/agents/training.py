@@ -208,8 +208,10 @@ def train(
         torch.manual_seed(seed)
         env = make_train_env(task_or_env, effects, seed)
         try:
-            run = _train_ppo if isinstance(config, PPOConfig) else _train_sac
-            policy, rows, frames = run(env, config, seed, progress, log)
+            if isinstance(config, PPOConfig):
+                policy, rows, frames = _train_ppo(env, config, seed, progress, log)
+            else:
+                policy, rows, frames = _train_sac(env, config, seed, progress, log)
         finally:
             env.close()
     wall = time.perf_counter() - start
@@ -272,6 +274,8 @@ def _behaviour_cloning(env: Any, actor: Any, cfg: PPOConfig, low: list[float], h
 
     from sim2real.agents.baselines import BASELINES
 
+    # Only called with bc_frames > 0, which PPOConfig refuses without a bc_baseline.
+    assert cfg.bc_baseline is not None
     teacher = {cls.__name__: cls for cls in BASELINES.values()}[cfg.bc_baseline]()
 
     def act(td: Any) -> Any:

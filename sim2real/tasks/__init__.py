@@ -18,9 +18,12 @@ from __future__ import annotations
 import difflib
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import gymnasium as gym
+
+if TYPE_CHECKING:
+    import numpy as np
 
 __all__ = ["TASKS", "Task", "make", "task_ids"]
 
@@ -44,7 +47,9 @@ def _check_options(task_id: str, options: dict[str, Any], allowed: tuple[str, ..
 
 
 def _split(options: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
-    adapter = {k: options[k] for k in ("flatten", "render_mode", "width", "height", "camera") if k in options}
+    adapter: dict[str, Any] = {
+        k: options[k] for k in ("flatten", "render_mode", "width", "height", "camera") if k in options
+    }
     env_kwargs = {}
     if "time_limit" in options:
         env_kwargs["time_limit"] = options["time_limit"]
@@ -86,18 +91,30 @@ def _suite_env(domain: str, task: str, env_kwargs: dict[str, Any]) -> Any:
     )
 
 
-_FAST_REACHER: list[type] = []
+class _FastReacherPhysics(Protocol):
+    """What FastReacher's reward reads from the physics class :func:`_fast_reacher_physics` builds."""
+
+    model: Any
+
+    def _geom_ids(self) -> tuple[int, int]: ...
+
+    def finger_to_target_dist(self) -> np.floating[Any]: ...
 
 
-def _fast_reacher_physics() -> type:
+# Built on first use (dm-control imports lazily); one class each, so instances share it.
+_FAST_REACHER_PHYSICS: list[type[_FastReacherPhysics]] = []
+_FAST_REACHER_TASK: list[type] = []
+
+
+def _fast_reacher_physics() -> type[_FastReacherPhysics]:
     """dm-control's reacher Physics with ``finger_to_target`` reading the geoms by cached index instead of by
     name: the named indexer parses its key on every call, and reward plus observation call it twice per step
     (a quarter of the step's time). The values are the same arrays, bitwise (tested)."""
-    if not _FAST_REACHER:
+    if not _FAST_REACHER_PHYSICS:
         import numpy as np
         from dm_control.suite import reacher
 
-        class FastReacherPhysics(reacher.Physics):  # type: ignore[misc]
+        class FastReacherPhysics(reacher.Physics):
             def _geom_ids(self) -> tuple[int, int]:
                 ids = self.__dict__.get("_sim2real_geom_ids")
                 if ids is None:
@@ -110,23 +127,23 @@ def _fast_reacher_physics() -> type:
                 xpos = self.data.geom_xpos
                 return xpos[target, :2] - xpos[finger, :2]
 
-            def finger_to_target_dist(self) -> float:
+            def finger_to_target_dist(self) -> np.floating[Any]:
                 return np.linalg.norm(self.finger_to_target())
 
-        _FAST_REACHER.append(FastReacherPhysics)
-    return _FAST_REACHER[0]
+        _FAST_REACHER_PHYSICS.append(FastReacherPhysics)
+    return _FAST_REACHER_PHYSICS[0]
 
 
 def _fast_reacher_task() -> type:
     """dm-control's Reacher task with the reward's radii read by cached geom index (the named indexer parses
     ``['target', 'finger']`` every step); the same sum of the same two floats, so the reward is bitwise equal."""
-    if len(_FAST_REACHER) < 2:
+    if not _FAST_REACHER_TASK:
         from dm_control.suite import reacher
         from dm_control.utils import rewards
 
         physics_cls = _fast_reacher_physics()
 
-        class FastReacher(reacher.Reacher):  # type: ignore[misc]
+        class FastReacher(reacher.Reacher):
             def get_reward(self, physics: Any) -> float:
                 if not isinstance(physics, physics_cls):
                     return super().get_reward(physics)
@@ -135,8 +152,8 @@ def _fast_reacher_task() -> type:
                 radii = size[target, 0] + size[finger, 0]
                 return rewards.tolerance(physics.finger_to_target_dist(), (0, radii))
 
-        _FAST_REACHER.append(FastReacher)
-    return _FAST_REACHER[1]
+        _FAST_REACHER_TASK.append(FastReacher)
+    return _FAST_REACHER_TASK[0]
 
 
 def _suite(domain: str, task: str) -> Callable[..., gym.Env]:
