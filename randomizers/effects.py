@@ -35,6 +35,7 @@ import mujoco
 import numpy as np
 
 from randomizers.addressing import select
+from randomizers.bindings import Binding, _GainBinding, _MassBinding, _SetConstBinding
 from randomizers.distributions import Distribution, as_distribution
 
 __all__ = [
@@ -101,110 +102,6 @@ def _check_schedule(schedule: object) -> Schedule:
     )
 
 
-class Binding:
-    """An effect resolved against one model: target indices, nominal snapshot, in-place writes.
-
-    Attributes:
-        addresses: one parameter address per scalar target, in write order.
-        nominal: the values found at bind time (never modified).
-        needs_set_const: whether ``mujoco.mj_setConst`` must run after :meth:`apply`.
-    """
-
-    needs_set_const = False
-
-    def __init__(
-        self,
-        effect: ArrayEffect,
-        model: mujoco.MjModel,
-        array: np.ndarray,
-        targets: tuple[np.ndarray, ...],
-        addresses: Sequence[str],
-    ) -> None:
-        self.effect = effect
-        self.model = model
-        self._array = array
-        self._targets = targets
-        self.addresses: tuple[str, ...] = tuple(addresses)
-        self.nominal: np.ndarray = array[targets].copy()
-        self.size = len(self.addresses)
-
-    def draw_count(self) -> int:
-        """How many scalars one sample needs (1 when the effect's draw is shared)."""
-        return 1 if self.effect.shared else self.size
-
-    def values(self, draws: np.ndarray) -> np.ndarray:
-        """Absolute values for the targets given raw draws (scale / add / set over the nominal)."""
-        op = self.effect.operation
-        if op == "scale":
-            return self.nominal * draws
-        if op == "add":
-            return self.nominal + draws
-        return np.broadcast_to(draws, self.nominal.shape).astype(np.float64)
-
-    def apply(self, values: np.ndarray) -> None:
-        """Writes ``values`` into the model in place."""
-        self._array[self._targets] = values
-
-    def restore(self) -> None:
-        """Writes the nominal snapshot back (bitwise)."""
-        self._array[self._targets] = self.nominal
-
-
-class _MassBinding(Binding):
-    needs_set_const = True
-
-    def __init__(self, *args: Any) -> None:
-        super().__init__(*args)
-        rows = self._targets[0]
-        self._rows = rows
-        self._inertia_nominal = self.model.body_inertia[rows].copy()
-        # Scaling mass at fixed geometry scales the inertia tensor by the same ratio (uniform density);
-        # a massless body keeps its inertia.
-        positive = self.nominal > 0
-        self._inertia_per_mass = np.where(
-            positive[:, None], self._inertia_nominal / np.where(positive, self.nominal, 1.0)[:, None], 0.0
-        )
-        self._massless = np.flatnonzero(~positive)
-
-    def apply(self, values: np.ndarray) -> None:
-        super().apply(values)
-        inertia = self._inertia_per_mass * values[:, None]
-        if self._massless.size:
-            inertia[self._massless] = self._inertia_nominal[self._massless]
-        self.model.body_inertia[self._rows] = inertia
-
-    def restore(self) -> None:
-        super().restore()
-        self.model.body_inertia[self._rows] = self._inertia_nominal
-
-
-class _GainBinding(Binding):
-    def __init__(self, *args: Any) -> None:
-        super().__init__(*args)
-        rows = self._targets[0]
-        model = self.model
-        self._rows = rows
-        bias = model.actuator_biasprm[rows]
-        gain = model.actuator_gainprm[rows, 0]
-        affine = model.actuator_biastype[rows] == mujoco.mjtBias.mjBIAS_AFFINE
-        # Position servos carry -kp in biasprm[1] and velocity servos -kv in biasprm[2]; a gain
-        # change must move both or the servo's set point drifts.
-        self._pos = np.flatnonzero(affine & (bias[:, 1] == -gain) & (gain != 0))
-        self._vel = np.flatnonzero(affine & (bias[:, 1] == 0) & (bias[:, 2] == -gain) & (gain != 0))
-        self._bias_nominal = bias.copy()
-
-    def apply(self, values: np.ndarray) -> None:
-        super().apply(values)
-        if self._pos.size:
-            self.model.actuator_biasprm[self._rows[self._pos], 1] = -values[self._pos]
-        if self._vel.size:
-            self.model.actuator_biasprm[self._rows[self._vel], 2] = -values[self._vel]
-
-    def restore(self) -> None:
-        super().restore()
-        self.model.actuator_biasprm[self._rows] = self._bias_nominal
-
-
 class Effect:
     """Base of every physics effect: an immutable value with ``key``, ``schedule`` and ``bind``."""
 
@@ -249,6 +146,8 @@ class ArrayEffect(Effect):
     kind: ClassVar[str]
     selector: ClassVar[str]
     nonnegative: ClassVar[bool] = True
+    #: the field is singular at 0 (a moving body needs mass): draws must keep it > 0 where it is nominally > 0
+    positive: ClassVar[bool] = False
     binding_class: ClassVar[type[Binding]] = Binding
 
     def __init__(
@@ -269,6 +168,11 @@ class ArrayEffect(Effect):
         ((operation, raw),) = given.items()
         dist = as_distribution(raw, operation)
         low, high = dist.support
+        if self.positive and operation in ("scale", "set") and low <= 0:
+            raise ValueError(
+                f"`{operation}` of {cls} must be > 0 over its whole support ({self.field} of 0 is singular). "
+                f"Received {dist!r} with support [{low}, {high}]."
+            )
         if self.nonnegative and operation in ("scale", "set") and low < 0:
             raise ValueError(
                 f"`{operation}` of {cls} must not go below 0 ({self.field} must stay non-negative). "
@@ -332,7 +236,7 @@ class ArrayEffect(Effect):
 
         Raises:
             ValueError: no element matches (close matches listed), or ``add`` would make a
-                non-negative quantity negative for some element.
+                non-negative quantity negative (a positive one zero or negative) for some element.
         """
         rows, cols, addresses = self._targets(model)
         targets = (
@@ -341,6 +245,16 @@ class ArrayEffect(Effect):
             else (np.asarray(rows, dtype=np.intp), np.asarray(cols, dtype=np.intp))
         )
         binding = self.binding_class(self, model, self._array(model), targets, addresses)
+        if self.positive and self.operation == "add":
+            low = self.distribution.support[0]
+            reached = np.where(binding.nominal > 0, binding.nominal + low, np.inf)
+            worst = int(np.argmin(reached))
+            if reached[worst] <= 0:
+                raise ValueError(
+                    f"`add` of {type(self).__name__} would make {binding.addresses[worst]} zero or negative "
+                    f"({self.field} of 0 is singular): nominal {float(binding.nominal[worst])!r} + lowest draw "
+                    f"{low!r} <= 0. Received {self.distribution!r}."
+                )
         if self.nonnegative and self.operation == "add":
             low = self.distribution.support[0]
             worst = int(np.argmin(binding.nominal))
@@ -416,17 +330,25 @@ Received Uniform(low=-0.5, high=1.5) with support [-0.5, 1.5].
 class Mass(ArrayEffect):
     """Body masses (``body_mass``) with the inertia tensor scaled by the same ratio; the randomiser
     runs ``mujoco.mj_setConst`` afterwards so derived quantities stay consistent. The world body is
-    never selected; a body of zero mass keeps its (zero) inertia.
+    never selected; a body of zero mass keeps its (zero) inertia. Zero mass is singular, so ``scale``
+    and ``set`` must be > 0 over their whole support and ``add`` must keep every body that has mass
+    above 0 (checked when bound); fields ``mj_setConst`` derives are restored with the masses.
 
     Example:
         >>> from randomizers import Mass, Uniform
         >>> Mass(scale=Uniform(0.8, 1.2), bodies="arm*")
         Mass(scale=Uniform(low=0.8, high=1.2), bodies='arm*')
+        >>> Mass(scale=Uniform(0.0, 2.0))
+        Traceback (most recent call last):
+        ...
+        ValueError: `scale` of Mass must be > 0 over its whole support (body_mass of 0 is singular). \
+Received Uniform(low=0.0, high=2.0) with support [0.0, 2.0].
     """
 
     field = "body_mass"
     kind = "body"
     selector = "bodies"
+    positive = True
     binding_class = _MassBinding
 
     def __init__(
@@ -490,10 +412,6 @@ class Damping(_DofEffect):
     """
 
     field = "dof_damping"
-
-
-class _SetConstBinding(Binding):
-    needs_set_const = True
 
 
 class Armature(_DofEffect):

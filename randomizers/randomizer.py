@@ -32,34 +32,11 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from randomizers.effects import Binding, Effect, Interval, PushBinding
+from randomizers.effects import Binding, Effect, Interval, PushBinding, PushEvent
 from randomizers.seeding import SeedLike, StreamFactory, normalize_seed, reseeded_root
+from randomizers.setconst import SetConst
 
 __all__ = ["PhysicsRandomizer"]
-
-# Fields mj_setConst derives from masses, inertias and armature (those present in this MuJoCo build
-# are snapshotted at bind and written back on restore, so restoring is bitwise even when the env
-# edited other parts of its model in between).
-SET_CONST_FIELDS = (
-    "body_subtreemass",
-    "body_invweight0",
-    "dof_invweight0",
-    "dof_M0",
-    "dof_length",
-    "tendon_invweight0",
-    "tendon_length0",
-    "actuator_acc0",
-    "actuator_length0",
-    "cam_pos0",
-    "cam_poscom0",
-    "cam_mat0",
-    "light_pos0",
-    "light_poscom0",
-    "light_dir0",
-    "geom_aabb",
-    "geom_rbound",
-    "bvh_aabb",
-)
 
 
 class _Slot:
@@ -110,12 +87,11 @@ class PhysicsRandomizer:
         self._slots = [_Slot(e, n, self._streams.generator(n)) for e, n in zip(effects, self._names, strict=True)]
         self.model: mujoco.MjModel | None = None
         self.data: mujoco.MjData | None = None
-        self._scratch: mujoco.MjData | None = None
-        self._set_const = False
+        self._set_const: SetConst | None = None
         self._step_slots: list[_Slot] = []
         self.episode = -1
         self.current_params: dict[str, float] = {}
-        self.events: tuple[dict[str, Any], ...] = ()
+        self.events: tuple[PushEvent, ...] = ()
 
     @staticmethod
     def _stream_names(effects: tuple[Effect, ...]) -> list[str]:
@@ -154,13 +130,8 @@ class PhysicsRandomizer:
         for slot in self._slots:
             slot.binding = slot.effect.bind(model)
         self.model, self.data = model, data
-        self._set_const = any(getattr(s.binding, "needs_set_const", False) for s in self._slots)
-        self._scratch = mujoco.MjData(model) if self._set_const else None
-        self._derived = (
-            {name: getattr(model, name).copy() for name in SET_CONST_FIELDS if hasattr(model, name)}
-            if self._set_const
-            else {}
-        )
+        inputs = {i for s in self._slots for i in getattr(s.binding, "set_const_inputs", ())}
+        self._set_const = SetConst(model, inputs) if inputs else None
         self._step_slots = [
             s for s in self._slots if isinstance(s.binding, PushBinding) or isinstance(s.effect.schedule, Interval)
         ]
@@ -211,8 +182,8 @@ class PhysicsRandomizer:
             binding.apply(values)
             slot.written = values
             params.update(zip(binding.addresses, values.tolist(), strict=True))
-        if self._set_const:
-            mujoco.mj_setConst(self.model, self._scratch)
+        if self._set_const is not None:
+            self._set_const.run()
         self.current_params = params
         self.events = ()
 
@@ -245,7 +216,7 @@ class PhysicsRandomizer:
                 binding.apply(values)
                 slot.written = values
                 if binding.needs_set_const:
-                    mujoco.mj_setConst(self.model, self._scratch)
+                    self._set_const.run()  # type: ignore[union-attr]
                 self.current_params = {
                     **self.current_params,
                     **dict(zip(binding.addresses, values.tolist(), strict=True)),
@@ -274,7 +245,7 @@ class PhysicsRandomizer:
             binding.apply(values)
             set_const = set_const or binding.needs_set_const
         if set_const:
-            mujoco.mj_setConst(self.model, self._scratch)
+            self._set_const.run()  # type: ignore[union-attr]
         return tuple(fixed)
 
     def restore_nominal(self) -> None:
@@ -287,8 +258,8 @@ class PhysicsRandomizer:
                 binding.restore(self.data)
             else:
                 binding.restore()
-        for name, snapshot in self._derived.items():
-            getattr(self.model, name)[...] = snapshot
+        if self._set_const is not None:
+            self._set_const.restore()
         self.current_params = self.nominal_params()
 
     def nominal_params(self) -> dict[str, float]:
