@@ -171,10 +171,7 @@ def make_vec(
     if vectorization not in ("sync", "async"):
         raise ValueError(f"`vectorization` must be one of ['sync', 'async']. Received {vectorization!r}.")
     root = 0 if seed is None else seed
-    fns = [
-        (lambda i=i: wrap(make(task_id, **options), *effects, seed=(root, i)))  # type: ignore[misc]
-        for i in range(num_envs)
-    ]
+    fns = [(lambda i=i: wrap(make(task_id, **options), *effects, seed=(root, i))) for i in range(num_envs)]
     if vectorization == "sync":
         return gym.vector.SyncVectorEnv(fns)
     return gym.vector.AsyncVectorEnv(fns)

@@ -342,7 +342,8 @@ def save_log(log: TrajectoryLog, path: str | os.PathLike[str]) -> None:
 
     def write(tmp: str) -> None:
         with open(tmp, "wb") as handle:
-            np.savez(handle, **arrays)
+            # allow_pickle spelled out (its default) so the type checker does not match it against **arrays
+            np.savez(handle, allow_pickle=True, **arrays)
             handle.flush()
             os.fsync(handle.fileno())
 
@@ -640,9 +641,10 @@ def record_log(
         act = trajectory[:, :, start : start + model.na].copy()
     measured = {"qpos": qpos, "qvel": qvel, "sensordata": sensordata}
     for key, sigma in sigmas.items():
-        if sigma > 0 and measured[key] is not None:
+        clean = measured[key]
+        if sigma > 0 and clean is not None:
             assert rng is not None
-            measured[key] = measured[key] + rng.normal(0.0, sigma, size=measured[key].shape)
+            measured[key] = clean + rng.normal(0.0, sigma, size=clean.shape)
     names = channel_names(model)
     meta: dict[str, Any] = {
         "task": task,

@@ -87,7 +87,7 @@ class RandomizePhysicsDmEnv(DmEnvWrapper):
 
     @property
     def physics(self) -> Any:
-        return self._env.physics  # type: ignore[attr-defined]
+        return self._env.physics
 
     def reset(self) -> dm_env.TimeStep:
         self.randomizer.begin_episode()

@@ -176,7 +176,7 @@ class SignalClock:
         """Time since reset: physics steps with MuJoCo, else control steps."""
         if self.handle is None:
             return self._control
-        return round((self.handle.data.time - self._t0) / self.timestep)  # type: ignore[operator]
+        return round((self.handle.data.time - self._t0) / self.timestep)
 
     def begin_episode(self) -> None:
         """Call right after the env's reset."""
@@ -211,7 +211,7 @@ class SignalClock:
             return
         if self._fixed:  # latency without control jitter: the substeps asked for are the substeps run
             data = self.handle.data  # type: ignore[union-attr]
-            start = round((data.time - self._t0) / self.timestep)  # type: ignore[operator]
+            start = round((data.time - self._t0) / self.timestep)
             if self._passed == 0:
                 pieces = self.corruptor.command_segments(data.ctrl, start, nstep)
             else:
@@ -270,7 +270,7 @@ def action_delay_path(model: Any, action: Layout | None) -> str:
     for i in range(model.neq):
         if int(model.eq_type[i]) != weld:
             continue
-        ends = (int(model.eq_obj1id[i]), int(model.eq_obj2id[i]))
+        ends: tuple[int, ...] = (int(model.eq_obj1id[i]), int(model.eq_obj2id[i]))
         if int(model.eq_objtype[i]) == site:
             ends = tuple(int(model.site_bodyid[j]) for j in ends)
         if any(model.body_mocapid[b] >= 0 for b in ends):
@@ -307,16 +307,19 @@ def _gym_signal(space: gym.Space, keys: tuple[tuple[str, slice, tuple[int, ...]]
         return layout, codec, space.dtype
     if isinstance(space, gym.spaces.Dict):
         parts = []
+        boxes: list[gym.spaces.Box] = []  # in the codec's key order
         for k, sub in space.spaces.items():
             if not isinstance(sub, gym.spaces.Box) or not np.issubdtype(sub.dtype, np.floating):
                 raise TypeError(f"noise models need float Box entries in a Dict space; key {k!r} is {sub!r}.")
             parts.append((k, tuple(sub.shape)))
-        codec = _DictCodec(parts)
-        lows = np.concatenate([np.ravel(space[k].low).astype(np.float64) for k in codec.keys])
-        highs = np.concatenate([np.ravel(space[k].high).astype(np.float64) for k in codec.keys])
+            boxes.append(sub)
+        dict_codec = _DictCodec(parts)
+        lows = np.concatenate([np.ravel(box.low).astype(np.float64) for box in boxes])
+        highs = np.concatenate([np.ravel(box.high).astype(np.float64) for box in boxes])
         low, high = _finite_bounds(lows, highs)
-        dtype = np.result_type(*[space[k].dtype for k in codec.keys])
-        return Layout(codec.size, keys=codec.layout_keys, low=low, high=high, dict_signal=True), codec, dtype
+        dtype = np.result_type(*[box.dtype for box in boxes])
+        layout = Layout(dict_codec.size, keys=dict_codec.layout_keys, low=low, high=high, dict_signal=True)
+        return layout, dict_codec, dtype
     return None, None, None
 
 
