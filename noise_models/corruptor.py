@@ -148,7 +148,8 @@ class _Pipeline:
                 streams.start(gen, name, episode, 1 + b)
                 return gen
 
-            ctx = Compile(proc, name, self.layout, idx, gen, block_rng, report, selection_repr(select))
+            prefix = name.partition("[")[0]  # reports use the plain name: obs_noise_std[3]
+            ctx = Compile(proc, prefix, self.layout, idx, gen, block_rng, report, selection_repr(select))
             parts.append(proc.compile(ctx))
         stages: list[Any] = []
         for part in parts:
@@ -223,6 +224,12 @@ class SignalCorruptor:
     resample 0, per-step noise blocks at resample 1, 2, ...), ``begin_episode(seed=s)`` re-roots at
     ``(seed, SEPARATOR, s)``.
 
+    A process's stream is named by its own content, never by its position: ``<side>_<name>`` for a
+    process on the whole signal (``obs_noise``), ``<side>_<name>[<selection>]`` otherwise
+    (``obs_noise[velocity]``), so adding a model never shifts another's draws. Reports always use the
+    plain ``<side>_<name>`` prefix (``obs_noise_std[3]``). Two processes with the same name and
+    selection, or the same name on overlapping entries, are refused: pass ``name=`` to one of them.
+
     Args:
         models: ObservationNoise, ActionNoise, ObservationLatency, ActionLatency, SampleAndHold and
             ControlJitter instances (at most one of each timing model).
@@ -257,6 +264,7 @@ class SignalCorruptor:
         self.models = models
         self._wrap_seed = normalize_seed(seed)
         self._streams = StreamFactory(self._wrap_seed)
+        self._owners: dict[str, int] = {}
         self.obs_names = self._names("obs", self.obs_noise)
         self.action_names = self._names("action", self.action_noise)
         self._timing_gens = {cls: self._streams.generator(m.stream) for cls, m in self.timing.items()}
@@ -265,17 +273,26 @@ class SignalCorruptor:
         self._bound = False
         self.delays_actions = False
 
-    @staticmethod
-    def _names(side: str, pipelines: Sequence[ObservationNoise | ActionNoise]) -> list[list[str]]:
-        seen: dict[str, int] = {}
+    def _names(self, side: str, pipelines: Sequence[ObservationNoise | ActionNoise]) -> list[list[str]]:
+        # A process's stream is named by its own content: side, name and selection (``obs_noise``,
+        # ``obs_noise[velocity]``), never by its position, so adding a model never shifts another's draws.
+        # Its report keys keep the plain prefix (``obs_noise_std[3]``).
         out = []
         for pipe in pipelines:
+            k = next(i for i, m in enumerate(self.models) if m is pipe)
             names = []
             for p in pipe.processes:
+                select = p.select if p.select is not None else pipe.select
                 base = f"{side}_{p.name}"
-                count = seen.get(base, 0)
-                seen[base] = count + 1
-                names.append(base if count == 0 else f"{base}#{count}")
+                name = base if select is None else f"{base}[{selection_repr(select)}]"
+                if name in self._owners:
+                    raise ValueError(
+                        f"`models[{k}]` and `models[{self._owners[name]}]` would share the "
+                        f"random stream {name!r} (same process name and selection); pass a distinct `name=` to "
+                        f"one of the processes, e.g. {type(p).__name__}(..., name='{p.name}2')."
+                    )
+                self._owners[name] = k
+                names.append(name)
             out.append(names)
         return out
 
@@ -362,6 +379,7 @@ class SignalCorruptor:
             _Pipeline(n, names, action, self.action_dtype, self)  # type: ignore[arg-type]
             for n, names in zip(self.action_noise, self.action_names, strict=True)
         ]
+        self._check_reports()
         jitter = self.timing.get(ControlJitter)
         min_substeps = self.nominal_substeps
         if jitter is not None:
@@ -390,6 +408,19 @@ class SignalCorruptor:
             size = action.size if self.delays_actions else 0  # physics-level size is set by reset_commands
             self._cmd_delay = CommandDelay(self._capacity[ActionLatency], max(size, 1))
         self._bound = True
+
+    def _check_reports(self) -> None:
+        """Refuses two same-named processes on overlapping entries: their reports would share keys."""
+        seen: dict[str, tuple[str, np.ndarray]] = {}
+        for pipe in (*self._obs_pipes, *self._action_pipes):
+            for name, idx in zip(pipe.names, pipe.indices, strict=True):
+                prefix = name.partition("[")[0]
+                if prefix in seen and np.intersect1d(seen[prefix][1], idx).size:
+                    raise ValueError(
+                        f"The processes of streams {seen[prefix][0]!r} and {name!r} act on overlapping entries, so "
+                        f"both would report {prefix!r} for them; pass a distinct `name=` to one of the processes."
+                    )
+                seen[prefix] = (name, np.union1d(seen[prefix][1], idx) if prefix in seen else np.asarray(idx))
 
     # -- episodes -----------------------------------------------------------------------------
     def begin_episode(self, seed: SeedLike = None) -> None:

@@ -214,10 +214,15 @@ class ArrayEffect(Effect):
 
     @property
     def key(self) -> str:
+        """``name`` if given, else the effect's kind, selection, extra fields and operation, e.g.
+        ``Mass[bodies=torso]`` for ``scale`` and ``Mass[bodies=torso,op=add]``: never its position among
+        other effects, so adding one never renames (and so never shifts the draws of) another.
+        ``scale`` keeps the bare name streams have always had."""
         if self.name is not None:
             return self.name
         extra = "".join(f",{k}={v}" for k, v in self._extra_fields().items())
-        return f"{type(self).__name__}[{self.selector}={'|'.join(self.patterns)}{extra}]"
+        op = "" if self.operation == "scale" else f",op={self.operation}"
+        return f"{type(self).__name__}[{self.selector}={'|'.join(self.patterns)}{extra}{op}]"
 
     def _array(self, model: mujoco.MjModel) -> np.ndarray:
         return getattr(model, self.field)

@@ -59,9 +59,18 @@ class _Slot:
 class PhysicsRandomizer:
     """Draws effect values per episode from keyed streams, writes them, reports and restores them.
 
+    Each effect draws from its own stream, keyed by ``(seed, effect.key, episode)``. The key comes from
+    the effect alone: its ``name=`` if given, else its kind, selection and operation
+    (``Mass[bodies=torso]`` for ``scale``, ``Mass[bodies=torso,op=add]``), so adding, removing or
+    reordering effects never changes another's draws. Two effects with the same key are refused; give
+    one of them a ``name=``.
+
     Args:
         effects: the physics effects (``randomizers.effects``), applied in order.
         seed: root seed (int, tuple of ints, or None for fresh entropy).
+
+    Raises:
+        ValueError: two effects would share a stream (same key).
 
     Attributes:
         current_params: parameter address -> value in use this episode (a new dict whenever
@@ -95,14 +104,20 @@ class PhysicsRandomizer:
 
     @staticmethod
     def _stream_names(effects: tuple[Effect, ...]) -> list[str]:
-        seen: dict[str, int] = {}
-        names = []
-        for effect in effects:
+        # Each stream is named by its effect's own ``key`` (kind, selection, operation; or ``name=``), never
+        # by its position, so adding an effect never shifts another's draws. Two effects with one key
+        # would draw the same numbers: refuse rather than number them in order.
+        first: dict[str, int] = {}
+        for i, effect in enumerate(effects):
             key = effect.key
-            count = seen.get(key, 0)
-            seen[key] = count + 1
-            names.append(key if count == 0 else f"{key}#{count}")
-        return names
+            if key in first:
+                j = first[key]
+                raise ValueError(
+                    f"`effects[{i}]` and `effects[{j}]` would share the random stream {key!r} "
+                    f"({effects[i]!r} and {effects[j]!r}); pass a distinct `name=` to one of them."
+                )
+            first[key] = i
+        return list(first)
 
     @property
     def stream_names(self) -> tuple[str, ...]:

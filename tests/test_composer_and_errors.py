@@ -136,7 +136,7 @@ effects:
         ),
         (
             "effects:\n  - type: Mass\n    scale: [-1.0, 2.0]\n",
-            "{f}: effects[0]: `scale` of Mass must not go below 0 (body_mass must stay non-negative). Received Uniform(low=-1.0, high=2.0) with support [-1.0, 2.0].",
+            "{f}: effects[0]: `scale` of Mass must be > 0 over its whole support (body_mass of 0 is singular). Received Uniform(low=-1.0, high=2.0) with support [-1.0, 2.0].",
         ),
         (
             "effects:\n  - type: Mass\n    scale: {type: Gauss, std: 1}\n",
@@ -187,7 +187,7 @@ def test_add_that_would_go_negative_is_rejected_at_wrap() -> None:
         (
             lambda: s2r.Mass(scale=s2r.Normal(1.0, 0.1)),
             ValueError,
-            "`scale` of Mass must not go below 0 (body_mass must stay non-negative). Received Normal(mean=1.0, std=0.1) with support [-inf, inf].",
+            "`scale` of Mass must be > 0 over its whole support (body_mass of 0 is singular). Received Normal(mean=1.0, std=0.1) with support [-inf, inf].",
         ),
         (
             lambda: s2r.Friction(set=-0.1),

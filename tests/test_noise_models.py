@@ -239,7 +239,7 @@ def test_duplicate_processes_get_distinct_streams() -> None:
         ],
         seed=0,
     )
-    assert c.stream_names == ("obs_noise", "obs_noise#1")
+    assert c.stream_names == ("obs_noise[0]", "obs_noise[1]")
 
 
 # -- buffers ------------------------------------------------------------------------------------------
