@@ -46,6 +46,18 @@ import numpy as np
 
 __all__ = ["DERIVED_FROM", "OUTPUTS", "SetConst"]
 
+# inert0: the inertia matrix in qpos0 and what is solved from it
+_INERTIA_MATRIX = (
+    "body_invweight0",
+    "dof_invweight0",
+    "dof_M0",
+    "flexedge_invweight0",
+    "tendon_invweight0",
+    "actuator_acc0",
+)
+# spring: kinematics in qpos_spring (the implicit flex metric factor)
+_FLEX_METRIC = ("efm0_dofid", "efm0_L_rownnz", "efm0_L_rowadr", "efm0_L_colind", "efm0_L", "efmC_perm")
+
 #: Every ``MjModel`` array ``mj_setConst`` writes, by group (MuJoCo 3.17.0 ``MJSETCONST_ARRAYS``).
 OUTPUTS: tuple[str, ...] = (
     # fixed: independent of the configuration
@@ -96,41 +108,22 @@ OUTPUTS: tuple[str, ...] = (
     "eq_data",
     "tendon_length0",
     "actuator_length0",
-    # inert0: inertia matrix in qpos0
-    "body_invweight0",
-    "dof_invweight0",
-    "dof_M0",
-    "flexedge_invweight0",
-    "tendon_invweight0",
-    "actuator_acc0",
-    # spring: kinematics in qpos_spring (the implicit flex metric factor)
-    "efm0_dofid",
-    "efm0_L_rownnz",
-    "efm0_L_rowadr",
-    "efm0_L_colind",
-    "efm0_L",
-    "efmC_perm",
+    *_INERTIA_MATRIX,
+    *_FLEX_METRIC,
 )
 
-_INERTIA_MATRIX = (
-    "body_invweight0",
-    "dof_invweight0",
-    "dof_M0",
-    "flexedge_invweight0",
-    "tendon_invweight0",
-    "actuator_acc0",
-)
-_FLEX_METRIC = ("efm0_dofid", "efm0_L_rownnz", "efm0_L_rowadr", "efm0_L_colind", "efm0_L", "efmC_perm")
 _SUBTREE_COM = ("cam_poscom0", "light_poscom0")
+# Everything solved from the inertia matrix in qpos0 (masses, inertias, inertial frames, armature).
+_MASS_MATRIX = (*_INERTIA_MATRIX, *_FLEX_METRIC)
 
 #: For each input an effect may write, the outputs of ``mj_setConst`` that depend on it (read off
 #: ``engine_setconst.c``: subtree masses and centres of mass, the inertia matrix in ``qpos0`` and what
 #: is solved from it, the mass-weighted flex metric; the inertial frame also sets the same-frame
 #: flags, joint lengths and body bounding volumes). An input missing here makes every output derived.
 DERIVED_FROM: dict[str, tuple[str, ...]] = {
-    "body_mass": ("body_subtreemass", "flex_vertmetric", *_SUBTREE_COM, *_INERTIA_MATRIX, *_FLEX_METRIC),
+    "body_mass": ("body_subtreemass", "flex_vertmetric", *_SUBTREE_COM, *_MASS_MATRIX),
     "body_inertia": _INERTIA_MATRIX,
-    "dof_armature": (*_INERTIA_MATRIX, *_FLEX_METRIC),
+    "dof_armature": _MASS_MATRIX,
     "body_ipos": (
         "body_sameframe",
         "geom_sameframe",
@@ -138,8 +131,7 @@ DERIVED_FROM: dict[str, tuple[str, ...]] = {
         "bvh_aabb",
         "dof_length",
         *_SUBTREE_COM,
-        *_INERTIA_MATRIX,
-        *_FLEX_METRIC,
+        *_MASS_MATRIX,
     ),
 }
 DERIVED_FROM["body_iquat"] = DERIVED_FROM["body_ipos"]
