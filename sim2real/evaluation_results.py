@@ -1,0 +1,136 @@
+"""The result of :func:`sim2real.evaluation.evaluate`: every policy's episode returns on every condition.
+
+Example:
+    >>> import numpy as np
+    >>> from sim2real.conditions import nominal, real
+    >>> evaluation = Evaluation(
+    ...     task="demo", seed=0, episodes=3, max_steps=None, policies=("ppo",),
+    ...     conditions=(nominal(), real(params={"body_mass[arm]": 1.2})),
+    ...     returns={"ppo": {"sim": np.array([3.0, 2.0, 1.0]), "real": np.array([2.0, 1.0, 0.0])}},
+    ...     successes={}, lengths={}, draws={})
+    >>> evaluation.table("ppo", ["sim", "real"]).shape, [c.name for c in evaluation.of_kind("real")]
+    ((3, 2), ['real'])
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from sim2real.conditions import Condition, _freeze
+
+__all__ = ["Evaluation"]
+
+
+def _readonly(array: np.ndarray) -> np.ndarray:
+    array = np.array(array, copy=True)
+    array.setflags(write=False)
+    return array
+
+
+def _nested(data: Mapping[str, Mapping[str, Any]], dtype: Any) -> Mapping[str, Mapping[str, np.ndarray]]:
+    return _freeze(
+        {k: _freeze({c: _readonly(np.asarray(v, dtype=dtype)) for c, v in d.items()}) for k, d in data.items()}
+    )
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """Episode returns of every policy on every condition, from :func:`~sim2real.evaluation.evaluate`.
+
+    ``returns[policy][condition]`` is a read-only ``(episodes,)`` float64 array in episode order (row ``e``
+    is the episode reset with ``episode_seed(seed, e)`` in every simulated condition); a measured condition
+    holds the measured returns instead, and only for the policies the CSV names. ``successes`` has the same
+    layout when the task reports ``info["is_success"]`` (empty otherwise); ``lengths`` holds episode lengths.
+    ``draws[condition][address]`` holds the value each episode drew (the same for every policy).
+
+    Attributes:
+        task: the task id.
+        seed: the root seed.
+        episodes: episodes per (policy, simulated condition).
+        max_steps: the cap on episode length, or None (the task's own limit).
+        policies: policy names, in order.
+        conditions: the conditions, in order.
+        returns, successes, lengths, draws: see above.
+        env_steps: environment steps taken.
+        seconds: wall-clock time of the evaluation (not part of :meth:`to_dict`, which is reproducible).
+    """
+
+    task: str
+    seed: int
+    episodes: int
+    max_steps: int | None
+    policies: tuple[str, ...]
+    conditions: tuple[Condition, ...]
+    returns: Mapping[str, Mapping[str, np.ndarray]]
+    successes: Mapping[str, Mapping[str, np.ndarray]]
+    lengths: Mapping[str, Mapping[str, np.ndarray]]
+    draws: Mapping[str, Mapping[str, np.ndarray]]
+    env_steps: int = 0
+    seconds: float = field(default=0.0, compare=False)
+
+    def condition(self, name: str) -> Condition:
+        """The condition called ``name``."""
+        for cond in self.conditions:
+            if cond.name == name:
+                return cond
+        raise KeyError(f"`name` must be one of {[c.name for c in self.conditions]}. Received {name!r}.")
+
+    def of_kind(self, *kinds: str) -> tuple[Condition, ...]:
+        """The conditions of the given kinds, in order."""
+        return tuple(c for c in self.conditions if c.kind in kinds)
+
+    def sweeps(self) -> dict[str, tuple[Condition, ...]]:
+        """Sweep and grid name -> its conditions (in grid order)."""
+        out: dict[str, list[Condition]] = {}
+        for cond in self.conditions:
+            if cond.sweep is not None:
+                out.setdefault(cond.sweep, []).append(cond)
+        return {k: tuple(v) for k, v in out.items()}
+
+    def table(self, policy: str, conditions: Sequence[str]) -> np.ndarray:
+        """``(num_runs, num_conditions)`` returns of ``policy`` (the shape :mod:`sim2real.metrics` takes).
+
+        Raises:
+            KeyError: a condition without returns for ``policy``.
+            ValueError: conditions with different numbers of runs (use them one at a time).
+        """
+        if policy not in self.returns:
+            raise KeyError(f"`policy` must be one of {list(self.policies)}. Received {policy!r}.")
+        columns = []
+        for name in conditions:
+            if name not in self.returns[policy]:
+                raise KeyError(f"no returns for policy {policy!r} on condition {name!r}.")
+            columns.append(self.returns[policy][name])
+        sizes = {len(c) for c in columns}
+        if len(sizes) > 1:
+            raise ValueError(f"`conditions` {list(conditions)} have different numbers of runs: {sorted(sizes)}.")
+        return np.column_stack(columns)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data (JSON-ready, without wall-clock time): reproducible bitwise from the seed."""
+
+        def nested(data: Mapping[str, Mapping[str, np.ndarray]]) -> dict[str, Any]:
+            return {k: {c: v.tolist() for c, v in d.items()} for k, d in data.items()}
+
+        return {
+            "task": self.task,
+            "seed": self.seed,
+            "episodes": self.episodes,
+            "max_steps": self.max_steps,
+            "policies": list(self.policies),
+            "conditions": [c.config() for c in self.conditions],
+            "returns": nested(self.returns),
+            "successes": nested(self.successes),
+            "lengths": nested(self.lengths),
+            "draws": nested(self.draws),
+            "env_steps": self.env_steps,
+        }
+
+    def to_json(self, indent: int | None = 1) -> str:
+        """:meth:`to_dict` as JSON text (keys in a fixed order)."""
+        return json.dumps(self.to_dict(), indent=indent, allow_nan=True)
