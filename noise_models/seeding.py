@@ -118,7 +118,9 @@ class StreamFactory:
     def __init__(self, seed: SeedLike = None) -> None:
         root = normalize_seed(seed)
         if root is None:
-            root = (int(np.random.SeedSequence().entropy) % (2**63),)
+            entropy = np.random.SeedSequence().entropy  # an int when drawn from the OS
+            assert isinstance(entropy, int)
+            root = (entropy % (2**63),)
         self.root: tuple[int, ...] = root
         self._root_key = _root_key(root)
         self._states: dict[str, dict[str, Any]] = {}
