@@ -23,18 +23,32 @@ Example:
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
 
 import mujoco
 import numpy as np
 
 if TYPE_CHECKING:
-    from randomizers.effects import ArrayEffect
+    from randomizers.effects import ArrayEffect  # noqa: F401 - named in a base-class subscript, as a string
 
 __all__ = ["Binding"]
 
 
-class Binding:
+class BoundEffect(Protocol):
+    """What a :class:`Binding` reads of its effect: whether one draw is shared, and how draws combine."""
+
+    @property
+    def shared(self) -> bool: ...
+
+    @property
+    def operation(self) -> str: ...
+
+
+#: The effect class a binding belongs to (physics bindings: an ArrayEffect; visual ones: their own effects).
+EffectT = TypeVar("EffectT", bound=BoundEffect)
+
+
+class Binding(Generic[EffectT]):
     """An effect resolved against one model: target indices, nominal snapshot, in-place writes.
 
     Attributes:
@@ -49,13 +63,13 @@ class Binding:
 
     def __init__(
         self,
-        effect: ArrayEffect,
+        effect: EffectT,
         model: mujoco.MjModel,
         array: np.ndarray,
         targets: tuple[np.ndarray, ...],
         addresses: Sequence[str],
     ) -> None:
-        self.effect = effect
+        self.effect: EffectT = effect
         self.model = model
         self._array = array
         self._targets = targets
@@ -140,7 +154,7 @@ class _GainBinding(Binding):
         self.model.actuator_biasprm[self._rows] = self._bias_nominal
 
 
-class _SetConstBinding(Binding):
+class _SetConstBinding(Binding["ArrayEffect"]):
     """A binding on one array ``mj_setConst`` reads (the effect's ``field``, e.g. ``dof_armature``)."""
 
     def __init__(self, *args: Any) -> None:

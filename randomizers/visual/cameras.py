@@ -102,7 +102,7 @@ def _look_at_quat(eye: np.ndarray, target: np.ndarray, up: np.ndarray, roll: flo
     return quat
 
 
-class _PoseBinding(Binding):
+class _PoseBinding(Binding["CameraPose"]):
     def __init__(self, effect: CameraPose, model: mujoco.MjModel, chosen: list[tuple[int, str]]) -> None:
         self.effect = effect
         self.model = model
@@ -146,7 +146,7 @@ class _PoseBinding(Binding):
         return 4 if self.effect.shared else 4 * len(self.rows)
 
     def values(self, draws: np.ndarray) -> np.ndarray:
-        effect: CameraPose = self.effect  # type: ignore[assignment]
+        effect: CameraPose = self.effect
         d = np.broadcast_to(np.asarray(draws, dtype=np.float64).reshape(-1, 4), (len(self.rows), 4))
         op = effect.operation
         pos = self._pos * d[:, :3] if op == "scale" else self._pos + d[:, :3] if op == "add" else np.array(d[:, :3])

@@ -85,7 +85,7 @@ class _ColorBinding(Binding):
         cols = np.tile(np.arange(3, dtype=np.intp), len(rows))
         targets = (np.repeat(rows, 3), cols)
         addresses = [f"{effect.field}[{n}][{c}]" for n in names for c in range(3)]
-        super().__init__(effect, model, array, targets, addresses)  # type: ignore[arg-type]
+        super().__init__(effect, model, array, targets, addresses)
         self.nominal = self.nominal.astype(np.float64)
         self._raw = array[targets].copy()
         self.base = effect._seen_rgb(model, rows)  # (k, 3) float64: what the renderer shows at nominal
@@ -95,7 +95,7 @@ class _ColorBinding(Binding):
         return 3 if self.effect.shared else self.size
 
     def values(self, draws: np.ndarray) -> np.ndarray:
-        effect: _ColorEffect = self.effect  # type: ignore[assignment]
+        effect: _ColorEffect = self.effect
         d = np.broadcast_to(np.asarray(draws, dtype=np.float64).reshape(-1, 3), self.base.shape)
         base = rgb_to_hsv(self.base) if effect.space == "hsv" else self.base
         op = effect.operation

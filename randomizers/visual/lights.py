@@ -32,7 +32,7 @@ class _LightBinding(Binding):
         super().__init__(*args)
         self._raw = self._array[self._targets].copy()
         self.nominal = self._raw.astype(np.float64)
-        effect: Light = self.effect  # type: ignore[assignment]
+        effect: Light = self.effect
         self._attribute = effect.attribute
 
     def values(self, draws: np.ndarray) -> np.ndarray:

@@ -255,7 +255,7 @@ class _TextureBinding(Binding):
         return d.reshape(-1)
 
     def apply(self, values: np.ndarray) -> None:
-        patterns: tuple[str, ...] = self.effect.patterns_drawn  # type: ignore[attr-defined]
+        patterns: tuple[str, ...] = self.effect.patterns_drawn
         v = values.reshape(-1, 8)
         data = self.model.tex_data
         for g, row in zip(self.geometry, v, strict=True):
