@@ -35,6 +35,7 @@ import numpy as np
 from noise_models.values import FrozenValue, check_value, draw, upper_bound, value_config
 
 __all__ = [
+    "TIME_UNITS",
     "ActionLatency",
     "CommandDelay",
     "ControlJitter",
@@ -42,7 +43,50 @@ __all__ = [
     "ObservationLatency",
     "SampleAndHold",
     "TimeModel",
+    "convert_time",
 ]
+
+#: The units a span of time is given in at any boundary of the library.
+TIME_UNITS = ("seconds", "control_steps", "physics_steps")
+
+
+def convert_time(value: float, source: str, target: str, *, timestep: float, substeps: int = 1) -> float:
+    """Converts a span of time between ``seconds``, ``control_steps`` and ``physics_steps``: the one place where
+    a latency or a period changes unit (sysid results, exported effects, the recorder and the wrappers use it).
+
+    Args:
+        value: the span, in ``source`` units.
+        source, target: units from :data:`TIME_UNITS`.
+        timestep: seconds per physics step (``model.opt.timestep``).
+        substeps: physics steps per control step.
+
+    Example:
+        >>> convert_time(2, "control_steps", "physics_steps", timestep=0.002, substeps=10)
+        20.0
+        >>> convert_time(2, "control_steps", "seconds", timestep=0.002, substeps=10)
+        0.04
+        >>> convert_time(0.04, "seconds", "physics_steps", timestep=0.002, substeps=10)
+        20.0
+        >>> convert_time(1, "steps", "seconds", timestep=0.002)
+        Traceback (most recent call last):
+        ...
+        ValueError: `source` must be one of ['seconds', 'control_steps', 'physics_steps']. Received 'steps'.
+    """
+    for name, unit in (("source", source), ("target", target)):
+        if unit not in TIME_UNITS:
+            raise ValueError(f"`{name}` must be one of {list(TIME_UNITS)}. Received {unit!r}.")
+    if not (isinstance(timestep, (int, float)) and math.isfinite(timestep) and timestep > 0):
+        raise ValueError(f"`timestep` must be a finite number > 0 (seconds per physics step). Received {timestep!r}.")
+    if isinstance(substeps, bool) or not isinstance(substeps, (int, np.integer)) or substeps < 1:
+        raise ValueError(f"`substeps` must be an int >= 1. Received {substeps!r}.")
+    if source == target:
+        return float(value)
+    physics = float(value) * {"seconds": 1.0 / timestep, "control_steps": float(substeps), "physics_steps": 1.0}[source]
+    if target == "physics_steps":
+        return physics
+    if target == "control_steps":
+        return physics / substeps
+    return physics * timestep
 
 
 class TimeModel(FrozenValue):
@@ -102,7 +146,7 @@ class _Latency(TimeModel):
                 f"{type(self).__name__}(seconds=...) needs the environment's timestep to count steps, and this "
                 "environment exposes none (no MuJoCo model, no `dt`/`control_timestep`); give `steps=` instead."
             )
-        return 1.0 / timestep
+        return convert_time(1.0, "seconds", "physics_steps", timestep=timestep)
 
     def check_capacity(self, scale: float) -> int:
         """The longest delay in steps; raises when it exceeds ``max_steps``."""

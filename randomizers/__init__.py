@@ -12,7 +12,8 @@ Example:
 
 from __future__ import annotations
 
-from randomizers.addressing import Address, element_names, select
+from randomizers.addressing import element_names, select
+from randomizers.com import BodyComOffset
 from randomizers.config import (
     EFFECT_TYPES,
     SIGNAL_TYPES,
@@ -23,11 +24,13 @@ from randomizers.config import (
     load_effects,
     load_signals,
 )
+from randomizers.correlated import Correlated
 from randomizers.distributions import (
     Choice,
     Constant,
     Distribution,
     LogUniform,
+    MultivariateNormal,
     Normal,
     Sampler,
     TruncatedNormal,
@@ -49,6 +52,15 @@ from randomizers.effects import (
     Push,
     Stiffness,
 )
+from randomizers.parameters import (
+    EFFECT_FIELDS,
+    FIELD_EFFECTS,
+    Address,
+    ParameterBinding,
+    ParameterSet,
+    effect_for,
+    parse_assignment,
+)
 from randomizers.randomizer import PhysicsRandomizer
 from randomizers.seeding import StreamFactory, stream
 from randomizers.visual import (
@@ -63,16 +75,20 @@ from randomizers.visual import (
 )
 
 __all__ = [
+    "EFFECT_FIELDS",
     "EFFECT_TYPES",
+    "FIELD_EFFECTS",
     "SIGNAL_TYPES",
     "ActuatorGain",
     "Address",
     "Armature",
     "Binding",
+    "BodyComOffset",
     "CameraFovy",
     "CameraPose",
     "Choice",
     "Constant",
+    "Correlated",
     "Damping",
     "Distribution",
     "Effect",
@@ -85,7 +101,10 @@ __all__ = [
     "LogUniform",
     "Mass",
     "MaterialColor",
+    "MultivariateNormal",
     "Normal",
+    "ParameterBinding",
+    "ParameterSet",
     "PhysicsRandomizer",
     "Product",
     "Push",
@@ -100,11 +119,13 @@ __all__ = [
     "distribution_from_config",
     "dump_config",
     "dump_effects",
+    "effect_for",
     "effect_to_config",
     "element_names",
     "load_config",
     "load_effects",
     "load_signals",
+    "parse_assignment",
     "select",
     "stream",
 ]

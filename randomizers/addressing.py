@@ -1,29 +1,34 @@
-"""Parameter addresses: "which field of which named element", shared by randomizers, sysid and reports.
+"""Named elements of a model: the lookups the effects themselves need (below the effects in the import graph).
 
-An address reads ``field[element]`` or ``field[element][index]``, e.g. ``geom_friction[finger][0]``,
-``body_mass[arm]``, ``dof_damping[shoulder]``, ``actuator_gain[wrist]``, ``gravity[z]``. Element
-selections in effects are name patterns (``fnmatch`` style: ``finger*``, ``*``, or a list of them).
+The parameter vocabulary (addresses, resolving, reading, writing, effects for an address) is
+:mod:`randomizers.parameters`; this module holds only what the effect classes need to find their elements,
+so ``effects`` can import it without a cycle. Element selections are name patterns (``fnmatch`` style:
+``finger*``, ``*``, or a list of them).
 
 Example:
-    >>> Address.parse("geom_friction[finger][0]")
-    Address(field='geom_friction', element='finger', index=0)
-    >>> str(Address("body_mass", "arm"))
-    'body_mass[arm]'
+    >>> import mujoco
+    >>> model = mujoco.MjModel.from_xml_string('<mujoco><worldbody><geom name="floor" size="1 1 .1" '
+    ...                                        'type="plane"/><geom size=".1"/></worldbody></mujoco>')
+    >>> element_names(model, "geom")
+    ['floor', '#1']
+    >>> FRICTION_AXES[1]
+    'torsional'
 """
 
 from __future__ import annotations
 
 import difflib
 import fnmatch
-import re
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import mujoco
 
-__all__ = ["Address", "element_names", "select"]
+__all__ = ["FRICTION_AXES", "GRAVITY_AXES", "element_names", "select"]
 
-_ADDRESS = re.compile(r"^(?P<field>[A-Za-z_][A-Za-z0-9_]*)\[(?P<element>[^\[\]]+)\](?:\[(?P<index>\d+)\])?$")
+#: The components of ``geom_friction``, by column: ``geom_friction[g][i]`` is ``FRICTION_AXES[i]``.
+FRICTION_AXES: tuple[str, ...] = ("sliding", "torsional", "rolling")
+#: The components of a 3-vector (gravity, positions), by column.
+GRAVITY_AXES: tuple[str, ...] = ("x", "y", "z")
 
 _OBJ = {
     "geom": mujoco.mjtObj.mjOBJ_GEOM,
@@ -48,39 +53,6 @@ _COUNT = {
     "camera": "ncam",
     "texture": "ntex",
 }
-
-
-@dataclass(frozen=True)
-class Address:
-    """One scalar simulator parameter: ``field[element]`` plus an optional component ``index``."""
-
-    field: str
-    element: str
-    index: int | None = None
-
-    def __str__(self) -> str:
-        base = f"{self.field}[{self.element}]"
-        return base if self.index is None else f"{base}[{self.index}]"
-
-    @classmethod
-    def parse(cls, text: str) -> Address:
-        """Parses ``field[element]`` or ``field[element][index]``.
-
-        Example:
-            >>> Address.parse("mass of arm")
-            Traceback (most recent call last):
-            ...
-            ValueError: `address` must look like 'field[element]' or 'field[element][index]', \
-e.g. 'geom_friction[finger][0]'. Received 'mass of arm'.
-        """
-        match = _ADDRESS.match(text.strip()) if isinstance(text, str) else None
-        if match is None:
-            raise ValueError(
-                "`address` must look like 'field[element]' or 'field[element][index]', "
-                f"e.g. 'geom_friction[finger][0]'. Received {text!r}."
-            )
-        index = match.group("index")
-        return cls(match.group("field"), match.group("element"), None if index is None else int(index))
 
 
 def element_names(model: mujoco.MjModel, kind: str) -> list[str]:

@@ -31,20 +31,10 @@ from typing import Any
 
 import yaml
 
+from randomizers.correlated import Correlated
 from randomizers.distributions import Distribution, distribution_from_config
-from randomizers.effects import (
-    ActuatorGain,
-    Armature,
-    Damping,
-    Effect,
-    Friction,
-    FrictionLoss,
-    Gravity,
-    Interval,
-    Mass,
-    Push,
-    Stiffness,
-)
+from randomizers.effects import Effect, Interval, Push
+from randomizers.parameters import FIELD_EFFECTS
 from randomizers.visual import VISUAL_EFFECTS
 
 __all__ = [
@@ -58,14 +48,12 @@ __all__ = [
     "load_signals",
 ]
 
+#: Every effect type a YAML ``effects:`` list may name: the field effects of
+#: :data:`randomizers.parameters.FIELD_EFFECTS` (register a new physics effect there), then the others.
 EFFECT_TYPES: dict[str, type[Effect]] = {
-    cls.__name__: cls
-    for cls in (
-        *(Friction, Mass, Damping, Armature, FrictionLoss, Stiffness, ActuatorGain, Gravity, Push),
-        *VISUAL_EFFECTS,
-    )
+    cls.__name__: cls for cls in (*FIELD_EFFECTS, Push, Correlated, *VISUAL_EFFECTS)
 }
-_DISTRIBUTION_ARGS = {"scale", "add", "set", "force", "interval", "rgb1", "rgb2", "roll"}
+_DISTRIBUTION_ARGS = {"scale", "add", "set", "force", "interval", "rgb1", "rgb2", "roll", "distribution"}
 
 
 def _distributions_from_config(value: object, where: str) -> Any:

@@ -32,6 +32,7 @@ __all__ = [
     "Constant",
     "Distribution",
     "LogUniform",
+    "MultivariateNormal",
     "Normal",
     "Sampler",
     "TruncatedNormal",
@@ -285,9 +286,123 @@ class Choice(Distribution):
         return (min(self.values), max(self.values))
 
 
-_TYPES: dict[str, type[Distribution]] = {
-    cls.__name__: cls for cls in (Constant, Uniform, LogUniform, Normal, TruncatedNormal, Choice)
-}
+def _vector(name: str, value: object, size: int | None, fill: float | None = None) -> tuple[float, ...]:
+    if value is None and fill is not None and size is not None:
+        return (fill,) * size
+    array = np.asarray(value, dtype=np.float64) if not isinstance(value, (str, bytes)) else np.zeros(0)
+    if array.ndim != 1 or array.size == 0 or (size is not None and array.size != size):
+        want = f"{size} numbers" if size is not None else "a non-empty list of numbers"
+        raise ValueError(f"`{name}` of MultivariateNormal must be {want}. Received {value!r}.")
+    return tuple(float(v) for v in array)
+
+
+@dataclass(frozen=True)
+class MultivariateNormal(Distribution):
+    """A Gaussian vector with ``mean`` (P,) and covariance ``cov`` (P, P), optionally truncated to the box
+    ``[low, high]`` (per component; ``None`` means unbounded). One draw is a whole (P,) vector, so correlated
+    parameters move together (:class:`randomizers.correlated.Correlated` writes one draw into P addresses).
+
+    Truncation is by rejection (whole vectors, from the same generator); when fewer than one draw in
+    ten thousand falls inside the box the draw is clipped to it instead.
+
+    Example:
+        >>> import numpy as np
+        >>> d = MultivariateNormal((1.0, 2.0), ((0.04, 0.03), (0.03, 0.09)), low=(0.0, 0.0))
+        >>> d.sample(np.random.default_rng(0)).shape, d.sample(np.random.default_rng(0), 5).shape
+        ((2,), (5, 2))
+        >>> MultivariateNormal((0.0,), ((-1.0,),))
+        Traceback (most recent call last):
+        ...
+        ValueError: `cov` of MultivariateNormal must be symmetric positive semi-definite. Received ((-1.0,),).
+    """
+
+    mean: tuple[float, ...]
+    cov: tuple[tuple[float, ...], ...]
+    low: tuple[float, ...] | None = None
+    high: tuple[float, ...] | None = None
+
+    def __post_init__(self) -> None:
+        mean = _vector("mean", self.mean, None)
+        size = len(mean)
+        try:
+            cov = np.asarray(self.cov, dtype=np.float64)
+        except (TypeError, ValueError):
+            cov = np.zeros(0)
+        if cov.shape != (size, size) or not np.isfinite(cov).all() or not np.isfinite(mean).all():
+            raise ValueError(
+                f"`cov` of MultivariateNormal must be a finite {size}x{size} matrix (one row per mean). "
+                f"Received {self.cov!r}."
+            )
+        if not np.array_equal(cov, cov.T) or np.linalg.eigvalsh(cov).min() < -1e-12 * max(1.0, np.abs(cov).max()):
+            raise ValueError(
+                f"`cov` of MultivariateNormal must be symmetric positive semi-definite. Received {self.cov!r}."
+            )
+        low = None if self.low is None else _vector("low", self.low, size)
+        high = None if self.high is None else _vector("high", self.high, size)
+        lo = np.full(size, -np.inf) if low is None else np.array(low)
+        hi = np.full(size, np.inf) if high is None else np.array(high)
+        if np.isnan(lo).any() or np.isnan(hi).any() or (hi <= lo).any():
+            raise ValueError(
+                f"`low` of MultivariateNormal must be below `high` in every component. Received low={self.low!r}, "
+                f"high={self.high!r}."
+            )
+        object.__setattr__(self, "mean", mean)
+        object.__setattr__(self, "cov", tuple(tuple(float(v) for v in row) for row in cov))
+        object.__setattr__(self, "low", low)
+        object.__setattr__(self, "high", high)
+
+    @property
+    def size(self) -> int:
+        """P, the length of one draw."""
+        return len(self.mean)
+
+    def _box(self) -> tuple[np.ndarray, np.ndarray]:
+        lo = np.full(self.size, -np.inf) if self.low is None else np.array(self.low)
+        hi = np.full(self.size, np.inf) if self.high is None else np.array(self.high)
+        return lo, hi
+
+    def sample(self, rng: np.random.Generator, size: int | tuple[int, ...] | None = None) -> Any:
+        count = 1 if size is None else int(np.prod(size))
+        mean, cov = np.array(self.mean), np.array(self.cov)
+        lo, hi = self._box()
+        bounded = self.low is not None or self.high is not None
+        out = np.empty((count, self.size))
+        filled = 0
+        for _ in range(100):
+            batch = rng.multivariate_normal(mean, cov, size=max(64, count), method="eigh")
+            if bounded:
+                batch = batch[((batch >= lo) & (batch <= hi)).all(axis=1)]
+            take = min(count - filled, len(batch))
+            out[filled : filled + take] = batch[:take]
+            filled += take
+            if filled == count:
+                break
+        else:
+            out[filled:] = np.clip(rng.multivariate_normal(mean, cov, size=count - filled, method="eigh"), lo, hi)
+        if size is None:
+            return out[0]
+        shape = (size,) if isinstance(size, int) else tuple(size)
+        return out.reshape(*shape, self.size)
+
+    @property
+    def support(self) -> tuple[float, float]:
+        lo, hi = self._box()
+        std = np.sqrt(np.diag(np.array(self.cov)))
+        lo = np.where(std > 0, lo, np.array(self.mean))
+        hi = np.where(std > 0, hi, np.array(self.mean))
+        return (float(lo.min()), float(hi.max()))
+
+    def to_config(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"type": "MultivariateNormal", "mean": list(self.mean), "cov": [list(r) for r in self.cov]}
+        for name in ("low", "high"):
+            value = getattr(self, name)
+            if value is not None:
+                out[name] = list(value)
+        return out
+
+
+_SCALAR_TYPES = (Constant, Uniform, LogUniform, Normal, TruncatedNormal, Choice)
+_TYPES: dict[str, type[Distribution]] = {cls.__name__: cls for cls in (*_SCALAR_TYPES, MultivariateNormal)}
 
 
 def as_distribution(value: object, name: str) -> Distribution:
@@ -306,12 +421,17 @@ def as_distribution(value: object, name: str) -> Distribution:
         TypeError: `scale` must be a number or a Distribution (Constant, Uniform, LogUniform, Normal, \
 TruncatedNormal, Choice). Received 'big' of type str.
     """
+    if isinstance(value, MultivariateNormal):
+        raise TypeError(
+            f"`{name}` takes one number per draw; a MultivariateNormal draws a vector, so write it into several "
+            f"addresses with randomizers.Correlated. Received {value!r}."
+        )
     if isinstance(value, Distribution):
         return value
     if isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool):
         return Constant(float(value))
     raise TypeError(
-        f"`{name}` must be a number or a Distribution ({', '.join(_TYPES)}). "
+        f"`{name}` must be a number or a Distribution ({', '.join(c.__name__ for c in _SCALAR_TYPES)}). "
         f"Received {value!r} of type {type(value).__name__}."
     )
 

@@ -34,7 +34,7 @@ from typing import Any, ClassVar, Literal, NamedTuple
 import mujoco
 import numpy as np
 
-from randomizers.addressing import select
+from randomizers.addressing import FRICTION_AXES, GRAVITY_AXES, select
 from randomizers.bindings import Binding, _GainBinding, _MassBinding, _SetConstBinding
 from randomizers.distributions import Distribution, as_distribution
 
@@ -56,8 +56,8 @@ __all__ = [
 
 Operation = Literal["scale", "add", "set"]
 _OPERATIONS: tuple[Operation, ...] = ("scale", "add", "set")
-_FRICTION_AXES = {"sliding": 0, "torsional": 1, "rolling": 2}
-_GRAVITY_AXES = {"x": 0, "y": 1, "z": 2}
+_FRICTION_AXES = {name: i for i, name in enumerate(FRICTION_AXES)}
+_GRAVITY_AXES = {name: i for i, name in enumerate(GRAVITY_AXES)}
 _SCHEDULES = ("startup", "reset")
 _unique = set  # the effects' ``set=`` keyword shadows the builtin inside their signatures
 
@@ -149,6 +149,9 @@ class ArrayEffect(Effect):
     #: the field is singular at 0 (a moving body needs mass): draws must keep it > 0 where it is nominally > 0
     positive: ClassVar[bool] = False
     binding_class: ClassVar[type[Binding]] = Binding
+    #: (keyword, names): how an address's component index picks the component (``geom_friction[g][1]`` ->
+    #: ``axis="torsional"``); None when the field has one value per element.
+    components: ClassVar[tuple[str, tuple[str, ...]] | None] = None
 
     def __init__(
         self,
@@ -296,6 +299,7 @@ Received Uniform(low=-0.5, high=1.5) with support [-0.5, 1.5].
     field = "geom_friction"
     kind = "geom"
     selector = "geoms"
+    components = ("axis", FRICTION_AXES)
 
     def __init__(
         self,

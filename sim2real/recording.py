@@ -18,7 +18,6 @@ Example:
 
 from __future__ import annotations
 
-import re
 from collections.abc import Sequence
 from typing import Any
 
@@ -26,8 +25,9 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
+from noise_models.timing import ActionLatency, ObservationLatency, convert_time
 from randomizers import Effect, PhysicsRandomizer
-from randomizers.addressing import Address
+from randomizers.parameters import effect_for, parse_assignment
 from sim2real.calibration import calibrate
 from sim2real.physics import PhysicsHandle, find_physics
 
@@ -35,12 +35,9 @@ __all__ = ["RecordTrajectory", "calibrate", "parse_set", "record"]
 
 # `calibrate` lives beside the physics handle (sim2real.calibration); re-exported here, where it used to be.
 
-_SET = re.compile(r"^\s*(?P<address>[^=\s]+)\s*=\s*(?P<op>[*+]?)\s*(?P<value>[-+0-9.eE]+)\s*$")
-_OPS = {"*": "scale", "+": "add", "": "set"}
-
-
 def parse_set(text: str) -> Effect:
-    """An effect from ``ADDRESS=*X`` (scale), ``ADDRESS=+X`` (add) or ``ADDRESS=X`` (set).
+    """An effect from ``ADDRESS=*X`` (scale), ``ADDRESS=+X`` (add) or ``ADDRESS=X`` (set)
+    (:func:`randomizers.parameters.parse_assignment`, then :func:`randomizers.parameters.effect_for`).
 
     Example:
         >>> parse_set("geom_friction[finger*][0]=0.8")
@@ -51,26 +48,7 @@ def parse_set(text: str) -> Effect:
         ValueError: `--set` must look like 'dof_damping[*]=*1.3' (scale), 'dof_damping[*]=+0.1' (add) or \
 'dof_damping[*]=0.5' (set). Received 'dof_damping=*2'.
     """
-    from sysid.params import EFFECT_FIELDS, effect_for
-
-    match = _SET.match(text) if isinstance(text, str) else None
-    address = None
-    if match is not None:
-        try:
-            address = Address.parse(match["address"])
-            value = float(match["value"])
-        except ValueError:
-            address = None
-    if match is None or address is None:
-        raise ValueError(
-            "`--set` must look like 'dof_damping[*]=*1.3' (scale), 'dof_damping[*]=+0.1' (add) or "
-            f"'dof_damping[*]=0.5' (set). Received {text!r}."
-        )
-    if address.field not in EFFECT_FIELDS:
-        raise ValueError(
-            f"`--set` field must be one of {sorted(EFFECT_FIELDS)}. Received {address.field!r} in {text!r}."
-        )
-    return effect_for(address, _OPS[match["op"]], value)
+    return effect_for(*parse_assignment(text))
 
 
 def _limits(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
@@ -83,6 +61,7 @@ def record(
     task: str,
     *,
     sets: Sequence[str] = (),
+    effects: Sequence[Any] = (),
     policy: str = "multisine",
     episodes: int = 4,
     steps: int = 200,
@@ -97,13 +76,17 @@ def record(
     Args:
         task: a task id (``sim2real tasks``); composer tasks are not supported (their model changes each reset).
         sets: perturbations in :func:`parse_set` form, applied to the model the log is recorded on.
+        effects: perturbations as effect objects (e.g. ``FitResult.to_effects()``): physics effects are drawn
+            once (seed ``seed``) and applied like ``sets``; an ``ActionLatency``/``ObservationLatency`` with a
+            fixed ``seconds``/``steps`` (physics steps) sets the latency, which must come to whole control steps
+            (the open-loop recorder delays by control steps); other models are refused.
         policy: excitation signal, one of :data:`sysid.EXCITATIONS` (``random``, ``multisine``, ``chirp``, ``prbs``).
         episodes: episodes; each starts from the task's own reset state for ``reset(seed=seed + e)``.
         steps: control steps per episode.
         seed: seeds the excitation, the initial states and the sensor noise.
         obs_noise: standard deviation of Gaussian noise on the logged qpos, qvel and sensordata.
-        latency: action latency in control steps (the actuators apply ``ctrl[t - latency]``).
-        obs_latency: sensor latency in control steps (``sensordata`` lags the state).
+        latency: action latency in **control steps** (the actuators apply ``ctrl[t - latency]``).
+        obs_latency: sensor latency in **control steps** (``sensordata`` lags the state).
         amplitude: excitation amplitude as a fraction of each actuator's half-range, in (0, 1].
 
     Returns:
@@ -119,7 +102,17 @@ def record(
         raise ValueError(f"`steps` must be an int >= 2. Received {steps!r}.")
     if not (isinstance(obs_noise, (int, float)) and obs_noise >= 0):
         raise ValueError(f"`obs_noise` must be a number >= 0. Received {obs_noise!r}.")
-    effects = [parse_set(s) for s in sets]
+    physical = [parse_set(s) for s in sets]
+    latencies: list[Any] = []
+    for i, item in enumerate(effects):
+        if isinstance(item, Effect):
+            physical.append(item)
+        elif isinstance(item, (ActionLatency, ObservationLatency)):
+            latencies.append(item)
+        else:
+            raise TypeError(
+                f"`effects[{i}]` must be a physics effect or an ActionLatency/ObservationLatency. Received {item!r}."
+            )
     env = make(task)
     handle = _require(env, task)
     if handle.recompiles:
@@ -128,6 +121,13 @@ def record(
             f"`task` {task!r} recompiles its model every episode; record a dm-control suite, gym or sim2real task."
         )
     substeps = handle.substeps or 1
+    for model_ in latencies:
+        delay = _control_steps(model_, float(handle.model.opt.timestep), substeps)
+        if isinstance(model_, ActionLatency):
+            latency = delay
+        else:
+            obs_latency = delay
+    effects = physical
     starts = []
     for e in range(episodes):
         env.reset(seed=seed + e)
@@ -160,6 +160,22 @@ def record(
     )
     env.close()
     return log
+
+
+def _control_steps(model: Any, timestep: float, substeps: int) -> int:
+    """A fixed latency model's delay in whole control steps (what the open-loop recorder can reproduce)."""
+    if model.jitter is not None or not isinstance(model.steps if model.steps is not None else model.seconds, float):
+        raise ValueError(f"`effects` may hold only fixed latencies without jitter. Received {model!r}.")
+    if model.steps is not None:
+        control = convert_time(model.steps, "physics_steps", "control_steps", timestep=timestep, substeps=substeps)
+    else:
+        control = convert_time(model.seconds, "seconds", "control_steps", timestep=timestep, substeps=substeps)
+    if abs(control - round(control)) > 1e-6:
+        raise ValueError(
+            f"`effects` latency {model!r} is {control:g} control steps ({substeps} physics steps each); the open-loop "
+            "recorder delays by whole control steps."
+        )
+    return round(control)
 
 
 def _copy_model(model: mujoco.MjModel) -> mujoco.MjModel:

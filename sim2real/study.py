@@ -46,7 +46,6 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, TextIO
 
-import numpy as np
 import yaml
 
 __all__ = [
@@ -208,17 +207,10 @@ def load_profile(task: str = DEFAULT_TASK) -> StudyProfile:
 # ------------------------------------------------------------------------------------------------- sysid
 
 
-def _round_sig(value: float, digits: int) -> float:
-    if value == 0 or not math.isfinite(value):
-        return float(value)
-    return float(f"{value:.{digits}g}")
-
-
 def calibrated_effects(fit: Any, *, relative_width: float = 0.1, digits: int = 2, keep: Sequence[Any] = ()) -> list:
-    """The calibrated, randomised simulator of a fit: each estimate rounded to ``digits`` significant digits
-    and drawn uniformly from ``estimate * (1 +- max(relative_width, 2 stderr / |estimate|))`` (clipped at 0 for
-    non-negative fields), the fitted action latency (whole control steps), Gaussian sensor noise at the mean
-    fitted noise level, then ``keep``.
+    """The calibrated, randomised simulator of a fit: :meth:`sysid.FitResult.to_effects` with the profile's
+    ``relative_width`` and ``digits`` (each estimate drawn uniformly from ``estimate +- max(relative_width *
+    |estimate|, 2 stderr)``, the fitted latencies in seconds, the fitted sensor noise), then ``keep``.
 
     Example:
         >>> from sysid import FitResult
@@ -226,26 +218,7 @@ def calibrated_effects(fit: Any, *, relative_width: float = 0.1, digits: int = 2
         >>> calibrated_effects(fit)
         [Damping(set=Uniform(low=0.027, high=0.033), joints='shoulder')]
     """
-    from noise_models import ActionLatency, Gaussian, ObservationNoise
-    from randomizers import Uniform
-    from sysid.params import Address, effect_for
-
-    out: list[Any] = []
-    for address, estimate, stderr in zip(fit.addresses, fit.estimates, fit.stderr, strict=True):
-        center = _round_sig(float(estimate), digits)
-        half = max(relative_width * abs(center), 2.0 * float(stderr) if math.isfinite(stderr) else 0.0)
-        half = _round_sig(half, digits)
-        low, high = center - half, center + half
-        if not address.startswith("gravity") and center >= 0:
-            low = max(low, 0.0)
-        out.append(effect_for(Address.parse(address), "set", Uniform(_round_sig(low, 6), _round_sig(high, 6))))
-    steps = round(float(fit.latency_steps.get("action", 0.0)))
-    noise = [float(v) for v in fit.noise_std.values() if math.isfinite(v)]
-    if noise:
-        out.append(ObservationNoise(Gaussian(std=_round_sig(float(np.mean(noise)), 1))))
-    if steps > 0:
-        out.append(ActionLatency(steps=steps))
-    return [*out, *keep]
+    return [*fit.to_effects(min_relative_width=relative_width, digits=digits), *keep]
 
 
 @dataclass(frozen=True)
@@ -273,18 +246,21 @@ def _fit_one(job: _FitJob) -> Any:
 
 def _record_twin(profile: StudyProfile, budget: Budget, seed: int) -> Any:
     """Excitation logs recorded on the twin (its held-out parameters, sensor noise and action latency)."""
+    import noise_models
+    from randomizers.parameters import Address, effect_for
     from sim2real.recording import record
 
-    std, latency = profile.recording
+    std, _ = profile.recording
+    effects = [effect_for(Address.parse(address), "set", value) for address, value in profile.twin_params.items()]
+    effects += [m for m in profile.twin_signals if isinstance(m, noise_models.ActionLatency)]
     return record(
         profile.task,
-        sets=[f"{address}={value!r}" for address, value in profile.twin_params.items()],
+        effects=effects,
         policy=profile.excitation,
         episodes=budget.log_episodes,
         steps=budget.log_steps,
         seed=seed,
         obs_noise=std,
-        latency=latency,
     )
 
 

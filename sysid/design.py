@@ -32,12 +32,13 @@ import math
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, overload
 
 import mujoco
 import mujoco.rollout
 import numpy as np
 
+from randomizers.parameters import ParameterSet
 from sysid.excitation import ExcitationPolicy, SeedOrGenerator, _generator, as_limits, make_excitation
 from sysid.params import ParameterSpace
 
@@ -53,10 +54,6 @@ __all__ = [
 Measure = Literal["qpos", "qvel", "state", "sensordata"]
 _MEASURES = ("qpos", "qvel", "state", "sensordata")
 
-# Experiment design never uses bounds (the Fisher information is local); this stands in where none are given.
-_HUGE = 1e300
-
-
 def _split_params(params: str | Sequence[str]) -> list[str]:
     if isinstance(params, str):
         items = [p.strip() for p in params.split(",")]
@@ -70,18 +67,38 @@ def _split_params(params: str | Sequence[str]) -> list[str]:
     return items
 
 
+@overload
 def parameter_space(
     model: mujoco.MjModel,
-    params: str | Sequence[str] | ParameterSpace,
+    params: str | Sequence[str] | ParameterSet,
+    bounds: Mapping[str, Sequence[float]] | Sequence[Sequence[float]] | None = None,
+    *,
+    need_bounds: Literal[True] = True,
+) -> ParameterSpace: ...
+
+
+@overload
+def parameter_space(
+    model: mujoco.MjModel,
+    params: str | Sequence[str] | ParameterSet,
+    bounds: Mapping[str, Sequence[float]] | Sequence[Sequence[float]] | None = None,
+    *,
+    need_bounds: bool,
+) -> ParameterSet: ...
+
+
+def parameter_space(
+    model: mujoco.MjModel,
+    params: str | Sequence[str] | ParameterSet,
     bounds: Mapping[str, Sequence[float]] | Sequence[Sequence[float]] | None = None,
     *,
     need_bounds: bool = True,
-) -> ParameterSpace:
+) -> ParameterSet:
     """A :class:`sysid.params.ParameterSpace` from addresses given as a list or one comma-separated string.
 
-    With ``need_bounds=False`` (experiment design: the Fisher information is local and ignores bounds) entries
-    get an unbounded placeholder when no ``bounds`` are given, so parameters with a zero or negative nominal
-    need none.
+    With ``need_bounds=False`` (experiment design: the Fisher information is local and ignores bounds) and no
+    ``bounds``, the result is a bare :class:`randomizers.parameters.ParameterSet` (no bounds at all), so
+    parameters with a zero or negative nominal need none.
 
     Example:
         >>> import mujoco
@@ -96,11 +113,11 @@ def parameter_space(
         ValueError: `params` entry 'dof_damping[elbow]': `joints` pattern 'elbow' matches no joint in the model. \
 Known joints: 'shoulder'.
     """
-    if isinstance(params, ParameterSpace):
+    if isinstance(params, ParameterSet):
         return params
     items = _split_params(params)
     if bounds is None and not need_bounds:
-        bounds = [(-_HUGE, _HUGE)] * len(items)
+        return ParameterSet(model, items)
     return ParameterSpace(model, items, bounds)
 
 
@@ -170,7 +187,7 @@ def _controls_of(candidate: object, n_steps: int, dt: float, nu: int, i: int) ->
 
 def fisher_information(
     model: mujoco.MjModel,
-    params: str | Sequence[str] | ParameterSpace,
+    params: str | Sequence[str] | ParameterSet,
     controls: np.ndarray,
     *,
     n_substeps: int = 1,
@@ -214,7 +231,7 @@ def fisher_information(
 
 def _fisher_batch(
     model: mujoco.MjModel,
-    pmap: ParameterSpace,
+    pmap: ParameterSet,
     controls: np.ndarray,
     n_substeps: int,
     measure: str,

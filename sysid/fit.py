@@ -50,6 +50,7 @@ import numpy as np
 from scipy import stats
 from scipy.stats import qmc
 
+from noise_models.timing import convert_time
 from sysid._problem import Problem, make_segments
 from sysid.logs import LogError, TrajectoryLog, load_log, validate_log
 from sysid.params import ModelPool, ParameterSpace
@@ -630,11 +631,13 @@ def fit(
         trace_measured[where, c] = measured[c]
         trace_predicted[where, c] = measured[c] + errors[c]
     bar.close()
-    latency_steps: dict[str, float] = {}
+    # Latencies leave the fit in seconds: the action delay counts physics steps, the sensor lag control steps.
+    timestep = float(model.opt.timestep)
+    latency: dict[str, float] = {}
     if ranges["action"] != [0]:
-        latency_steps["action"] = st.delay / n_sub
+        latency["action"] = convert_time(st.delay, "physics_steps", "seconds", timestep=timestep)
     if ranges["obs"] != [0]:
-        latency_steps["obs"] = float(st.obs)
+        latency["obs"] = convert_time(st.obs, "control_steps", "seconds", timestep=timestep, substeps=n_sub)
     truth = log.meta.get("true_params")
     return FitResult(
         addresses=space.addresses,
@@ -645,7 +648,9 @@ def fit(
         covariance=covariance,
         correlation=corr,
         bounds=np.stack([lower, upper], axis=1),
-        latency_steps=latency_steps,
+        latency=latency,
+        timestep=timestep,
+        control_timestep=timestep * n_sub,
         noise_std=noise,
         fit_percent=fit_percent,
         whiteness_pvalue=whiteness,

@@ -5,7 +5,7 @@ Example:
     >>> result = FitResult.from_estimates({"dof_damping[elbow]": (0.52, 0.01)})
     >>> result.ci95.round(3).tolist()
     [[0.5, 0.54]]
-    >>> print(result.to_randomizers(width=2.0).strip())
+    >>> print(result.to_randomizers(width=2.0, min_relative_width=0.0).strip())
     effects:
     - type: Damping
       set:
@@ -21,39 +21,67 @@ import json
 import math
 import os
 from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
-from randomizers.addressing import Address
-from randomizers.config import dump_effects
-from randomizers.distributions import Uniform
-from randomizers.effects import (
-    ActuatorGain,
-    Armature,
-    Damping,
-    Effect,
-    Friction,
-    FrictionLoss,
-    Gravity,
-    Mass,
-    Stiffness,
-)
+from noise_models.timing import ActionLatency, ObservationLatency, convert_time
+from randomizers.config import dump_config
+from randomizers.correlated import Correlated
+from randomizers.distributions import MultivariateNormal, Uniform
+from randomizers.effects import Effect
 from randomizers.files import atomic_write
+from randomizers.parameters import EFFECT_FIELDS, Address, effect_for
 
 __all__ = ["FitResult"]
 
-_FRICTION_AXES = ("sliding", "torsional", "rolling")
-_SINGLE_ELEMENT = {
-    "dof_damping": (Damping, "joints"),
-    "dof_armature": (Armature, "joints"),
-    "dof_frictionloss": (FrictionLoss, "joints"),
-    "jnt_stiffness": (Stiffness, "joints"),
-    "body_mass": (Mass, "bodies"),
-    "actuator_gain": (ActuatorGain, "actuators"),
-}
+_ARRAYS = ("estimates", "stderr", "ci95", "crlb_sd", "covariance", "correlation", "bounds")
+_TRACES = ("trace_time", "trace_measured", "trace_predicted")
+_MAPPINGS = ("latency", "noise_std", "fit_percent", "whiteness_pvalue")
+_LATENCY_MODELS = {"action": ActionLatency, "obs": ObservationLatency}
+
+
+def _num(value: float) -> float | str | None:
+    """A JSON number; NaN is ``null`` and the infinities are the strings ``"inf"``/``"-inf"``."""
+    value = float(value)
+    if math.isnan(value):
+        return None
+    if math.isinf(value):
+        return "inf" if value > 0 else "-inf"
+    return value
+
+
+def _from_num(value: Any) -> float:
+    return math.nan if value is None else float(value)
+
+
+def _nested(array: np.ndarray) -> Any:
+    return [_nested(row) for row in array] if array.ndim > 1 else [_num(v) for v in array]
+
+
+def _array(value: Any, ndim: int) -> np.ndarray:
+    out = np.array(value if value is not None else [], dtype=object)
+    shape = out.shape if out.size else (0,) * ndim
+    return np.vectorize(_from_num, otypes=[np.float64])(out).reshape(shape) if out.size else np.zeros(shape)
+
+
+def _same(a: Any, b: Any) -> bool:
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        a, b = np.asarray(a), np.asarray(b)
+        return a.shape == b.shape and bool(np.array_equal(a, b, equal_nan=True))
+    if isinstance(a, Mapping) and isinstance(b, Mapping):
+        return list(a) == list(b) and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, float) and isinstance(b, float):
+        return a == b or (math.isnan(a) and math.isnan(b))
+    return bool(a == b)
+
+
+def _round_sig(value: float, digits: int | None) -> float:
+    if digits is None or value == 0 or not math.isfinite(value):
+        return float(value)
+    return float(f"{value:.{digits}g}")
 
 
 def _readonly(array: np.ndarray) -> np.ndarray:
@@ -80,8 +108,11 @@ class FitResult:
         covariance: (P, P) covariance behind ``stderr``.
         correlation: (P, P) correlation matrix.
         bounds: (P, 2) the search bounds.
-        latency_steps: ``{"action": k, "obs": k}`` in control steps (``action`` may be fractional after
-            sub-step refinement); only the latencies that were fitted or fixed.
+        latency: ``{"action": s, "obs": s}`` in **seconds** (``action`` may fall between control steps after
+            sub-step refinement); only the latencies that were fitted or fixed. :attr:`latency_control_steps` and
+            :attr:`latency_physics_steps` give them in steps.
+        timestep: seconds per physics step of the fitted model (NaN when unknown).
+        control_timestep: seconds per control step of the log (NaN when unknown).
         noise_std: ``{channel: sigma}`` estimated (or given) measurement noise, in the channel's units.
         fit_percent: ``{channel: percent}`` NRMSE fit ``100 (1 - ‖y-ŷ‖/‖y-ȳ‖)`` on held-out data.
         whiteness_pvalue: ``{channel: p}`` Ljung–Box p-value of the held-out residuals (small = not white).
@@ -109,7 +140,9 @@ class FitResult:
     covariance: np.ndarray
     correlation: np.ndarray
     bounds: np.ndarray
-    latency_steps: Mapping[str, float] = field(default_factory=dict)
+    latency: Mapping[str, float] = field(default_factory=dict)
+    timestep: float = math.nan
+    control_timestep: float = math.nan
     noise_std: Mapping[str, float] = field(default_factory=dict)
     fit_percent: Mapping[str, float] = field(default_factory=dict)
     whiteness_pvalue: Mapping[str, float] = field(default_factory=dict)
@@ -129,11 +162,19 @@ class FitResult:
     true_params: Mapping[str, float] | None = None
 
     def __post_init__(self) -> None:
-        for name in ("estimates", "stderr", "ci95", "crlb_sd", "covariance", "correlation", "bounds"):
+        for name in (*_ARRAYS, *_TRACES):
             object.__setattr__(self, name, _readonly(getattr(self, name)))
-        for name in ("trace_time", "trace_measured", "trace_predicted"):
-            object.__setattr__(self, name, _readonly(getattr(self, name)))
-        object.__setattr__(self, "addresses", tuple(self.addresses))
+        for name in _MAPPINGS:
+            object.__setattr__(self, name, {str(k): float(v) for k, v in getattr(self, name).items()})
+        if self.true_params is not None:
+            object.__setattr__(self, "true_params", {str(k): float(v) for k, v in self.true_params.items()})
+        for name in ("timestep", "control_timestep", "condition_number", "cost", "wall_time"):
+            object.__setattr__(self, name, float(getattr(self, name)))
+        for name in ("timestep", "control_timestep"):
+            value = getattr(self, name)
+            if not (math.isnan(value) or (math.isfinite(value) and value > 0)):
+                raise ValueError(f"`{name}` must be a number of seconds > 0 (or NaN when unknown). Received {value!r}.")
+        object.__setattr__(self, "addresses", tuple(Address.parse(a) for a in self.addresses))
         object.__setattr__(self, "warnings", tuple(self.warnings))
         object.__setattr__(self, "channels", tuple(self.channels))
         size = len(self.addresses)
@@ -149,13 +190,30 @@ class FitResult:
             if getattr(self, name).shape != shape:
                 raise ValueError(f"`{name}` must have shape {shape}. Received {getattr(self, name).shape}.")
 
+    def __eq__(self, other: object) -> bool:
+        """Field by field, arrays compared with NaN equal to NaN (what a JSON round trip must preserve)."""
+        if not isinstance(other, FitResult):
+            return NotImplemented
+        return all(_same(getattr(self, f.name), getattr(other, f.name)) for f in fields(self))
+
+    __hash__ = None  # type: ignore[assignment]
+
     @classmethod
-    def from_estimates(cls, estimates: Mapping[str, tuple[float, float]]) -> FitResult:
-        """A result from ``{address: (estimate, stderr)}`` (no fit behind it): for configs and tests."""
+    def from_estimates(
+        cls,
+        estimates: Mapping[str, tuple[float, float]],
+        bounds: Mapping[str, tuple[float, float]] | None = None,
+    ) -> FitResult:
+        """A result from ``{address: (estimate, stderr)}`` (no fit behind it): for configs and tests.
+
+        ``bounds`` (``{address: (low, high)}``) default to unbounded; the covariance is diagonal.
+        """
         addresses = tuple(estimates)
         est = np.array([float(v[0]) for v in estimates.values()])
         se = np.array([float(v[1]) for v in estimates.values()])
         z = 1.959963984540054
+        given = bounds or {}
+        box = np.array([given.get(a, (-math.inf, math.inf)) for a in addresses], dtype=np.float64).reshape(-1, 2)
         return cls(
             addresses=addresses,
             estimates=est,
@@ -164,14 +222,12 @@ class FitResult:
             crlb_sd=se,
             covariance=np.diag(se**2),
             correlation=np.eye(len(addresses)),
-            bounds=np.stack([np.full(est.shape, -np.inf), np.full(est.shape, np.inf)], axis=1),
+            bounds=box,
         )
 
     @classmethod
     def from_json(cls, source: str | os.PathLike[str]) -> FitResult:
-        """A result read back from :meth:`to_json` (a file path or the JSON text): estimates, intervals,
-        latency, noise, fit percentages and warnings. The traces are not part of the JSON, so :meth:`plot` of
-        the result is empty.
+        """The result :meth:`to_json` wrote (a file path or the JSON text), every field included.
 
         Raises:
             ValueError: text that is not a fit result document.
@@ -180,123 +236,258 @@ class FitResult:
         if isinstance(source, os.PathLike) or not text.lstrip().startswith("{"):
             text = Path(source).read_text()
         try:
-            data = json.loads(text)
-            params = data["params"]
-            base = cls.from_estimates({a: (v["estimate"], v["stderr"]) for a, v in params.items()})
+            return cls.from_dict(json.loads(text))
         except (ValueError, KeyError, TypeError) as err:
             raise ValueError(f"`source` is not a sysid fit result JSON document: {err}") from err
 
-        def num(value: Any) -> float:
-            return math.nan if value is None else float(value)
-
-        return replace(
-            base,
-            ci95=np.array([[num(v["ci95"][0]), num(v["ci95"][1])] for v in params.values()]).reshape(-1, 2),
-            crlb_sd=np.array([num(v["crlb_sd"]) for v in params.values()]),
-            latency_steps={k: float(v) for k, v in data.get("latency_steps", {}).items()},
-            noise_std={k: num(v) for k, v in data.get("noise_std", {}).items()},
-            fit_percent={k: num(v) for k, v in data.get("fit_percent", {}).items()},
-            warnings=tuple(data.get("warnings", ())),
-        )
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> FitResult:
+        """The inverse of :meth:`to_dict`."""
+        params = data["params"]
+        addresses = tuple(params)
+        kwargs: dict[str, Any] = {
+            "addresses": addresses,
+            "estimates": [_from_num(v["estimate"]) for v in params.values()],
+            "stderr": [_from_num(v["stderr"]) for v in params.values()],
+            "ci95": _array([v["ci95"] for v in params.values()], 2).reshape(-1, 2),
+            "crlb_sd": [_from_num(v["crlb_sd"]) for v in params.values()],
+            "bounds": _array([v.get("bounds", ["-inf", "inf"]) for v in params.values()], 2).reshape(-1, 2),
+        }
+        size = len(addresses)
+        for name in ("covariance", "correlation"):
+            kwargs[name] = _array(data[name], 2).reshape(size, size) if name in data else None
+        if kwargs["covariance"] is None:  # a document written before the covariance was stored
+            kwargs["covariance"] = np.diag(np.square(kwargs["stderr"]))
+        if kwargs["correlation"] is None:
+            kwargs["correlation"] = np.eye(size)
+        for name in _MAPPINGS:
+            kwargs[name] = {k: _from_num(v) for k, v in data.get(name, {}).items()}
+        for name in ("timestep", "control_timestep", "condition_number", "cost", "wall_time"):
+            kwargs[name] = _from_num(data.get(name))
+        for name in ("n_residuals", "dof", "iterations"):
+            kwargs[name] = int(data.get(name, 0))
+        kwargs["converged"] = bool(data.get("converged", True))
+        kwargs["warnings"] = tuple(data.get("warnings", ()))
+        kwargs["channels"] = tuple(data.get("channels", ()))
+        trace = data.get("trace", {})
+        kwargs["trace_time"] = _array(trace.get("time"), 1)
+        rows = (len(kwargs["trace_time"]), len(kwargs["channels"]))
+        kwargs["trace_measured"] = _array(trace.get("measured"), 2).reshape(rows)
+        kwargs["trace_predicted"] = _array(trace.get("predicted"), 2).reshape(rows)
+        kwargs["trace_source"] = str(trace.get("source", "fit"))
+        truth = data.get("true_params")
+        kwargs["true_params"] = None if truth is None else {k: _from_num(v) for k, v in truth.items()}
+        return cls(**kwargs)
 
     @property
     def params(self) -> dict[str, float]:
         """``{address: estimate}`` (what a calibrated environment is built from)."""
         return {a: float(v) for a, v in zip(self.addresses, self.estimates, strict=True)}
 
+    def _latency_in(self, unit: str) -> dict[str, float]:
+        if not math.isfinite(self.timestep) or not math.isfinite(self.control_timestep):
+            return {k: math.nan for k in self.latency}
+        substeps = max(1, round(self.control_timestep / self.timestep))
+        return {
+            k: convert_time(v, "seconds", unit, timestep=self.timestep, substeps=substeps)
+            for k, v in self.latency.items()
+        }
+
+    @property
+    def latency_control_steps(self) -> dict[str, float]:
+        """:attr:`latency` in control steps of the log (NaN when the timesteps are unknown)."""
+        return self._latency_in("control_steps")
+
+    @property
+    def latency_physics_steps(self) -> dict[str, float]:
+        """:attr:`latency` in physics steps of the model (NaN when the timesteps are unknown)."""
+        return self._latency_in("physics_steps")
+
+    @property
+    def latency_steps(self) -> dict[str, float]:
+        """The former name of :attr:`latency_control_steps` (control steps)."""
+        return self.latency_control_steps
+
     def to_dict(self) -> dict[str, Any]:
-        """The CLI's JSON document as a dict (see :meth:`to_json`)."""
-
-        def num(value: float) -> float | None:
-            return float(value) if math.isfinite(value) else None
-
+        """The JSON document as a dict (see :meth:`to_json`)."""
         params = {
-            a: {
-                "estimate": num(self.estimates[i]),
-                "stderr": num(self.stderr[i]),
-                "ci95": [num(self.ci95[i, 0]), num(self.ci95[i, 1])],
-                "crlb_sd": num(self.crlb_sd[i]),
+            str(a): {
+                "estimate": _num(self.estimates[i]),
+                "stderr": _num(self.stderr[i]),
+                "ci95": [_num(self.ci95[i, 0]), _num(self.ci95[i, 1])],
+                "crlb_sd": _num(self.crlb_sd[i]),
+                "bounds": [_num(self.bounds[i, 0]), _num(self.bounds[i, 1])],
             }
             for i, a in enumerate(self.addresses)
         }
         return {
             "params": params,
-            "latency_steps": {k: float(v) for k, v in self.latency_steps.items()},
-            "noise_std": {k: num(v) for k, v in self.noise_std.items()},
-            "fit_percent": {k: num(v) for k, v in self.fit_percent.items()},
+            "covariance": _nested(self.covariance),
+            "correlation": _nested(self.correlation),
+            "latency": {k: _num(v) for k, v in self.latency.items()},
+            "latency_control_steps": {k: _num(v) for k, v in self.latency_control_steps.items()},
+            "timestep": _num(self.timestep),
+            "control_timestep": _num(self.control_timestep),
+            **{name: {k: _num(v) for k, v in getattr(self, name).items()} for name in _MAPPINGS[1:]},
             "warnings": list(self.warnings),
+            "condition_number": _num(self.condition_number),
+            "cost": _num(self.cost),
+            "n_residuals": self.n_residuals,
+            "dof": self.dof,
+            "iterations": self.iterations,
+            "converged": self.converged,
+            "wall_time": _num(self.wall_time),
+            "channels": list(self.channels),
+            "trace": {
+                "source": self.trace_source,
+                "time": _nested(self.trace_time),
+                "measured": _nested(self.trace_measured),
+                "predicted": _nested(self.trace_predicted),
+            },
+            "true_params": None if self.true_params is None else {k: _num(v) for k, v in self.true_params.items()},
         }
 
     def to_json(self, path: str | os.PathLike[str] | None = None, indent: int = 2) -> str:
-        """``{"params": {address: {"estimate", "stderr", "ci95": [lo, hi], "crlb_sd"}}, "latency_steps",
-        "noise_std", "fit_percent", "warnings"}``; written atomically to ``path`` when given. Non-finite
-        numbers become ``null``."""
+        """Every field as JSON (:meth:`from_json` reads back an equal result); written atomically to ``path``
+        when given. ``params`` maps each address to ``estimate``, ``stderr``, ``ci95``, ``crlb_sd`` and
+        ``bounds``; ``latency`` is in seconds (``latency_control_steps`` repeats it in control steps, for
+        readers); NaN is ``null`` and the infinities are ``"inf"``/``"-inf"``."""
         text = json.dumps(self.to_dict(), indent=indent)
         if path is not None:
             atomic_write(path, text + "\n")
         return text
 
-    def to_effects(self, width: float = 2.0) -> list[Effect]:
-        """Randomiser effects ``set`` to ``Uniform(estimate ± width · stderr)`` per parameter.
+    def to_effects(
+        self,
+        width: float = 2.0,
+        min_relative_width: float = 0.1,
+        kind: Literal["uniform", "posterior"] = "uniform",
+        *,
+        digits: int | None = None,
+        latency: bool = True,
+        noise: bool = True,
+    ) -> list[Any]:
+        """The randomised simulator this fit calls for: effects for the fitted parameters, then the fitted
+        latencies and sensor noise (ready for ``sim2real.wrap``).
 
-        The range is clipped to the fit bounds and, for quantities that must stay non-negative, at 0.
+        The rule: each parameter is drawn around its estimate ``e`` with half-width
+        ``h = max(min_relative_width * |e|, width * stderr)``, clipped to the fit bounds and, for quantities
+        that must stay non-negative, at 0.
+
+        * ``kind="uniform"``: one effect per parameter, ``set`` to ``Uniform(e - h, e + h)``; with ``digits``,
+          ``e`` and ``h`` are first rounded to that many significant digits (configs that read well).
+        * ``kind="posterior"``: one :class:`randomizers.Correlated` effect drawing all parameters jointly from the
+          fit's Gaussian posterior (mean = estimates, covariance = :attr:`covariance`), truncated to the bounds
+          (and at 0 where a quantity must stay non-negative); ``width`` and ``min_relative_width`` do not apply.
+
+        Latencies become ``ActionLatency``/``ObservationLatency`` in **seconds**, rounded to whole physics steps
+        of the model when its timestep is known; the noise becomes Gaussian ``ObservationNoise`` at the mean
+        fitted level (one significant digit).
+
+        Example:
+            >>> fit = FitResult.from_estimates({"dof_damping[shoulder]": (0.0299, 0.0001)})
+            >>> fit.to_effects(digits=2)
+            [Damping(set=Uniform(low=0.027, high=0.033), joints='shoulder')]
+
         Parameters without a single-element effect (multi-dof components, raw fields such as
-        ``actuator_biasprm``) are left out; :meth:`to_randomizers` lists them in a comment.
+        ``actuator_biasprm``) are left out of ``kind="uniform"``; :meth:`to_randomizers` lists them.
 
         Raises:
-            ValueError: ``width`` is not a positive finite number.
+            ValueError: a width that is not a finite number >= 0 (``width`` > 0), or an unknown ``kind``.
         """
-        if isinstance(width, bool) or not isinstance(width, (int, float)) or not math.isfinite(width) or width <= 0:
-            raise ValueError(f"`width` must be a finite number > 0 (standard errors each side). Received {width!r}.")
-        effects: list[Effect] = []
-        for effect in (self._effect(i, float(width)) for i in range(len(self.addresses))):
-            if effect is not None:
-                effects.append(effect)
-        return effects
-
-    def _range(self, i: int, width: float, nonnegative: bool) -> tuple[float, float]:
-        est, se = float(self.estimates[i]), float(self.stderr[i])
-        lo_b, hi_b = float(self.bounds[i, 0]), float(self.bounds[i, 1])
-        if not math.isfinite(se):
-            lo, hi = lo_b, hi_b
+        for name, value, low in (("width", width, 0.0), ("min_relative_width", min_relative_width, 0.0)):
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, (int, float))
+                or not math.isfinite(value)
+                or value < low
+            ):
+                raise ValueError(f"`{name}` must be a finite number >= 0. Received {value!r}.")
+        if kind not in ("uniform", "posterior"):
+            raise ValueError(f"`kind` must be 'uniform' or 'posterior'. Received {kind!r}.")
+        if kind == "posterior":
+            out: list[Any] = [self._posterior()] if self.addresses else []
         else:
-            half = max(width * se, 1e-12 * max(abs(est), 1.0))
-            lo, hi = max(est - half, lo_b), min(est + half, hi_b)
-        if nonnegative:
+            out = [
+                e for e in (self._effect(i, width, min_relative_width, digits) for i in range(len(self.addresses))) if e
+            ]
+        if noise:
+            levels = [float(v) for v in self.noise_std.values() if math.isfinite(v)]
+            if levels:
+                from noise_models import Gaussian, ObservationNoise
+
+                out.append(ObservationNoise(Gaussian(std=_round_sig(float(np.mean(levels)), 1))))
+        if latency:
+            physics = self.latency_physics_steps
+            for name, seconds in self.latency.items():
+                if math.isfinite(physics.get(name, math.nan)):
+                    seconds = convert_time(round(physics[name]), "physics_steps", "seconds", timestep=self.timestep)
+                if seconds > 0:
+                    out.append(_LATENCY_MODELS[name](seconds=seconds))
+        return out
+
+    def _nonnegative(self, i: int) -> bool:
+        owner = EFFECT_FIELDS.get(self.addresses[i].field)
+        return owner.nonnegative if owner is not None else False
+
+    def _range(self, i: int, width: float, min_relative: float, digits: int | None) -> tuple[float, float]:
+        est, se = _round_sig(float(self.estimates[i]), digits), float(self.stderr[i])
+        half = max(min_relative * abs(est), width * se if math.isfinite(se) else 0.0)
+        half = _round_sig(max(half, 1e-12 * max(abs(est), 1.0)), digits)
+        lo, hi = max(est - half, float(self.bounds[i, 0])), min(est + half, float(self.bounds[i, 1]))
+        if self._nonnegative(i):
             lo = max(lo, 0.0)
         if not hi > lo:
             hi = lo + 1e-12 * max(abs(lo), 1.0)
         return round(lo, 12), round(hi, 12)
 
-    def _effect(self, i: int, width: float) -> Effect | None:
-        address = Address.parse(self.addresses[i])
-        if address.field in _SINGLE_ELEMENT and address.index is None:
-            cls, selector = _SINGLE_ELEMENT[address.field]
-            return cls(set=Uniform(*self._range(i, width, True)), **{selector: address.element})  # type: ignore[arg-type]
-        if address.field == "geom_friction" and address.index is not None and address.index < 3:
-            return Friction(
-                set=Uniform(*self._range(i, width, True)), geoms=address.element, axis=_FRICTION_AXES[address.index]
-            )
-        if address.field == "gravity" and address.element in ("x", "y", "z"):
-            return Gravity(set=Uniform(*self._range(i, width, False)), axes=address.element)
-        return None
+    def _effect(self, i: int, width: float, min_relative: float, digits: int | None) -> Effect | None:
+        address = self.addresses[i]
+        owner = EFFECT_FIELDS.get(address.field)
+        if owner is None or (owner.components is None and address.index is not None):
+            return None
+        if owner.components is not None and (address.index is None or address.index >= len(owner.components[1])):
+            return None
+        return effect_for(address, "set", Uniform(*self._range(i, width, min_relative, digits)))
 
-    def to_randomizers(self, width: float = 2.0, path: str | os.PathLike[str] | None = None) -> str:
-        """A randomiser YAML config (``randomizers.load_effects`` reads it) centred on the estimates.
+    def _posterior(self) -> Correlated:
+        low = self.bounds[:, 0].copy()
+        for i in range(len(self.addresses)):
+            if self._nonnegative(i):
+                low[i] = max(low[i], 0.0)
+        cov = (self.covariance + self.covariance.T) / 2.0
+        return Correlated(
+            list(self.addresses),
+            MultivariateNormal(
+                tuple(self.estimates.tolist()),
+                tuple(map(tuple, cov.tolist())),
+                low=tuple(low),
+                high=tuple(self.bounds[:, 1]),
+            ),
+        )
+
+    def to_randomizers(
+        self,
+        width: float = 2.0,
+        path: str | os.PathLike[str] | None = None,
+        *,
+        min_relative_width: float = 0.1,
+        kind: Literal["uniform", "posterior"] = "uniform",
+    ) -> str:
+        """A randomiser YAML config (``randomizers.load_config`` reads it) of :meth:`to_effects`.
 
         Args:
-            width: half-width of each uniform range in standard errors (2 ≈ the 95% interval).
+            width, min_relative_width, kind: as for :meth:`to_effects`.
             path: when given, the YAML is also written there atomically.
         """
-        effects = self.to_effects(width)
-        text = dump_effects(effects)
-        kept = {i for i in range(len(self.addresses)) if self._effect(i, float(width)) is not None}
+        effects = self.to_effects(width, min_relative_width, kind)
+        text = dump_config(effects)
+        covered = {a for e in effects if isinstance(e, Correlated) for a in e.addresses}
         notes = [
-            f"# not expressible as an effect: {self.addresses[i]} = {self.estimates[i]!r}"
-            for i in range(len(self.addresses))
-            if i not in kept
+            f"# not expressible as an effect: {a} = {self.estimates[i]!r}"
+            for i, a in enumerate(self.addresses)
+            if a not in covered and self._effect(i, width, min_relative_width, None) is None
         ]
-        notes += [f"# fitted {name}_latency: {value!r} control steps" for name, value in self.latency_steps.items()]
         if notes:
             text = "\n".join(notes) + "\n" + text
         if path is not None:
@@ -352,8 +543,8 @@ class FitResult:
             lines.append(
                 f"{a:<36}{self.estimates[i]:>12.6g}{self.stderr[i]:>11.3g}{self.crlb_sd[i]:>11.3g}   [{lo:.6g}, {hi:.6g}]"
             )
-        if self.latency_steps:
-            lines.append("latency (control steps): " + ", ".join(f"{k}={v:g}" for k, v in self.latency_steps.items()))
+        if self.latency:
+            lines.append("latency (s): " + ", ".join(f"{k}={v:g}" for k, v in self.latency.items()))
         lines += [f"warning: {w}" for w in self.warnings]
         return "\n".join(lines)
 
@@ -361,4 +552,4 @@ class FitResult:
         body = ", ".join(
             f"{a}={v:.6g}±{s:.2g}" for a, v, s in zip(self.addresses, self.estimates, self.stderr, strict=True)
         )
-        return f"FitResult({body}, latency_steps={dict(self.latency_steps)}, warnings={len(self.warnings)})"
+        return f"FitResult({body}, latency={dict(self.latency)}, warnings={len(self.warnings)})"

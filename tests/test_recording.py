@@ -47,7 +47,8 @@ def test_record_then_fit_recovers_truth_and_latency() -> None:
     truth = log.meta["true_params"]
     for address, estimate in result.params.items():
         assert estimate == pytest.approx(truth[address], rel=1e-4)
-    assert result.latency_steps["action"] == 2
+    assert result.latency_control_steps["action"] == 2
+    assert result.latency["action"] == pytest.approx(2 * result.control_timestep)
 
 
 def test_calibrated_make_writes_the_estimates() -> None:
@@ -111,7 +112,7 @@ def test_cli_record_and_fit(tmp_path, capsys) -> None:  # type: ignore[no-untype
     )
     assert code == 0
     doc = json.loads(result.read_text())
-    assert set(doc) == {"params", "latency_steps", "noise_std", "fit_percent", "warnings"}
+    assert {"params", "covariance", "correlation", "latency", "latency_control_steps", "noise_std"} <= set(doc)
     assert doc["params"]["dof_damping[shoulder]"]["estimate"] == pytest.approx(0.02, rel=1e-4)
     assert "data:image/png;base64," in report.read_text()
 

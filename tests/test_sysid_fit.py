@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from randomizers import load_effects
-from sysid import ParameterSpace, fit, record_log
+from sysid import FitResult, ParameterSpace, fit, record_log
 
 ARM = """
 <mujoco>
@@ -91,7 +91,9 @@ def test_latency_recovered_exactly(truth) -> None:
     log = record_log(model, excitation(2, 100), n_substeps=2, action_latency=3, obs_latency=2)
     params = ["dof_damping[*]", "actuator_gain[*]"]
     result = fit(log, shifted(1.2, params), params, latency=True, n_starts=8)
-    assert dict(result.latency_steps) == {"action": 3.0, "obs": 2.0}
+    assert result.latency_control_steps == {"action": 3.0, "obs": 2.0}
+    assert result.latency_physics_steps == {"action": 6.0, "obs": 4.0}
+    assert result.latency == pytest.approx({"action": 3 * result.control_timestep, "obs": 2 * result.control_timestep})
     np.testing.assert_allclose(
         result.estimates, ParameterSpace(model, ["dof_damping[*]", "actuator_gain[*]"]).nominal, rtol=1e-4
     )
@@ -135,9 +137,10 @@ def test_exports(tmp_path, truth) -> None:
         global_search=False,
     )
     doc = json.loads(result.to_json(os.path.join(tmp_path, "r.json")))
-    assert set(doc) == {"params", "latency_steps", "noise_std", "fit_percent", "warnings"}
+    assert {"params", "covariance", "correlation", "latency", "noise_std", "fit_percent", "warnings"} <= set(doc)
     entry = doc["params"]["dof_damping[elbow]"]
-    assert set(entry) == {"estimate", "stderr", "ci95", "crlb_sd"} and len(entry["ci95"]) == 2
+    assert set(entry) == {"estimate", "stderr", "ci95", "crlb_sd", "bounds"} and len(entry["ci95"]) == 2
+    assert FitResult.from_json(result.to_json()) == result
     # Friction never touches this contact-free arm: flagged, and the export falls back to the bounds.
     assert any("geom_friction" in w and "not identifiable" in w for w in result.warnings)
     effects = load_effects(result.to_randomizers(width=2.0))
@@ -147,9 +150,9 @@ def test_exports(tmp_path, truth) -> None:
     figure = result.plot(os.path.join(tmp_path, "fit.png"))
     assert os.path.getsize(os.path.join(tmp_path, "fit.png")) > 1000 and len(figure.axes) >= 2
     with pytest.raises(
-        ValueError, match=re.escape("`width` must be a finite number > 0 (standard errors each side). Received 0.")
+        ValueError, match=re.escape("`width` must be a finite number >= 0. Received -1.")
     ):
-        result.to_randomizers(width=0)
+        result.to_randomizers(width=-1)
 
 
 def test_argument_errors(truth) -> None:

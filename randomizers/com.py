@@ -1,0 +1,98 @@
+"""Centre-of-mass offsets of bodies (``body_ipos``): an unmodelled payload, a battery mounted off-centre.
+
+Example:
+    >>> import mujoco
+    >>> from randomizers import PhysicsRandomizer, Uniform
+    >>> model = mujoco.MjModel.from_xml_string(
+    ...     '<mujoco><worldbody><body name="arm"><joint name="a"/><geom size=".1" pos=".2 0 0"/></body>'
+    ...     '</worldbody></mujoco>')
+    >>> r = PhysicsRandomizer([BodyComOffset(add=Uniform(-0.01, 0.01), bodies="arm", axis=["x", "z"])], seed=0)
+    >>> r.bind(model, mujoco.MjData(model))
+    >>> r.begin_episode(); r.apply()
+    >>> sorted(r.current_params)
+    ['body_ipos[arm][0]', 'body_ipos[arm][2]']
+    >>> r.restore_nominal(); model.body_ipos[1].tolist()
+    [0.2, 0.0, 0.0]
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import mujoco
+
+from randomizers.addressing import GRAVITY_AXES, select
+from randomizers.distributions import Distribution
+from randomizers.effects import ArrayEffect, Binding, Schedule
+
+__all__ = ["BodyComOffset"]
+
+
+class _ComBinding(Binding):
+    # The centre of mass enters the inertia-derived constants (dof_M0, invweights, actuator_acc0).
+    set_const_inputs = frozenset(("body_ipos",))
+    needs_set_const = True
+
+
+class BodyComOffset(ArrayEffect):
+    """Shifts bodies' centres of mass (``body_ipos``, body frame, metres) along ``axis``; the randomiser runs
+    ``mujoco.mj_setConst`` afterwards. Offsets may be negative. The world body is never selected.
+
+    Args:
+        scale | add | set: the operation and its distribution (``add`` is the usual one: an offset in metres).
+        bodies: name pattern(s) of the bodies (default all).
+        axis: ``"x"``, ``"y"``, ``"z"`` or a list of them (default all three); reported as
+            ``body_ipos[<body>][0|1|2]``.
+        shared: one draw for every selected body and axis instead of one each.
+        schedule: ``"reset"`` (default), ``"startup"`` or :class:`~randomizers.Interval`.
+        name: stable stream name.
+
+    Example:
+        >>> from randomizers import Uniform
+        >>> BodyComOffset(add=Uniform(-0.01, 0.01), bodies="hand", axis="z")
+        BodyComOffset(add=Uniform(low=-0.01, high=0.01), bodies='hand', axis=['z'])
+        >>> BodyComOffset(add=0.01, axis="w")
+        Traceback (most recent call last):
+        ...
+        ValueError: `axis` of BodyComOffset must be one or more of ['x', 'y', 'z']. Received 'w'.
+    """
+
+    field = "body_ipos"
+    kind = "body"
+    selector = "bodies"
+    nonnegative = False
+    binding_class = _ComBinding
+    components = ("axis", GRAVITY_AXES)
+
+    def __init__(
+        self,
+        *,
+        scale: Distribution | float | None = None,
+        add: Distribution | float | None = None,
+        set: Distribution | float | None = None,
+        bodies: str | Sequence[str] = "*",
+        axis: str | Sequence[str] = GRAVITY_AXES,
+        shared: bool = False,
+        schedule: Schedule = "reset",
+        name: str | None = None,
+    ) -> None:
+        axes = (axis,) if isinstance(axis, str) else tuple(axis)
+        if not axes or any(a not in GRAVITY_AXES for a in axes):
+            raise ValueError(f"`axis` of BodyComOffset must be one or more of {list(GRAVITY_AXES)}. Received {axis!r}.")
+        self.axes = tuple(a for a in GRAVITY_AXES if a in axes)
+        super().__init__(scale=scale, add=add, set=set, select=bodies, shared=shared, schedule=schedule, name=name)
+        self._frozen = True
+
+    def _extra_fields(self) -> dict[str, Any]:
+        return {} if self.axes == GRAVITY_AXES else {"axis": list(self.axes)}
+
+    def _targets(self, model: mujoco.MjModel) -> tuple[list[int], list[int] | None, list[str]]:
+        rows, cols, addresses = [], [], []
+        for bid, bname in select(model, self.kind, self.patterns, self.selector, exclude=(0,)):
+            for axis in self.axes:
+                col = GRAVITY_AXES.index(axis)
+                rows.append(bid)
+                cols.append(col)
+                addresses.append(f"{self.field}[{bname}][{col}]")
+        return rows, cols, addresses

@@ -1,0 +1,335 @@
+"""One parameter vocabulary (randomizers.parameters), lossless fit results, latency units end to end, the joint
+posterior effect and a new physics effect added by one class plus one registry line."""
+
+from __future__ import annotations
+
+import math
+import re
+
+import mujoco
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import randomizers
+import sim2real as s2r
+import sysid
+from noise_models import ActionLatency, ObservationLatency
+from randomizers import (
+    EFFECT_TYPES,
+    BodyComOffset,
+    Correlated,
+    MultivariateNormal,
+    PhysicsRandomizer,
+    Uniform,
+    dump_config,
+    load_config,
+)
+from randomizers.parameters import EFFECT_FIELDS, Address, effect_for
+from sim2real.recording import parse_set, record
+from sysid import FitResult
+
+XML = """<mujoco><worldbody>
+  <body name="arm" pos="0 0 1"><joint name="shoulder" axis="0 1 0" damping="0.5"/>
+    <geom name="upper" type="capsule" fromto="0 0 0 .3 0 0" size=".03"/>
+    <body name="hand" pos=".3 0 0"><joint name="elbow" axis="0 1 0" damping="0.2"/>
+      <geom name="lower" type="capsule" fromto="0 0 0 .3 0 0" size=".03"/></body></body>
+</worldbody><actuator><motor name="m1" joint="shoulder"/><motor name="m2" joint="elbow"/></actuator></mujoco>"""
+
+
+def test_one_translator_per_concept() -> None:
+    # parse_set, effect_for, sysid's re-exports and the YAML registry are the same objects.
+    assert sysid.EFFECT_FIELDS is EFFECT_FIELDS and randomizers.EFFECT_FIELDS is EFFECT_FIELDS
+    assert sysid.params.effect_for is effect_for
+    assert set(EFFECT_FIELDS.values()) <= set(EFFECT_TYPES.values())
+    assert parse_set("geom_friction[pad*][2]=+0.1") == effect_for(Address.parse("geom_friction[pad*][2]"), "add", 0.1)
+    # Any distribution goes through effect_for.
+    assert effect_for(Address.parse("body_mass[arm]"), "scale", Uniform(0.9, 1.1)) == randomizers.Mass(
+        scale=Uniform(0.9, 1.1), bodies="arm"
+    )
+
+
+def test_every_registered_effect_is_exported() -> None:
+    for name in EFFECT_TYPES:
+        assert getattr(randomizers, name) is EFFECT_TYPES[name] and name in randomizers.__all__
+        assert getattr(s2r, name) is EFFECT_TYPES[name] and name in s2r.__all__
+
+
+def test_address_is_its_text_and_pickles() -> None:
+    import pickle
+
+    address = Address.parse("geom_friction[finger][0]")
+    assert address == "geom_friction[finger][0]" and {address: 1}["geom_friction[finger][0]"] == 1
+    back = pickle.loads(pickle.dumps(address))
+    assert (back.field, back.element, back.index) == ("geom_friction", "finger", 0)
+    with pytest.raises(AttributeError, match="Address is immutable"):
+        address.field = "x"  # type: ignore[misc]
+
+
+def test_design_needs_no_fake_bounds() -> None:
+    model = mujoco.MjModel.from_xml_string(XML)
+    space = sysid.parameter_space(model, "dof_frictionloss[*]", need_bounds=False)
+    assert not hasattr(space, "lower") and space.nominal.tolist() == [0.0, 0.0]
+
+
+# ---------------------------------------------------------------------------------------------- FitResult JSON
+
+_floats = st.floats(allow_nan=True, allow_infinity=True, width=64)
+_timesteps = st.just(math.nan) | st.floats(min_value=1e-4, max_value=0.1)
+_names = st.sampled_from(["dof_damping[a]", "body_mass[b]", "geom_friction[c][1]", "gravity[z]", "actuator_gain[m]"])
+
+
+@st.composite
+def _results(draw: st.DrawFn) -> FitResult:
+    addresses = draw(st.lists(_names, min_size=0, max_size=4, unique=True))
+    p = len(addresses)
+    channels = tuple(draw(st.lists(st.sampled_from(["qpos[a]", "qvel[a]", "s1"]), max_size=3, unique=True)))
+    n = draw(st.integers(0, 3))
+
+    def vec(*shape: int) -> np.ndarray:
+        return np.array(draw(st.lists(_floats, min_size=math.prod(shape), max_size=math.prod(shape)))).reshape(shape)
+
+    def mapping(keys: list[str]) -> dict[str, float]:
+        return {k: draw(_floats) for k in draw(st.lists(st.sampled_from(keys), unique=True))}
+
+    return FitResult(
+        addresses=tuple(addresses),
+        estimates=vec(p),
+        stderr=vec(p),
+        ci95=vec(p, 2),
+        crlb_sd=vec(p),
+        covariance=vec(p, p),
+        correlation=vec(p, p),
+        bounds=vec(p, 2),
+        latency=mapping(["action", "obs"]),
+        timestep=draw(_timesteps),
+        control_timestep=draw(_timesteps),
+        noise_std=mapping(list(channels) or ["x"]),
+        fit_percent=mapping(list(channels) or ["x"]),
+        whiteness_pvalue=mapping(list(channels) or ["x"]),
+        warnings=tuple(draw(st.lists(st.text(max_size=20), max_size=3))),
+        condition_number=draw(_floats),
+        cost=draw(_floats),
+        n_residuals=draw(st.integers(0, 10**6)),
+        dof=draw(st.integers(-10, 10**6)),
+        iterations=draw(st.integers(0, 1000)),
+        converged=draw(st.booleans()),
+        wall_time=draw(_floats),
+        channels=channels,
+        trace_time=vec(n),
+        trace_measured=vec(n, len(channels)),
+        trace_predicted=vec(n, len(channels)),
+        trace_source=draw(st.sampled_from(["fit", "validation"])),
+        true_params=draw(st.none() | st.just({a: 1.5 for a in addresses})),
+    )
+
+
+@settings(max_examples=60, deadline=None)
+@given(_results())
+def test_fit_result_json_round_trip_is_lossless(result: FitResult) -> None:
+    back = FitResult.from_json(result.to_json())
+    assert back == result
+    for name in ("correlation", "covariance", "bounds"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(result, name))
+
+
+def test_equality_sees_every_field() -> None:
+    fit = FitResult.from_estimates({"dof_damping[a]": (1.0, 0.1)}, bounds={"dof_damping[a]": (0.1, 10.0)})
+    assert fit == FitResult.from_json(fit.to_json())
+    assert fit.bounds.tolist() == [[0.1, 10.0]]
+    from dataclasses import replace
+
+    assert fit != replace(fit, correlation=np.array([[0.5]]))
+    assert fit != replace(fit, latency={"action": 0.04})
+
+
+# ---------------------------------------------------------------------------------------------- to_effects
+
+
+def test_to_effects_rule_is_the_documented_default() -> None:
+    fit = FitResult.from_estimates({"dof_damping[a]": (1.0, 0.01), "actuator_gain[m]": (2.0, 0.5)})
+    damping, gain = fit.to_effects()
+    assert damping.distribution == Uniform(0.9, 1.1)  # 10% wins over 2 stderr
+    assert gain.distribution == Uniform(1.0, 3.0)  # 2 stderr wins over 10%
+    assert fit.to_effects(width=1.0, min_relative_width=0.0)[1].distribution == Uniform(1.5, 2.5)
+    with pytest.raises(ValueError, match=re.escape("`kind` must be 'uniform' or 'posterior'. Received 'normal'.")):
+        fit.to_effects(kind="normal")  # type: ignore[arg-type]
+
+
+def test_posterior_effect_draws_jointly_reports_each_address_and_restores() -> None:
+    model = mujoco.MjModel.from_xml_string(XML)
+    nominal = model.dof_damping.copy(), model.actuator_gainprm.copy(), model.actuator_biasprm.copy()
+    cov = np.array([[0.01, 0.0095], [0.0095, 0.01]])
+    fit = FitResult(
+        addresses=("dof_damping[shoulder]", "actuator_gain[m1]"),
+        estimates=np.array([0.6, 1.2]),
+        stderr=np.sqrt(np.diag(cov)),
+        ci95=np.zeros((2, 2)),
+        crlb_sd=np.zeros(2),
+        covariance=cov,
+        correlation=cov / 0.01,
+        bounds=np.array([[0.05, 5.0], [0.1, 10.0]]),
+    )
+    (effect,) = fit.to_effects(kind="posterior")
+    assert effect == Correlated(
+        ["dof_damping[shoulder]", "actuator_gain[m1]"],
+        MultivariateNormal((0.6, 1.2), tuple(map(tuple, cov.tolist())), low=(0.05, 0.1), high=(5.0, 10.0)),
+    )
+    assert load_config(dump_config([effect])) == [effect]  # YAML round trip
+    r = PhysicsRandomizer([effect], seed=7)
+    r.bind(model, mujoco.MjData(model))
+    draws = []
+    for _ in range(200):
+        r.begin_episode()
+        r.apply()
+        p = r.current_params
+        assert (
+            model.dof_damping[0] == p["dof_damping[shoulder]"]
+            and model.actuator_gainprm[0, 0] == p["actuator_gain[m1]"]
+        )
+        draws.append([p["dof_damping[shoulder]"], p["actuator_gain[m1]"]])
+    assert np.corrcoef(np.array(draws).T)[0, 1] > 0.85  # one joint draw, not two independent ones
+    r.restore_nominal()
+    for before, after in zip(nominal, (model.dof_damping, model.actuator_gainprm, model.actuator_biasprm), strict=True):
+        np.testing.assert_array_equal(before, after)
+
+
+def test_correlated_has_its_own_stream() -> None:
+    model = mujoco.MjModel.from_xml_string(XML)
+    damping = randomizers.Damping(scale=Uniform(0.5, 2.0), joints="elbow")
+    joint = Correlated(["body_mass[hand]"], MultivariateNormal((1.0,), ((0.01,),), low=(0.5,)))
+    alone = PhysicsRandomizer([damping], seed=3)
+    both = PhysicsRandomizer([joint, damping], seed=3)
+    for r in (alone, both):
+        r.bind(model, mujoco.MjData(model))
+        r.begin_episode()
+        r.apply()
+        r.restore_nominal()
+    assert alone.current_params == {"dof_damping[elbow]": 0.2}
+    alone.begin_episode(seed=1)
+    alone.apply()
+    both.begin_episode(seed=1)
+    both.apply()
+    assert alone.current_params["dof_damping[elbow]"] == both.current_params["dof_damping[elbow]"]
+    assert "body_mass[hand]" in both.current_params
+
+
+def test_correlated_errors() -> None:
+    with pytest.raises(ValueError, match=re.escape("must have one component per address (2). Received 1 components.")):
+        Correlated(["dof_damping[a]", "dof_damping[b]"], MultivariateNormal((1.0,), ((1.0,),)))
+    with pytest.raises(
+        ValueError, match=re.escape("must name single elements (no patterns). Received ['dof_damping[*]']")
+    ):
+        Correlated(["dof_damping[*]"], MultivariateNormal((1.0,), ((1.0,),)))
+    with pytest.raises(TypeError, match=re.escape("write it into several addresses with randomizers.Correlated")):
+        randomizers.Damping(scale=MultivariateNormal((1.0,), ((1.0,),)))
+
+
+# ---------------------------------------------------------------------------------------------- BodyComOffset
+
+
+def test_body_com_offset_is_applied_reported_and_restored_bitwise() -> None:
+    env = s2r.wrap(s2r.make("sim2real/arm-reach"), s2r.BodyComOffset(add=Uniform(-0.02, 0.02), axis="z"), seed=0)
+    model = s2r.find_physics(env).model
+    nominal = model.body_ipos.copy()
+    derived = model.dof_M0.copy(), model.body_invweight0.copy()
+    _, info = env.reset(seed=0)
+    params = info["sim2real"]["params"]
+    offsets = {k: v for k, v in params.items() if k.startswith("body_ipos[")}
+    assert offsets and all(k.endswith("][2]") for k in offsets)
+    for address, value in offsets.items():
+        a = Address.parse(address)
+        bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, a.element)
+        assert model.body_ipos[bid, 2] == value and -0.02 <= value - nominal[bid, 2] < 0.02
+    assert not np.array_equal(model.dof_M0, derived[0])  # mj_setConst ran
+    env.close()
+    np.testing.assert_array_equal(model.body_ipos, nominal)
+    np.testing.assert_array_equal(model.dof_M0, derived[0])
+    np.testing.assert_array_equal(model.body_invweight0, derived[1])
+    effect = BodyComOffset(add=Uniform(-0.01, 0.01), bodies="hand", axis=["x", "z"])
+    assert load_config(dump_config([effect])) == [effect]
+    assert effect_for(Address.parse("body_ipos[hand][1]"), "add", 0.01) == BodyComOffset(
+        add=0.01, bodies="hand", axis="y"
+    )
+
+
+# ---------------------------------------------------------------------------------------------- latency units
+
+
+def _applied_commands(task: str, effects: list) -> np.ndarray:
+    """``data.ctrl`` at every physics step of six control steps at full action."""
+    env = s2r.wrap(s2r.make(task), *effects, seed=0) if effects else s2r.make(task)
+    handle = s2r.find_physics(env)
+    env.reset(seed=0)
+    applied: list[np.ndarray] = []
+
+    def each_physics_step(run, n, *rest):  # type: ignore[no-untyped-def]
+        for _ in range(n):
+            applied.append(handle.data.ctrl.copy())
+            run(1)
+
+    remove = handle.intercept_step(each_physics_step)
+    for _ in range(6):
+        env.step(env.action_space.high)
+    remove()
+    env.close()
+    return np.array(applied)
+
+
+def _delay_physics_steps(task: str, effects: list) -> int:
+    """The shift (physics steps) that lines the commands the actuators received up with the undelayed ones."""
+    nominal, delayed = _applied_commands(task, []), _applied_commands(task, effects)
+    return next(d for d in range(len(nominal)) if np.array_equal(delayed[d:], nominal[: len(nominal) - d]))
+
+
+_CASES = [
+    ("sim2real/arm-reach", "action", "dof_damping[elbow_pitch]"),
+    ("dmc/manipulator-bring_ball", "action", "dof_damping[arm_elbow]"),
+]
+
+
+@pytest.mark.parametrize(("task", "kind", "param"), _CASES)
+def test_fitted_latency_survives_export_in_physics_steps(task: str, kind: str, param: str) -> None:
+    """Twin with a 2-control-step latency -> fit -> exported effects -> recorded again: the same delay in physics
+    steps (20 on these 10-substep tasks), where the old export gave ActionLatency(steps=2), a tenth of it."""
+    handle = s2r.find_physics(s2r.make(task))
+    assert handle.substeps == 10
+    dt = float(handle.model.opt.timestep)
+    kwargs = {"latency": 2} if kind == "action" else {"obs_latency": 2}
+    log = record(task, policy="prbs", episodes=1, steps=30, seed=1, **kwargs)
+    fit = sysid.fit(
+        log, handle.model, [param], latency={kind: (0, 3)}, progress=False, global_search=False, validation=0.0
+    )
+    assert fit.latency_control_steps[kind] == 2 and fit.latency_physics_steps[kind] == 20
+    exported = [e for e in fit.to_effects() if isinstance(e, (ActionLatency, ObservationLatency))]
+    model = ActionLatency if kind == "action" else ObservationLatency
+    assert exported == [model(seconds=20 * dt)]
+    again = record(task, effects=exported, policy="prbs", episodes=1, steps=30, seed=1)
+    assert again.meta["true_latency_steps"] == log.meta["true_latency_steps"]
+    np.testing.assert_array_equal(again.qpos, log.qpos)
+    np.testing.assert_array_equal(again.sensordata, log.sensordata)
+    if kind == "action":  # and the simulator a policy trains in delays the actuators by the same physics steps
+        assert _delay_physics_steps(task, exported) == 20
+
+
+def test_observation_latency_export_keeps_physics_steps_on_manipulator() -> None:
+    """The sensor lag leaves a fit in seconds and comes back as the same control (and physics) steps. (Fitting it
+    needs informative sensors: arm-reach has none and manipulator's touch sensors read 0 in free motion.)"""
+    from dataclasses import replace
+
+    task = "dmc/manipulator-bring_ball"
+    handle = s2r.find_physics(s2r.make(task))
+    dt = float(handle.model.opt.timestep)
+    log = record(task, policy="prbs", episodes=1, steps=20, seed=1, obs_latency=2)
+    fit = replace(
+        FitResult.from_estimates({"dof_damping[arm_elbow]": (0.1, 0.01)}),
+        latency={"obs": 2 * 10 * dt},
+        timestep=dt,
+        control_timestep=10 * dt,
+    )
+    assert fit.latency_control_steps == {"obs": 2.0} and fit.latency_physics_steps == {"obs": 20.0}
+    exported = [e for e in fit.to_effects() if isinstance(e, ObservationLatency)]
+    assert exported == [ObservationLatency(seconds=20 * dt)]
+    again = record(task, effects=exported, policy="prbs", episodes=1, steps=20, seed=1)
+    assert again.meta["true_latency_steps"] == log.meta["true_latency_steps"] == {"action": 0, "obs": 2}
