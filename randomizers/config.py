@@ -62,7 +62,8 @@ def _distributions_from_config(value: object, where: str) -> Any:
         len(value) != 2 or any(isinstance(v, (list, tuple, Mapping)) for v in value)
     )
     if per_channel:
-        return tuple(distribution_from_config(v, f"{where}[{i}]") for i, v in enumerate(value))  # type: ignore[union-attr]
+        items: Sequence[Any] = value  # type: ignore[assignment]
+        return tuple(distribution_from_config(v, f"{where}[{i}]") for i, v in enumerate(items))
     return distribution_from_config(value, where)
 
 

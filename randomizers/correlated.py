@@ -132,7 +132,7 @@ class CorrelatedBinding(Binding):
     like every other binding: one draw of P values per episode)."""
 
     def __init__(self, effect: Correlated, parameters: ParameterBinding) -> None:
-        self.effect = effect  # type: ignore[assignment]
+        self.effect = effect
         self.model = parameters.model
         self._parameters = parameters
         self.addresses = tuple(str(a) for a in parameters.addresses)
@@ -140,7 +140,7 @@ class CorrelatedBinding(Binding):
         self.size = len(self.addresses)
         self.set_const_inputs = parameters.set_const_inputs
 
-    @property  # type: ignore[override]
+    @property
     def needs_set_const(self) -> bool:
         """Whether ``mujoco.mj_setConst`` must run after :meth:`apply`."""
         return bool(self.set_const_inputs)

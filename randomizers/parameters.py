@@ -97,7 +97,7 @@ class Address(str):
 
     field: str
     element: str
-    index: int | None
+    index: int | None  # type: ignore[assignment]  # shadows str.index: the component is what an address means
 
     def __new__(cls, field: str, element: str, index: int | None = None) -> Address:
         text = f"{field}[{element}]" if index is None else f"{field}[{element}][{index}]"
@@ -288,6 +288,7 @@ def _raw_binding(model: mujoco.MjModel, address: Address) -> _RawBinding:
 
 def _bind(model: mujoco.MjModel, address: Address) -> tuple[Any, list[int]]:
     """A binding covering ``address`` and which of its scalars the address selects."""
+    binding: Any
     if address.field not in EFFECT_FIELDS:
         binding = _raw_binding(model, address)
         return binding, list(range(len(binding.addresses)))

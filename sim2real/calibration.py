@@ -34,7 +34,7 @@ def calibrate(env: Any, params: Any) -> Any:
         ``env`` itself. On composer envs (which recompile every reset) the values are written again after
         every recompile.
     """
-    from sysid.params import ParameterSpace
+    from randomizers.parameters import ParameterSet
 
     values = getattr(params, "params", params)
     if not isinstance(values, Mapping) or not values:
@@ -48,9 +48,8 @@ def calibrate(env: Any, params: Any) -> Any:
     vector = np.array([float(values[a]) for a in addresses])
 
     def write(model: mujoco.MjModel) -> None:
-        bounds = {a: (min(v, 0.0) - 1.0, max(v, 0.0) + 1.0 + abs(v)) for a, v in zip(addresses, vector, strict=True)}
-        space = ParameterSpace(model, addresses, bounds)
-        space.writer(model)(space.values_from(dict(zip(addresses, vector, strict=True)), "params"))
+        space = ParameterSet(model, addresses)  # values are written as given: no bounds, fake or real
+        space.write(model, dict(zip(addresses, vector, strict=True)))
 
     write(handle.model)
     if handle.recompiles:

@@ -134,7 +134,7 @@ class StudyProfile:
 
         std, latency = 0.0, 0
         for model in self.twin_signals:
-            if isinstance(model, noise_models.ObservationNoise):
+            if isinstance(model, noise_models.ObservationNoise) and isinstance(model.processes[0], noise_models.Gaussian):
                 std = float(model.processes[0].std)
             elif isinstance(model, noise_models.ActionLatency):
                 latency = int(model.steps)
@@ -251,7 +251,7 @@ def _record_twin(profile: StudyProfile, budget: Budget, seed: int) -> Any:
     from sim2real.recording import record
 
     std, _ = profile.recording
-    effects = [effect_for(Address.parse(address), "set", value) for address, value in profile.twin_params.items()]
+    effects: list[Any] = [effect_for(Address.parse(a), "set", v) for a, v in profile.twin_params.items()]
     effects += [m for m in profile.twin_signals if isinstance(m, noise_models.ActionLatency)]
     return record(
         profile.task,

@@ -570,7 +570,7 @@ def fit(
                     f"{corr[i, j]:+.3f}); the data mostly fix a combination of the two."
                 )
     span = upper - lower
-    for i in np.flatnonzero((st.theta - lower <= 1e-6 * span) | (upper - st.theta <= 1e-6 * span)):
+    for i in map(int, np.flatnonzero((st.theta - lower <= 1e-6 * span) | (upper - st.theta <= 1e-6 * span))):
         warns.append(
             f"{space.addresses[i]} = {st.theta[i]:.6g} sits at its bound [{lower[i]:.6g}, {upper[i]:.6g}]; widen "
             "`bounds` or check the model."
@@ -633,11 +633,11 @@ def fit(
     bar.close()
     # Latencies leave the fit in seconds: the action delay counts physics steps, the sensor lag control steps.
     timestep = float(model.opt.timestep)
-    latency: dict[str, float] = {}
+    fitted_latency: dict[str, float] = {}
     if ranges["action"] != [0]:
-        latency["action"] = convert_time(st.delay, "physics_steps", "seconds", timestep=timestep)
+        fitted_latency["action"] = convert_time(st.delay, "physics_steps", "seconds", timestep=timestep)
     if ranges["obs"] != [0]:
-        latency["obs"] = convert_time(st.obs, "control_steps", "seconds", timestep=timestep, substeps=n_sub)
+        fitted_latency["obs"] = convert_time(st.obs, "control_steps", "seconds", timestep=timestep, substeps=n_sub)
     truth = log.meta.get("true_params")
     return FitResult(
         addresses=space.addresses,
@@ -648,7 +648,7 @@ def fit(
         covariance=covariance,
         correlation=corr,
         bounds=np.stack([lower, upper], axis=1),
-        latency=latency,
+        latency=fitted_latency,
         timestep=timestep,
         control_timestep=timestep * n_sub,
         noise_std=noise,

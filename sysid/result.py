@@ -132,7 +132,7 @@ class FitResult:
         true_params: ground truth from the log's meta, when it had any.
     """
 
-    addresses: tuple[str, ...]
+    addresses: tuple[str, ...]  # Address objects (each is also its text)
     estimates: np.ndarray
     stderr: np.ndarray
     ci95: np.ndarray
@@ -427,7 +427,7 @@ class FitResult:
         return out
 
     def _nonnegative(self, i: int) -> bool:
-        owner = EFFECT_FIELDS.get(self.addresses[i].field)
+        owner = EFFECT_FIELDS.get(Address.parse(self.addresses[i]).field)
         return owner.nonnegative if owner is not None else False
 
     def _range(self, i: int, width: float, min_relative: float, digits: int | None) -> tuple[float, float]:
@@ -442,7 +442,7 @@ class FitResult:
         return round(lo, 12), round(hi, 12)
 
     def _effect(self, i: int, width: float, min_relative: float, digits: int | None) -> Effect | None:
-        address = self.addresses[i]
+        address = Address.parse(self.addresses[i])  # already an Address: no parsing happens
         owner = EFFECT_FIELDS.get(address.field)
         if owner is None or (owner.components is None and address.index is not None):
             return None

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import sim2real as s2r
-from randomizers import Address, load_effects
+from randomizers import EFFECT_TYPES, Address, load_effects
 
 # -- composer: physics is recompiled on every reset ---------------------------------------------
 
@@ -132,7 +132,8 @@ effects:
     [
         (
             "effects:\n  - type: Fiction\n    scale: 1.0\n",
-            "{f}: effects[0].type must be one of ['ActuatorGain', 'Armature', 'CameraFovy', 'CameraPose', 'Damping', 'Friction', 'FrictionLoss', 'GeomColor', 'Gravity', 'Light', 'Mass', 'MaterialColor', 'Push', 'Stiffness', 'Texture']. Received 'Fiction'.",
+            # the registry, not a list kept here: a new effect is one class plus one registry line
+            "{f}: effects[0].type must be one of " + str(sorted(EFFECT_TYPES)).replace("{", "{{") + ". Received 'Fiction'.",
         ),
         (
             "effects:\n  - type: Mass\n    scale: [-1.0, 2.0]\n",
@@ -140,7 +141,7 @@ effects:
         ),
         (
             "effects:\n  - type: Mass\n    scale: {type: Gauss, std: 1}\n",
-            "{f}: effects[0].scale: `type` must be one of ['Choice', 'Constant', 'LogUniform', 'Normal', 'TruncatedNormal', 'Uniform']. Received 'Gauss'.",
+            "{f}: effects[0].scale: `type` must be one of ['Choice', 'Constant', 'LogUniform', 'MultivariateNormal', 'Normal', 'TruncatedNormal', 'Uniform']. Received 'Gauss'.",
         ),
         (
             "effects:\n  - type: Damping\n    scale: 1.0\n    schedule: hourly\n",

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import re
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -60,11 +61,11 @@ def test_address_is_its_text_and_pickles() -> None:
     import pickle
 
     address = Address.parse("geom_friction[finger][0]")
-    assert address == "geom_friction[finger][0]" and {address: 1}["geom_friction[finger][0]"] == 1
+    assert address == "geom_friction[finger][0]" and {str(address): 1}[address] == 1
     back = pickle.loads(pickle.dumps(address))
     assert (back.field, back.element, back.index) == ("geom_friction", "finger", 0)
     with pytest.raises(AttributeError, match="Address is immutable"):
-        address.field = "x"  # type: ignore[misc]
+        address.field = "x"
 
 
 def test_design_needs_no_fake_bounds() -> None:
@@ -231,7 +232,7 @@ def test_correlated_errors() -> None:
 
 def test_body_com_offset_is_applied_reported_and_restored_bitwise() -> None:
     env = s2r.wrap(s2r.make("sim2real/arm-reach"), s2r.BodyComOffset(add=Uniform(-0.02, 0.02), axis="z"), seed=0)
-    model = s2r.find_physics(env).model
+    model = _handle(env).model
     nominal = model.body_ipos.copy()
     derived = model.dof_M0.copy(), model.body_invweight0.copy()
     _, info = env.reset(seed=0)
@@ -257,21 +258,27 @@ def test_body_com_offset_is_applied_reported_and_restored_bitwise() -> None:
 # ---------------------------------------------------------------------------------------------- latency units
 
 
+def _handle(env: Any) -> s2r.PhysicsHandle:
+    handle = s2r.find_physics(env)
+    assert handle is not None
+    return handle
+
+
 def _applied_commands(task: str, effects: list) -> np.ndarray:
     """``data.ctrl`` at every physics step of six control steps at full action."""
     env = s2r.wrap(s2r.make(task), *effects, seed=0) if effects else s2r.make(task)
-    handle = s2r.find_physics(env)
+    handle = _handle(env)
     env.reset(seed=0)
     applied: list[np.ndarray] = []
 
-    def each_physics_step(run, n, *rest):  # type: ignore[no-untyped-def]
+    def each_physics_step(run: Any, n: int, *rest: Any) -> None:
         for _ in range(n):
             applied.append(handle.data.ctrl.copy())
             run(1)
 
     remove = handle.intercept_step(each_physics_step)
     for _ in range(6):
-        env.step(env.action_space.high)
+        env.step(env.action_space.high)  # type: ignore[union-attr]
     remove()
     env.close()
     return np.array(applied)
@@ -293,11 +300,11 @@ _CASES = [
 def test_fitted_latency_survives_export_in_physics_steps(task: str, kind: str, param: str) -> None:
     """Twin with a 2-control-step latency -> fit -> exported effects -> recorded again: the same delay in physics
     steps (20 on these 10-substep tasks), where the old export gave ActionLatency(steps=2), a tenth of it."""
-    handle = s2r.find_physics(s2r.make(task))
+    handle = _handle(s2r.make(task))
     assert handle.substeps == 10
     dt = float(handle.model.opt.timestep)
-    kwargs = {"latency": 2} if kind == "action" else {"obs_latency": 2}
-    log = record(task, policy="prbs", episodes=1, steps=30, seed=1, **kwargs)
+    delays = (2, 0) if kind == "action" else (0, 2)
+    log = record(task, policy="prbs", episodes=1, steps=30, seed=1, latency=delays[0], obs_latency=delays[1])
     fit = sysid.fit(
         log, handle.model, [param], latency={kind: (0, 3)}, progress=False, global_search=False, validation=0.0
     )
@@ -319,7 +326,7 @@ def test_observation_latency_export_keeps_physics_steps_on_manipulator() -> None
     from dataclasses import replace
 
     task = "dmc/manipulator-bring_ball"
-    handle = s2r.find_physics(s2r.make(task))
+    handle = _handle(s2r.make(task))
     dt = float(handle.model.opt.timestep)
     log = record(task, policy="prbs", episodes=1, steps=20, seed=1, obs_latency=2)
     fit = replace(
