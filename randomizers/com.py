@@ -22,9 +22,9 @@ from typing import Any
 
 import mujoco
 
-from randomizers.addressing import GRAVITY_AXES, select
+from randomizers.addressing import GRAVITY_AXES
 from randomizers.distributions import Distribution
-from randomizers.effects import ArrayEffect, Binding, Schedule
+from randomizers.effects import ArrayEffect, Binding, Schedule, choose_components
 
 __all__ = ["BodyComOffset"]
 
@@ -77,22 +77,15 @@ class BodyComOffset(ArrayEffect):
         schedule: Schedule = "reset",
         name: str | None = None,
     ) -> None:
-        axes = (axis,) if isinstance(axis, str) else tuple(axis)
-        if not axes or any(a not in GRAVITY_AXES for a in axes):
-            raise ValueError(f"`axis` of BodyComOffset must be one or more of {list(GRAVITY_AXES)}. Received {axis!r}.")
-        self.axes = tuple(a for a in GRAVITY_AXES if a in axes)
+        self.axes = choose_components("BodyComOffset", GRAVITY_AXES, axis)
         super().__init__(scale=scale, add=add, set=set, select=bodies, shared=shared, schedule=schedule, name=name)
         self._frozen = True
 
     def _extra_fields(self) -> dict[str, Any]:
         return {} if self.axes == GRAVITY_AXES else {"axis": list(self.axes)}
 
+    def _excluded(self, model: mujoco.MjModel) -> tuple[int, ...]:
+        return (0,)
+
     def _targets(self, model: mujoco.MjModel) -> tuple[list[int], list[int] | None, list[str]]:
-        rows, cols, addresses = [], [], []
-        for bid, bname in select(model, self.kind, self.patterns, self.selector, exclude=(0,)):
-            for axis in self.axes:
-                col = GRAVITY_AXES.index(axis)
-                rows.append(bid)
-                cols.append(col)
-                addresses.append(f"{self.field}[{bname}][{col}]")
-        return rows, cols, addresses
+        return self._component_targets(model)

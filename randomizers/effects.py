@@ -56,7 +56,6 @@ __all__ = [
 
 Operation = Literal["scale", "add", "set"]
 _OPERATIONS: tuple[Operation, ...] = ("scale", "add", "set")
-_FRICTION_AXES = {name: i for i, name in enumerate(FRICTION_AXES)}
 _GRAVITY_AXES = {name: i for i, name in enumerate(GRAVITY_AXES)}
 _SCHEDULES = ("startup", "reset")
 _unique = set  # the effects' ``set=`` keyword shadows the builtin inside their signatures
@@ -92,6 +91,14 @@ Received steps=0, seconds=None.
 
 
 Schedule = Literal["startup", "reset"] | Interval
+
+
+def choose_components(owner: str, names: tuple[str, ...], axis: str | Sequence[str]) -> tuple[str, ...]:
+    """The components ``axis`` names (one or a list), in field order; an unknown or empty choice is refused."""
+    axes = (axis,) if isinstance(axis, str) else tuple(axis)
+    if not axes or any(a not in names for a in axes):
+        raise ValueError(f"`axis` of {owner} must be one or more of {list(names)}. Received {axis!r}.")
+    return tuple(n for n in names if n in axes)
 
 
 def _check_schedule(schedule: object) -> Schedule:
@@ -239,6 +246,18 @@ class ArrayEffect(Effect):
     def _excluded(self, model: mujoco.MjModel) -> tuple[int, ...]:
         return ()
 
+    def _component_targets(self, model: mujoco.MjModel) -> tuple[list[int], list[int] | None, list[str]]:
+        """(rows, cols, addresses) over the selected elements times the chosen components ``self.axes``."""
+        assert self.components is not None
+        names = self.components[1]
+        rows, cols, addresses = [], [], []
+        for eid, ename in select(model, self.kind, self.patterns, self.selector, exclude=self._excluded(model)):
+            for axis in self.axes:  # type: ignore[attr-defined]
+                rows.append(eid)
+                cols.append(names.index(axis))
+                addresses.append(f"{self.field}[{ename}][{names.index(axis)}]")
+        return rows, cols, addresses
+
     def bind(self, model: mujoco.MjModel) -> Binding:
         """Resolves the selection and snapshots the nominal values of ``model``.
 
@@ -313,11 +332,7 @@ Received Uniform(low=-0.5, high=1.5) with support [-0.5, 1.5].
         schedule: Schedule = "reset",
         name: str | None = None,
     ) -> None:
-        axes = (axis,) if isinstance(axis, str) else tuple(axis)
-        bad = [a for a in axes if a not in _FRICTION_AXES] if axes else ["<empty>"]
-        if bad:
-            raise ValueError(f"`axis` of Friction must be one or more of {list(_FRICTION_AXES)}. Received {axis!r}.")
-        self.axes = tuple(sorted(_unique(axes), key=_FRICTION_AXES.__getitem__))
+        self.axes = choose_components("Friction", FRICTION_AXES, axis)
         super().__init__(scale=scale, add=add, set=set, select=geoms, shared=shared, schedule=schedule, name=name)
         self._frozen = True
 
@@ -325,15 +340,7 @@ Received Uniform(low=-0.5, high=1.5) with support [-0.5, 1.5].
         return {} if self.axes == ("sliding",) else {"axis": list(self.axes)}
 
     def _targets(self, model: mujoco.MjModel) -> tuple[list[int], list[int] | None, list[str]]:
-        chosen = select(model, self.kind, self.patterns, self.selector)
-        rows, cols, addresses = [], [], []
-        for gid, gname in chosen:
-            for axis in self.axes:
-                col = _FRICTION_AXES[axis]
-                rows.append(gid)
-                cols.append(col)
-                addresses.append(f"geom_friction[{gname}][{col}]")
-        return rows, cols, addresses
+        return self._component_targets(model)
 
 
 class Mass(ArrayEffect):
