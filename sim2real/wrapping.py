@@ -35,7 +35,7 @@ import gymnasium as gym
 
 from noise_models.corruptor import ActionNoise, ObservationNoise
 from noise_models.timing import TimeModel
-from randomizers import Effect, Texture
+from randomizers import EFFECT_TYPES, Effect, Texture
 from randomizers.seeding import SeedLike, normalize_seed
 
 __all__ = ["make_vec", "wrap"]
@@ -53,10 +53,9 @@ def _flatten(effects: Iterable[Any]) -> list[Any]:
             out.append(item)
         else:
             raise TypeError(
-                "`effects` must be effects from `randomizers` (Friction, Mass, Damping, Armature, FrictionLoss, "
-                "Stiffness, ActuatorGain, Gravity, Push, GeomColor, MaterialColor, Texture, Light, CameraPose, "
-                "CameraFovy), models from `noise_models` (ObservationNoise, "
-                "ActionNoise, ObservationLatency, ActionLatency, SampleAndHold, ControlJitter) or lists of them. "
+                f"`effects` must be effects from `randomizers` ({', '.join(EFFECT_TYPES)}), models from `noise_models` "
+                "(ObservationNoise, ActionNoise, ObservationLatency, ActionLatency, SampleAndHold, ControlJitter) or "
+                "lists of them. "
                 f"Received {item!r} of type {type(item).__name__}."
             )
     return out

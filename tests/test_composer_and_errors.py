@@ -241,7 +241,7 @@ def test_add_that_would_go_negative_is_rejected_at_wrap() -> None:
         (
             lambda: s2r.wrap(s2r.make("dmc/reacher-easy"), "Damping"),
             TypeError,
-            "`effects` must be effects from `randomizers` (Friction, Mass, Damping, Armature, FrictionLoss, Stiffness, ActuatorGain, Gravity, Push, GeomColor, MaterialColor, Texture, Light, CameraPose, CameraFovy), models from `noise_models` (ObservationNoise, ActionNoise, ObservationLatency, ActionLatency, SampleAndHold, ControlJitter) or lists of them. Received 'Damping' of type str.",
+            f"`effects` must be effects from `randomizers` ({', '.join(EFFECT_TYPES)}), models from `noise_models` (ObservationNoise, ActionNoise, ObservationLatency, ActionLatency, SampleAndHold, ControlJitter) or lists of them. Received 'Damping' of type str.",
         ),
         (
             lambda: s2r.wrap(s2r.make("dmc/reacher-easy"), seed=-3),
