@@ -436,7 +436,7 @@ def _print_params(episodes: list[_Episode], nominal: dict[str, float], seed: int
 
 
 def _cmd_demo(args: argparse.Namespace, out: TextIO) -> int:
-    from tqdm import tqdm  # type: ignore[import-untyped]
+    from tqdm import tqdm
 
     effects = _load_demo_effects(args.config)
     nominal, randomised = _make_envs(args.task, effects, args.seed)
