@@ -42,6 +42,7 @@ from noise_models.timing import (
     ObservationLatency,
     SampleAndHold,
     TimeModel,
+    convert_time,
     sample_and_hold_updates,
 )
 from noise_models.values import Layout, draw, selection_repr
@@ -482,7 +483,8 @@ class SignalCorruptor:
             steps = model.draw_steps(self._timing_rng(cls, 0), self._scales[cls])  # type: ignore[attr-defined]
             report[f"{prefix}_steps"] = steps
             if self.timestep is not None:
-                report[prefix] = steps * self.timestep
+                unit = "physics_steps" if self.physics_time else "control_steps"
+                report[prefix] = convert_time(steps, unit, "seconds", timestep=self.timestep)
             if cls is ObservationLatency:
                 self._obs_latency = steps
             elif self.physics_time and self.delays_actions:
@@ -492,7 +494,7 @@ class SignalCorruptor:
                 k = math.floor(steps / n + 0.5)
                 self._action_latency = k
                 report["action_latency_steps"] = k * n
-                report["action_latency"] = k * n * self.timestep
+                report["action_latency"] = convert_time(k, "control_steps", "seconds", timestep=self.timestep, substeps=n)
                 report["action_latency_control_steps"] = k
             else:
                 self._action_latency = steps

@@ -44,6 +44,7 @@ __all__ = [
     "SampleAndHold",
     "TimeModel",
     "convert_time",
+    "elapsed_steps",
 ]
 
 #: The units a span of time is given in at any boundary of the library.
@@ -87,6 +88,17 @@ def convert_time(value: float, source: str, target: str, *, timestep: float, sub
     if target == "control_steps":
         return physics / substeps
     return physics * timestep
+
+
+def elapsed_steps(start: float, now: float, timestep: float) -> int:
+    """Whole steps of ``timestep`` seconds between two clock readings: :func:`convert_time`'s seconds →
+    steps conversion for the step loop (no argument checks; ``timestep`` was checked when the wrapper bound).
+
+    Example:
+        >>> elapsed_steps(0.5, 0.56, 0.002)
+        30
+    """
+    return round((now - start) / timestep)
 
 
 class TimeModel(FrozenValue):

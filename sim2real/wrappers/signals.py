@@ -45,6 +45,7 @@ import numpy as np
 
 from noise_models import ActionLatency, ControlJitter, Layout, SignalCorruptor, SignalModel
 from noise_models.seeding import SeedLike
+from noise_models.timing import convert_time, elapsed_steps
 from sim2real.physics import PhysicsHandle, find_physics
 from sim2real.wrappers.dm import DmEnvWrapper
 
@@ -144,7 +145,7 @@ class SignalClock:
                         "physics steps per action: give the env a `frame_skip` (or `n_substeps`) attribute or a "
                         f"`dt`. Received an env of type {type(env).__qualname__} with neither."
                     )
-                substeps = max(1, round(dt / timestep))
+                substeps = max(1, round(convert_time(dt, "seconds", "physics_steps", timestep=timestep)))
                 self.nominal = substeps
         corruptor.bind(
             obs=obs,
@@ -176,7 +177,7 @@ class SignalClock:
         """Time since reset: physics steps with MuJoCo, else control steps."""
         if self.handle is None:
             return self._control
-        return round((self.handle.data.time - self._t0) / self.timestep)
+        return elapsed_steps(self._t0, self.handle.data.time, self.timestep)
 
     def begin_episode(self) -> None:
         """Call right after the env's reset."""
@@ -211,7 +212,7 @@ class SignalClock:
             return
         if self._fixed:  # latency without control jitter: the substeps asked for are the substeps run
             data = self.handle.data  # type: ignore[union-attr]
-            start = round((data.time - self._t0) / self.timestep)
+            start = elapsed_steps(self._t0, data.time, self.timestep)
             if self._passed == 0:
                 pieces = self.corruptor.command_segments(data.ctrl, start, nstep)
             else:
@@ -428,7 +429,7 @@ class CorruptSignals(gym.Wrapper, gym.utils.RecordConstructorArgs):
             now = 0
             if self._obs_time:
                 handle = clock.handle
-                now = clock._control if handle is None else round((handle.data.time - clock._t0) / clock.timestep)
+                now = clock._control if handle is None else elapsed_steps(clock._t0, handle.data.time, clock.timestep)
             if self._obs_codec is None:
                 obs = c.observe(obs, now)
             else:
