@@ -487,14 +487,16 @@ class SignalCorruptor:
                 report[prefix] = convert_time(steps, unit, "seconds", timestep=self.timestep)
             if cls is ObservationLatency:
                 self._obs_latency = steps
-            elif self.physics_time and self.delays_actions:
+            elif self.physics_time and self.delays_actions and self.timestep is not None:
                 # The action reaches the env once per control step: whole control steps of the nominal
                 # period, and the report says what is applied.
                 n = self.nominal_substeps
                 k = math.floor(steps / n + 0.5)
                 self._action_latency = k
                 report["action_latency_steps"] = k * n
-                report["action_latency"] = convert_time(k, "control_steps", "seconds", timestep=self.timestep, substeps=n)
+                report["action_latency"] = convert_time(
+                    k, "control_steps", "seconds", timestep=self.timestep, substeps=n
+                )
                 report["action_latency_control_steps"] = k
             else:
                 self._action_latency = steps

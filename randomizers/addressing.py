@@ -1,8 +1,8 @@
-"""Named elements of a model: the lookups the effects themselves need (below the effects in the import graph).
+"""Addresses and named elements of a model: what the effects themselves need (below them in the import graph).
 
-The parameter vocabulary (addresses, resolving, reading, writing, effects for an address) is
-:mod:`randomizers.parameters`; this module holds only what the effect classes need to find their elements,
-so ``effects`` can import it without a cycle. Element selections are name patterns (``fnmatch`` style:
+An :class:`Address` is parsed here and only here; resolving it against a model, reading, writing and turning it
+into an effect is :mod:`randomizers.parameters` (which re-exports :class:`Address`). Effects build their report
+addresses as :class:`Address` objects, so no address is ever formatted by hand and parsed back. Element selections are name patterns (``fnmatch`` style:
 ``finger*``, ``*``, or a list of them).
 
 Example:
@@ -19,16 +19,82 @@ from __future__ import annotations
 
 import difflib
 import fnmatch
+import re
 from collections.abc import Sequence
 
 import mujoco
 
-__all__ = ["FRICTION_AXES", "GRAVITY_AXES", "element_names", "select"]
+__all__ = ["FRICTION_AXES", "GRAVITY_AXES", "Address", "element_names", "select"]
 
 #: The components of ``geom_friction``, by column: ``geom_friction[g][i]`` is ``FRICTION_AXES[i]``.
 FRICTION_AXES: tuple[str, ...] = ("sliding", "torsional", "rolling")
 #: The components of a 3-vector (gravity, positions), by column.
 GRAVITY_AXES: tuple[str, ...] = ("x", "y", "z")
+
+_ADDRESS = re.compile(r"^(?P<field>[A-Za-z_][A-Za-z0-9_]*)\[(?P<element>[^\[\]]+)\](?:\[(?P<component>\d+)\])?$")
+
+
+class Address(str):
+    """One scalar simulator parameter: ``field[element]`` plus an optional ``component`` (the column of a multi-column field).
+
+    An address *is* its text (a ``str``): it compares equal to, hashes like and serialises as
+    ``"geom_friction[finger][0]"``, so it can key dicts, reports and JSON, while carrying its parsed parts.
+
+    Example:
+        >>> address = Address.parse("geom_friction[finger][0]")
+        >>> address, address.field, address.element, address.component
+        ('geom_friction[finger][0]', 'geom_friction', 'finger', 0)
+        >>> str(Address("body_mass", "arm")), Address("body_mass", "arm") == "body_mass[arm]"
+        ('body_mass[arm]', True)
+    """
+
+    field: str
+    element: str
+    component: int | None
+
+    def __new__(cls, field: str, element: str, component: int | None = None) -> Address:
+        text = f"{field}[{element}]" if component is None else f"{field}[{element}][{component}]"
+        self = super().__new__(cls, text)
+        object.__setattr__(self, "field", field)
+        object.__setattr__(self, "element", element)
+        object.__setattr__(self, "component", component)
+        return self
+
+    def __getnewargs__(self) -> tuple[str, str, int | None]:  # type: ignore[override]
+        return (self.field, self.element, self.component)
+
+    def __setattr__(self, key: str, value: object) -> None:
+        raise AttributeError("Address is immutable; build a new one instead.")
+
+    def __repr__(self) -> str:  # an address prints as its text, in messages and in reprs of what holds it
+        return str.__repr__(self)
+
+    def __str__(self) -> str:
+        return str.__str__(self)
+
+    @classmethod
+    def parse(cls, text: str | Address) -> Address:
+        """Parses ``field[element]`` or ``field[element][index]`` (an :class:`Address` is returned as it is).
+
+        Example:
+            >>> Address.parse("mass of arm")
+            Traceback (most recent call last):
+            ...
+            ValueError: `address` must look like 'field[element]' or 'field[element][index]', \
+e.g. 'geom_friction[finger][0]'. Received 'mass of arm'.
+        """
+        if isinstance(text, Address):
+            return text
+        match = _ADDRESS.match(text.strip()) if isinstance(text, str) else None
+        if match is None:
+            raise ValueError(
+                "`address` must look like 'field[element]' or 'field[element][index]', "
+                f"e.g. 'geom_friction[finger][0]'. Received {text!r}."
+            )
+        component = match.group("component")
+        return cls(match.group("field"), match.group("element"), None if component is None else int(component))
+
+
 
 _OBJ = {
     "geom": mujoco.mjtObj.mjOBJ_GEOM,

@@ -28,6 +28,8 @@ from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
 import mujoco
 import numpy as np
 
+from randomizers.addressing import Address
+
 if TYPE_CHECKING:
     from randomizers.effects import ArrayEffect  # noqa: F401 - named in a base-class subscript, as a string
 
@@ -67,13 +69,13 @@ class Binding(Generic[EffectT]):
         model: mujoco.MjModel,
         array: np.ndarray,
         targets: tuple[np.ndarray, ...],
-        addresses: Sequence[str],
+        addresses: Sequence[Address],
     ) -> None:
         self.effect: EffectT = effect
         self.model = model
         self._array = array
         self._targets = targets
-        self.addresses: tuple[str, ...] = tuple(addresses)
+        self.addresses: tuple[Address, ...] = tuple(addresses)
         self.nominal: np.ndarray = array[targets].copy()
         self.size = len(self.addresses)
 

@@ -22,7 +22,7 @@ from typing import Any
 
 import mujoco
 
-from randomizers.addressing import GRAVITY_AXES
+from randomizers.addressing import GRAVITY_AXES, Address
 from randomizers.distributions import Distribution
 from randomizers.effects import ArrayEffect, Binding, Schedule, choose_components
 
@@ -87,5 +87,5 @@ class BodyComOffset(ArrayEffect):
     def _excluded(self, model: mujoco.MjModel) -> tuple[int, ...]:
         return (0,)
 
-    def _targets(self, model: mujoco.MjModel) -> tuple[list[int], list[int] | None, list[str]]:
+    def _targets(self, model: mujoco.MjModel) -> tuple[list[int], list[int] | None, list[Address]]:
         return self._component_targets(model)

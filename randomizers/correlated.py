@@ -135,7 +135,7 @@ class CorrelatedBinding(Binding):
         self.effect = effect
         self.model = parameters.model
         self._parameters = parameters
-        self.addresses = tuple(str(a) for a in parameters.addresses)
+        self.addresses = parameters.addresses
         self.nominal = parameters.nominal.copy()
         self.size = len(self.addresses)
         self.set_const_inputs = parameters.set_const_inputs

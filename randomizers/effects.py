@@ -34,7 +34,7 @@ from typing import Any, ClassVar, Literal, NamedTuple
 import mujoco
 import numpy as np
 
-from randomizers.addressing import FRICTION_AXES, GRAVITY_AXES, select
+from randomizers.addressing import FRICTION_AXES, GRAVITY_AXES, Address, select
 from randomizers.bindings import Binding, _GainBinding, _MassBinding, _SetConstBinding
 from randomizers.distributions import Distribution, as_distribution
 
@@ -237,16 +237,16 @@ class ArrayEffect(Effect):
     def _array(self, model: mujoco.MjModel) -> np.ndarray:
         return getattr(model, self.field)
 
-    def _targets(self, model: mujoco.MjModel) -> tuple[list[int], list[int] | None, list[str]]:
+    def _targets(self, model: mujoco.MjModel) -> tuple[list[int], list[int] | None, list[Address]]:
         """Flat (rows, cols, addresses) of every scalar this effect writes."""
         chosen = select(model, self.kind, self.patterns, self.selector, exclude=self._excluded(model))
         rows = [i for i, _ in chosen]
-        return rows, None, [f"{self.field}[{n}]" for _, n in chosen]
+        return rows, None, [Address(self.field, n) for _, n in chosen]
 
     def _excluded(self, model: mujoco.MjModel) -> tuple[int, ...]:
         return ()
 
-    def _component_targets(self, model: mujoco.MjModel) -> tuple[list[int], list[int] | None, list[str]]:
+    def _component_targets(self, model: mujoco.MjModel) -> tuple[list[int], list[int] | None, list[Address]]:
         """(rows, cols, addresses) over the selected elements times the chosen components ``self.axes``."""
         assert self.components is not None
         names = self.components[1]
@@ -255,7 +255,7 @@ class ArrayEffect(Effect):
             for axis in self.axes:  # type: ignore[attr-defined]
                 rows.append(eid)
                 cols.append(names.index(axis))
-                addresses.append(f"{self.field}[{ename}][{names.index(axis)}]")
+                addresses.append(Address(self.field, ename, names.index(axis)))
         return rows, cols, addresses
 
     def bind(self, model: mujoco.MjModel) -> Binding:
@@ -339,7 +339,7 @@ Received Uniform(low=-0.5, high=1.5) with support [-0.5, 1.5].
     def _extra_fields(self) -> dict[str, Any]:
         return {} if self.axes == ("sliding",) else {"axis": list(self.axes)}
 
-    def _targets(self, model: mujoco.MjModel) -> tuple[list[int], list[int] | None, list[str]]:
+    def _targets(self, model: mujoco.MjModel) -> tuple[list[int], list[int] | None, list[Address]]:
         return self._component_targets(model)
 
 
@@ -405,7 +405,7 @@ class _DofEffect(ArrayEffect):
         super().__init__(scale=scale, add=add, set=set, select=joints, shared=shared, schedule=schedule, name=name)
         self._frozen = True
 
-    def _targets(self, model: mujoco.MjModel) -> tuple[list[int], list[int] | None, list[str]]:
+    def _targets(self, model: mujoco.MjModel) -> tuple[list[int], list[int] | None, list[Address]]:
         chosen = select(model, self.kind, self.patterns, self.selector)
         ndof = {mujoco.mjtJoint.mjJNT_FREE: 6, mujoco.mjtJoint.mjJNT_BALL: 3}
         rows, addresses = [], []
@@ -414,7 +414,7 @@ class _DofEffect(ArrayEffect):
             start = int(model.jnt_dofadr[jid])
             for k in range(count):
                 rows.append(start + k)
-                addresses.append(f"{self.field}[{jname}]" + (f"[{k}]" if count > 1 else ""))
+                addresses.append(Address(self.field, jname, k if count > 1 else None))
         return rows, None, addresses
 
 
@@ -499,7 +499,7 @@ class ActuatorGain(ArrayEffect):
     def _array(self, model: mujoco.MjModel) -> np.ndarray:
         return model.actuator_gainprm
 
-    def _targets(self, model: mujoco.MjModel) -> tuple[list[int], list[int] | None, list[str]]:
+    def _targets(self, model: mujoco.MjModel) -> tuple[list[int], list[int] | None, list[Address]]:
         rows, _, addresses = super()._targets(model)
         return rows, [0] * len(rows), addresses
 
@@ -542,9 +542,9 @@ class Gravity(ArrayEffect):
     def _array(self, model: mujoco.MjModel) -> np.ndarray:
         return model.opt.gravity
 
-    def _targets(self, model: mujoco.MjModel) -> tuple[list[int], list[int] | None, list[str]]:
+    def _targets(self, model: mujoco.MjModel) -> tuple[list[int], list[int] | None, list[Address]]:
         axes = sorted(self.patterns[0], key=_GRAVITY_AXES.__getitem__)
-        return [_GRAVITY_AXES[a] for a in axes], None, [f"gravity[{a}]" for a in axes]
+        return [_GRAVITY_AXES[a] for a in axes], None, [Address("gravity", a) for a in axes]
 
 
 class Push(Effect):

@@ -36,7 +36,7 @@ from typing import Any, Literal
 import mujoco
 import numpy as np
 
-from randomizers.addressing import GRAVITY_AXES, element_names, select
+from randomizers.addressing import GRAVITY_AXES, Address, element_names, select
 from randomizers.com import BodyComOffset
 from randomizers.distributions import Distribution
 from randomizers.effects import (
@@ -66,7 +66,6 @@ __all__ = [
 
 Operation = Literal["scale", "add", "set"]
 
-_ADDRESS = re.compile(r"^(?P<field>[A-Za-z_][A-Za-z0-9_]*)\[(?P<element>[^\[\]]+)\](?:\[(?P<index>\d+)\])?$")
 _ASSIGNMENT = re.compile(r"^\s*(?P<address>[^=\s]+)\s*=\s*(?P<op>[*+]?)\s*(?P<value>[-+0-9.eE]+|inf|nan)\s*$")
 _OPERATION_SIGNS: dict[str, Operation] = {"*": "scale", "+": "add", "": "set"}
 # Prefix of a raw MjModel field -> the kind of element its rows belong to (dof_ rows expand per joint).
@@ -79,67 +78,6 @@ _RAW_KINDS = {
     "site_": "site",
 }
 _DOF_COUNT = {mujoco.mjtJoint.mjJNT_FREE: 6, mujoco.mjtJoint.mjJNT_BALL: 3}
-
-
-class Address(str):
-    """One scalar simulator parameter: ``field[element]`` plus an optional component ``index``.
-
-    An address *is* its text (a ``str``): it compares equal to, hashes like and serialises as
-    ``"geom_friction[finger][0]"``, so it can key dicts, reports and JSON, while carrying its parsed parts.
-
-    Example:
-        >>> address = Address.parse("geom_friction[finger][0]")
-        >>> address, address.field, address.element, address.index
-        ('geom_friction[finger][0]', 'geom_friction', 'finger', 0)
-        >>> str(Address("body_mass", "arm")), Address("body_mass", "arm") == "body_mass[arm]"
-        ('body_mass[arm]', True)
-    """
-
-    field: str
-    element: str
-    index: int | None  # type: ignore[assignment]  # shadows str.index: the component is what an address means
-
-    def __new__(cls, field: str, element: str, index: int | None = None) -> Address:
-        text = f"{field}[{element}]" if index is None else f"{field}[{element}][{index}]"
-        self = super().__new__(cls, text)
-        object.__setattr__(self, "field", field)
-        object.__setattr__(self, "element", element)
-        object.__setattr__(self, "index", index)
-        return self
-
-    def __getnewargs__(self) -> tuple[str, str, int | None]:  # type: ignore[override]
-        return (self.field, self.element, self.index)
-
-    def __setattr__(self, key: str, value: object) -> None:
-        raise AttributeError("Address is immutable; build a new one instead.")
-
-    def __repr__(self) -> str:  # an address prints as its text, in messages and in reprs of what holds it
-        return str.__repr__(self)
-
-    def __str__(self) -> str:
-        return str.__str__(self)
-
-    @classmethod
-    def parse(cls, text: str | Address) -> Address:
-        """Parses ``field[element]`` or ``field[element][index]`` (an :class:`Address` is returned as it is).
-
-        Example:
-            >>> Address.parse("mass of arm")
-            Traceback (most recent call last):
-            ...
-            ValueError: `address` must look like 'field[element]' or 'field[element][index]', \
-e.g. 'geom_friction[finger][0]'. Received 'mass of arm'.
-        """
-        if isinstance(text, Address):
-            return text
-        match = _ADDRESS.match(text.strip()) if isinstance(text, str) else None
-        if match is None:
-            raise ValueError(
-                "`address` must look like 'field[element]' or 'field[element][index]', "
-                f"e.g. 'geom_friction[finger][0]'. Received {text!r}."
-            )
-        index = match.group("index")
-        return cls(match.group("field"), match.group("element"), None if index is None else int(index))
 
 
 #: The registry of effects that own a model field: a new physics effect is its class plus one line here (YAML
@@ -187,14 +125,14 @@ def effect_for(address: Address, operation: Operation = "set", value: Distributi
     components = getattr(cls, "components", None)
     if components is not None:
         keyword, names = components
-        if address.index is None or address.index >= len(names):
+        if address.component is None or address.component >= len(names):
             choices = ", ".join(f"{i} ({n})" for i, n in enumerate(names))
             choices = choices.replace(f", {len(names) - 1} (", f" or {len(names) - 1} (")
             raise ValueError(
                 f"`address` {str(address)!r} needs a component index {choices}, "
-                f"e.g. '{address.field}[{address.element}][0]'. Received index {address.index!r}."
+                f"e.g. '{address.field}[{address.element}][0]'. Received index {address.component!r}."
             )
-        kwargs[keyword] = names[address.index]
+        kwargs[keyword] = names[address.component]
     return cls(**kwargs)
 
 
@@ -261,16 +199,16 @@ def _raw_binding(model: mujoco.MjModel, address: Address) -> _RawBinding:
             f"actuators or sites (e.g. {', '.join(sorted(EFFECT_FIELDS))}, actuator_biasprm). "
             f"Received field {address.field!r}."
         )
-    if array.ndim == 2 and address.index is None:
+    if array.ndim == 2 and address.component is None:
         raise ValueError(
             f"`params` entry {text!r} needs a component index: {address.field} has {array.shape[1]} columns, "
             f"e.g. '{address.field}[{address.element}][0]'. Received no index."
         )
-    if address.index is not None and (array.ndim == 1 or address.index >= array.shape[1]):
+    if address.component is not None and (array.ndim == 1 or address.component >= array.shape[1]):
         width = 1 if array.ndim == 1 else array.shape[1]
         raise ValueError(
-            f"`params` entry {text!r} has index {address.index}, but {address.field} has {width} column(s)"
-            f"{' (give no index)' if array.ndim == 1 else ''}. Received index {address.index}."
+            f"`params` entry {text!r} has index {address.component}, but {address.field} has {width} column(s)"
+            f"{' (give no index)' if array.ndim == 1 else ''}. Received index {address.component}."
         )
     rows: list[int] = []
     names: list[Address] = []
@@ -281,8 +219,8 @@ def _raw_binding(model: mujoco.MjModel, address: Address) -> _RawBinding:
             names.extend(Address(address.field, name, k if count > 1 else None) for k in range(count))
         else:
             rows.append(eid)
-            names.append(Address(address.field, name, address.index))
-    cols = None if address.index is None else [address.index] * len(rows)
+            names.append(Address(address.field, name, address.component))
+    cols = None if address.component is None else [address.component] * len(rows)
     return _RawBinding(model, address.field, rows, cols, names)
 
 
@@ -294,13 +232,13 @@ def _bind(model: mujoco.MjModel, address: Address) -> tuple[Any, list[int]]:
         return binding, list(range(len(binding.addresses)))
     binding = effect_for(address).bind(model)
     keep = list(range(len(binding.addresses)))
-    if address.index is not None and getattr(EFFECT_FIELDS[address.field], "components", None) is None:
+    if address.component is not None and getattr(EFFECT_FIELDS[address.field], "components", None) is None:
         # A per-element effect over multi-dof joints: the index picks the dof.
-        keep = [i for i, a in enumerate(binding.addresses) if a.endswith(f"[{address.index}]")]
+        keep = [i for i, a in enumerate(binding.addresses) if a.component == address.component]
         if not keep:
             raise ValueError(
-                f"`params` entry {str(address)!r} has index {address.index}, but {address.field} of "
-                f"{address.element!r} has no such component. Received index {address.index}."
+                f"`params` entry {str(address)!r} has index {address.component}, but {address.field} of "
+                f"{address.element!r} has no such component. Received index {address.component}."
             )
     return binding, keep
 
@@ -331,10 +269,12 @@ class ParameterSet:
         addresses: list[Address] = []
         nominal: list[float] = []
         origin: list[int] = []
+        parsed: list[Address] = []
         for k, text in enumerate(params):
             if not isinstance(text, str):
                 raise ValueError(f"`params` entries must be addresses. Received {text!r} at position {k}.")
             address = Address.parse(text)
+            parsed.append(address)
             try:
                 binding, keep = _bind(model, address)
             except ValueError as err:
@@ -342,7 +282,7 @@ class ParameterSet:
                     raise
                 raise ValueError(f"`params` entry {str(text)!r}: {err}") from err
             for i in keep:
-                name = Address.parse(binding.addresses[i])
+                name = binding.addresses[i]  # an Address built by the binding: never re-parsed
                 if name in addresses:
                     raise ValueError(
                         f"`params` must name each parameter once. Received {str(name)!r} twice (from {str(text)!r})."
@@ -351,7 +291,7 @@ class ParameterSet:
                 nominal.append(float(binding.nominal[i]))
                 origin.append(k)
             self._specs.append((address, keep))
-        self.params = tuple(Address.parse(p) for p in params)
+        self.params = tuple(parsed)
         self.addresses: tuple[Address, ...] = tuple(addresses)
         self.nominal = np.array(nominal)
         self.origin = np.array(origin, dtype=np.intp)

@@ -444,9 +444,9 @@ class FitResult:
     def _effect(self, i: int, width: float, min_relative: float, digits: int | None) -> Effect | None:
         address = Address.parse(self.addresses[i])  # already an Address: no parsing happens
         owner = EFFECT_FIELDS.get(address.field)
-        if owner is None or (owner.components is None and address.index is not None):
+        if owner is None or (owner.components is None and address.component is not None):
             return None
-        if owner.components is not None and (address.index is None or address.index >= len(owner.components[1])):
+        if owner.components is not None and (address.component is None or address.component >= len(owner.components[1])):
             return None
         return effect_for(address, "set", Uniform(*self._range(i, width, min_relative, digits)))
 

@@ -51,6 +51,57 @@ def test_one_translator_per_concept() -> None:
     )
 
 
+def test_addresses_are_built_once_never_parsed_back(monkeypatch: pytest.MonkeyPatch) -> None:
+    # Every effect binding hands out Address objects; a ParameterSet over effect-owned and raw fields resolves
+    # its patterns with exactly one parse per user-given pattern (none of the expanded addresses is re-parsed).
+    model = mujoco.MjModel.from_xml_string(XML)
+    patterns = [
+        "dof_damping[*]",
+        "body_mass[arm]",
+        "geom_friction[*][0]",
+        "actuator_gain[m2]",
+        "gravity[z]",
+        "body_ipos[hand][1]",
+        "actuator_biasprm[m1][1]",
+    ]
+    calls: list[str] = []
+    original = Address.parse.__func__  # type: ignore[attr-defined]
+
+    def counting(cls: type[Address], text: str | Address) -> Address:
+        if not isinstance(text, Address):
+            calls.append(text)
+        return original(cls, text)
+
+    monkeypatch.setattr(Address, "parse", classmethod(counting))
+    space = randomizers.ParameterSet(model, patterns)
+    assert calls == patterns
+    assert all(type(a) is Address for a in space.addresses)
+    assert [(a.field, a.element, a.component) for a in space.addresses[:3]] == [
+        ("dof_damping", "shoulder", None),
+        ("dof_damping", "elbow", None),
+        ("body_mass", "arm", None),
+    ]
+    for cls in FIELD_EFFECT_SAMPLES:
+        binding = cls.bind(model)
+        assert binding.addresses and all(type(a) is Address for a in binding.addresses), cls
+
+
+FIELD_EFFECT_SAMPLES = [
+    effect_for(Address.parse(text), "scale", 1.0)
+    for text in (
+        "dof_damping[*]",
+        "body_mass[*]",
+        "geom_friction[*][1]",
+        "actuator_gain[*]",
+        "gravity[*]",
+        "dof_armature[*]",
+        "dof_frictionloss[*]",
+        "jnt_stiffness[*]",
+        "body_ipos[hand][0]",
+    )
+]
+
+
 def test_every_registered_effect_is_exported() -> None:
     for name in EFFECT_TYPES:
         assert getattr(randomizers, name) is EFFECT_TYPES[name] and name in randomizers.__all__
@@ -63,7 +114,7 @@ def test_address_is_its_text_and_pickles() -> None:
     address = Address.parse("geom_friction[finger][0]")
     assert address == "geom_friction[finger][0]" and {str(address): 1}[address] == 1
     back = pickle.loads(pickle.dumps(address))
-    assert (back.field, back.element, back.index) == ("geom_friction", "finger", 0)
+    assert (back.field, back.element, back.component) == ("geom_friction", "finger", 0)
     with pytest.raises(AttributeError, match="Address is immutable"):
         address.field = "x"
 

@@ -15,6 +15,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from randomizers.addressing import Address
 from randomizers.addressing import select as _select
 from randomizers.distributions import Constant, Distribution, as_distribution
 from randomizers.effects import ArrayEffect, Binding, Effect, Operation, Schedule, _check_schedule
@@ -67,9 +68,9 @@ class CameraFovy(ArrayEffect):
             raise ValueError(f"`set` of CameraFovy must stay in (0, 180) degrees. Received {self.distribution!r}.")
         self._frozen = True
 
-    def _targets(self, model: mujoco.MjModel) -> tuple[list[int], list[int] | None, list[str]]:
+    def _targets(self, model: mujoco.MjModel) -> tuple[list[int], list[int] | None, list[Address]]:
         chosen = _select(model, self.kind, self.patterns, self.selector)
-        return [i for i, _ in chosen], None, [f"cam_fovy[{n}]" for _, n in chosen]
+        return [i for i, _ in chosen], None, [Address("cam_fovy", n) for _, n in chosen]
 
     def bind(self, model: mujoco.MjModel) -> Binding:
         """Resolves the cameras; rejects a distribution that could leave (0, 180) degrees for one of them."""
@@ -108,8 +109,8 @@ class _PoseBinding(Binding["CameraPose"]):
         self.model = model
         self.rows = np.array([i for i, _ in chosen], dtype=np.intp)
         self.addresses = tuple(
-            [f"cam_pos[{n}][{c}]" for _, n in chosen for c in range(3)]
-            + [f"cam_quat[{n}][{c}]" for _, n in chosen for c in range(4)]
+            [Address("cam_pos", n, c) for _, n in chosen for c in range(3)]
+            + [Address("cam_quat", n, c) for _, n in chosen for c in range(4)]
         )
         self.size = len(self.addresses)
         self._pos = model.cam_pos[self.rows].copy()

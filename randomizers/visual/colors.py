@@ -14,6 +14,7 @@ from typing import Any, ClassVar
 import mujoco
 import numpy as np
 
+from randomizers.addressing import Address
 from randomizers.addressing import select as _select
 from randomizers.effects import Binding, Effect, Operation, Schedule, _check_schedule
 from randomizers.visual.arguments import (
@@ -84,7 +85,7 @@ class _ColorBinding(Binding):
     ) -> None:
         cols = np.tile(np.arange(3, dtype=np.intp), len(rows))
         targets = (np.repeat(rows, 3), cols)
-        addresses = [f"{effect.field}[{n}][{c}]" for n in names for c in range(3)]
+        addresses = [Address(effect.field, n, c) for n in names for c in range(3)]
         super().__init__(effect, model, array, targets, addresses)
         self.nominal = self.nominal.astype(np.float64)
         self._raw = array[targets].copy()

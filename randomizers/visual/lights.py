@@ -14,6 +14,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from randomizers.addressing import Address
 from randomizers.addressing import select as _select
 from randomizers.distributions import Distribution
 from randomizers.effects import ArrayEffect, Binding, Schedule
@@ -111,10 +112,10 @@ class Light(ArrayEffect):
     def _extra_fields(self) -> dict[str, Any]:
         return {} if self.attribute == "diffuse" else {"attribute": self.attribute}
 
-    def _targets(self, model: mujoco.MjModel) -> tuple[list[int], list[int] | None, list[str]]:
+    def _targets(self, model: mujoco.MjModel) -> tuple[list[int], list[int] | None, list[Address]]:
         chosen = _select(model, self.kind, self.patterns, self.selector)
         if self.attribute in _LIGHT_FLAGS:
-            return [i for i, _ in chosen], None, [f"{self.field}[{n}]" for _, n in chosen]
+            return [i for i, _ in chosen], None, [Address(self.field, n) for _, n in chosen]
         rows = [i for i, _ in chosen for _ in range(3)]
         cols = [c for _ in chosen for c in range(3)]
-        return rows, cols, [f"{self.field}[{n}][{c}]" for _, n in chosen for c in range(3)]
+        return rows, cols, [Address(self.field, n, c) for _, n in chosen for c in range(3)]

@@ -19,6 +19,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from randomizers.addressing import Address
 from randomizers.addressing import select as _select
 from randomizers.distributions import Choice, Constant, Distribution, Uniform
 from randomizers.effects import Binding, Effect, Schedule, _check_schedule
@@ -233,10 +234,10 @@ class _TextureBinding(Binding):
             a
             for _, n in chosen
             for a in (
-                f"tex_pattern[{n}]",
-                *(f"tex_rgb1[{n}][{c}]" for c in range(3)),
-                *(f"tex_rgb2[{n}][{c}]" for c in range(3)),
-                f"tex_seed[{n}]",
+                Address("tex_pattern", n),
+                *(Address("tex_rgb1", n, c) for c in range(3)),
+                *(Address("tex_rgb2", n, c) for c in range(3)),
+                Address("tex_seed", n),
             )
         )
         self.size = len(self.addresses)

@@ -130,6 +130,8 @@ class SignalClock:
             timestep = _control_dt(env)
             substeps = 1
         self.timestep = timestep
+        #: seconds per physics step (only read when a MuJoCo handle exists, where it is the model's timestep)
+        self.physics_dt: float = timestep if timestep is not None else 1.0
         self.nominal = substeps
         #: Where ActionLatency acts: "ctrl" (the actuator command, at physics rate), "action" (the policy's
         #: action, by whole control steps) or None without ActionLatency. See :func:`action_delay_path`.
@@ -177,7 +179,7 @@ class SignalClock:
         """Time since reset: physics steps with MuJoCo, else control steps."""
         if self.handle is None:
             return self._control
-        return elapsed_steps(self._t0, self.handle.data.time, self.timestep)
+        return elapsed_steps(self._t0, self.handle.data.time, self.physics_dt)
 
     def begin_episode(self) -> None:
         """Call right after the env's reset."""
@@ -212,7 +214,7 @@ class SignalClock:
             return
         if self._fixed:  # latency without control jitter: the substeps asked for are the substeps run
             data = self.handle.data  # type: ignore[union-attr]
-            start = elapsed_steps(self._t0, data.time, self.timestep)
+            start = elapsed_steps(self._t0, data.time, self.physics_dt)
             if self._passed == 0:
                 pieces = self.corruptor.command_segments(data.ctrl, start, nstep)
             else:
@@ -429,7 +431,7 @@ class CorruptSignals(gym.Wrapper, gym.utils.RecordConstructorArgs):
             now = 0
             if self._obs_time:
                 handle = clock.handle
-                now = clock._control if handle is None else elapsed_steps(clock._t0, handle.data.time, clock.timestep)
+                now = clock._control if handle is None else elapsed_steps(clock._t0, handle.data.time, clock.physics_dt)
             if self._obs_codec is None:
                 obs = c.observe(obs, now)
             else:
