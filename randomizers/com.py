@@ -21,6 +21,7 @@ from collections.abc import Sequence
 from typing import Any
 
 import mujoco
+import numpy as np
 
 from randomizers.addressing import GRAVITY_AXES, Address
 from randomizers.distributions import Distribution
@@ -33,6 +34,53 @@ class _ComBinding(Binding):
     # The centre of mass enters the inertia-derived constants (dof_M0, invweights, actuator_acc0).
     set_const_inputs = frozenset(("body_ipos",))
     needs_set_const = True
+
+    def __init__(self, *args: Any) -> None:
+        super().__init__(*args)
+        model = self.model
+        # MuJoCo compiles a body whose centre of mass sits at its frame origin as "simple" (a diagonal mass-matrix
+        # block, dof_simplenum); moving the centre of mass breaks that, and mj_setConst refuses a simple body
+        # whose frames no longer coincide. While the effect is bound, its bodies take MuJoCo's general path
+        # (the compiled dynamics are the same, only the shortcut is off); restore() puts the flags back bitwise.
+        self._simple_nominal = model.body_simple.copy()
+        self._simplenum_nominal = model.dof_simplenum.copy()
+        rows = np.unique(self._targets[0])
+        dofs = np.bincount(model.dof_bodyid, minlength=model.nbody)
+        locked = [int(b) for b in rows if self._simple_nominal[b] and dofs[b] > 1]
+        if locked:
+            names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b) or f"#{b}" for b in locked]
+            raise ValueError(
+                f"BodyComOffset cannot move the centre of mass of {names}: MuJoCo compiled "
+                f"{'these bodies' if len(names) > 1 else 'this body'} as 'simple' (frames coincide, several dofs), "
+                "so the mass matrix has no entries for the coupling an offset creates. Add simple=\"false\" to the "
+                "<body> in the MJCF (MjSpec: body.simple = False) or leave it out of `bodies`. "
+                f"Received bodies={self.effect.patterns!r}."
+            )
+        simple = self._simple_nominal.copy()
+        simple[rows] = 0
+        self._simple = simple
+        self._simplenum = _simple_dof_runs(simple, model.dof_bodyid)
+
+    def apply(self, values: np.ndarray) -> None:
+        self.model.body_simple[:] = self._simple
+        self.model.dof_simplenum[:] = self._simplenum
+        super().apply(values)
+
+    def restore(self) -> None:
+        super().restore()
+        self.model.body_simple[:] = self._simple_nominal
+        self.model.dof_simplenum[:] = self._simplenum_nominal
+
+
+def _simple_dof_runs(body_simple: np.ndarray, dof_bodyid: np.ndarray) -> np.ndarray:
+    """``dof_simplenum`` for the given simple-body flags: how many consecutive dofs from each dof on belong to
+    simple bodies (as MuJoCo's compiler counts them)."""
+    runs = np.zeros(len(dof_bodyid), dtype=np.int32)
+    following = 0
+    for i in range(len(dof_bodyid) - 1, -1, -1):
+        following = following + 1 if body_simple[dof_bodyid[i]] else 0
+        runs[i] = following
+    return runs
 
 
 class BodyComOffset(ArrayEffect):

@@ -306,6 +306,88 @@ def test_body_com_offset_is_applied_reported_and_restored_bitwise() -> None:
     )
 
 
+_COM_XML = """<mujoco><worldbody>
+  <body name="pendulum" pos="0 0 1"><joint name="p" axis="0 1 0"/>
+    <inertial pos="{p}" mass="0.5" diaginertia="0.01 0.02 0.03"/><geom size=".05" contype="0" conaffinity="0"/></body>
+  <body name="puck" pos="1 0 1" {simple}><joint name="px" type="slide" axis="1 0 0"/>
+    <joint name="pz" type="slide" axis="0 0 1"/><joint name="py" axis="0 1 0"/>
+    <inertial pos="{p}" mass="0.5" diaginertia="0.01 0.02 0.03"/><geom size=".05" contype="0" conaffinity="0"/></body>
+</worldbody><actuator><motor joint="p"/><motor joint="px"/><motor joint="py"/></actuator></mujoco>"""
+
+
+def _swing(model: mujoco.MjModel) -> np.ndarray:
+    data = mujoco.MjData(model)
+    data.qvel[:] = [0.3, -0.2, 1.0, 0.5]
+    states = []
+    for k in range(200):
+        data.ctrl[:] = np.sin(0.05 * k + np.arange(3))
+        mujoco.mj_step(model, data)
+        states.append(np.concatenate([data.qpos, data.qvel]))
+    return np.array(states)
+
+
+def test_body_com_offset_on_bodies_mujoco_compiled_as_simple() -> None:
+    # MuJoCo compiles a body whose centre of mass is at its frame origin as "simple"; mj_setConst used to die with
+    # "compiled as simple but sameframe no longer holds". A one-dof body switches to the general path while the
+    # effect is bound and moves like the model compiled with that offset; the flags come back bitwise on restore.
+    offset = [0.02, -0.01, 0.03]
+    model = mujoco.MjModel.from_xml_string(_COM_XML.format(p="0 0 0", simple=""))
+    flags = model.body_simple.copy(), model.dof_simplenum.copy()
+    nominal = _swing(model)
+    randomizer = PhysicsRandomizer(
+        [BodyComOffset(set=v, bodies="pendulum", axis=a, name=f"com-{a}") for a, v in zip("xyz", offset, strict=True)],
+        seed=0,
+    )
+    randomizer.bind(model, mujoco.MjData(model))
+    randomizer.begin_episode()
+    randomizer.apply()
+    reference = mujoco.MjModel.from_xml_string(_COM_XML.format(p="0 0 0", simple=""))
+    compiled = mujoco.MjModel.from_xml_string(_COM_XML.format(p=" ".join(map(str, offset)), simple=""))
+    reference.body_ipos[1] = compiled.body_ipos[1]
+    reference.body_simple[1], reference.dof_simplenum[0] = 0, 0
+    mujoco.mj_setConst(reference, mujoco.MjData(reference))
+    moved = _swing(model)
+    assert np.abs(moved - nominal).max() > 0.1
+    np.testing.assert_allclose(moved, _swing(reference), rtol=0, atol=1e-12)
+    randomizer.restore_nominal()
+    np.testing.assert_array_equal(model.body_simple, flags[0])
+    np.testing.assert_array_equal(model.dof_simplenum, flags[1])
+    np.testing.assert_array_equal(_swing(model), nominal)
+    # A simple body with several dofs has no mass-matrix entries for the coupling: a clear error, not a FatalError.
+    with pytest.raises(
+        ValueError,
+        match=re.escape(
+            "BodyComOffset cannot move the centre of mass of ['puck']: MuJoCo compiled this body as 'simple' (frames "
+            "coincide, several dofs), so the mass matrix has no entries for the coupling an offset creates. Add "
+            'simple="false" to the <body> in the MJCF (MjSpec: body.simple = False) or leave it out of `bodies`. '
+            "Received bodies=('*',)."
+        ),
+    ):
+        PhysicsRandomizer([BodyComOffset(add=0.01)], seed=0).bind(model, mujoco.MjData(model))
+    # ... and with simple="false" the puck moves exactly like the model compiled with the offset.
+    free = mujoco.MjModel.from_xml_string(_COM_XML.format(p="0 0 0", simple='simple="false"'))
+    compiled = mujoco.MjModel.from_xml_string(_COM_XML.format(p=" ".join(map(str, offset)), simple='simple="false"'))
+    randomizer = PhysicsRandomizer(
+        [BodyComOffset(set=v, axis=a, name=f"com-{a}") for a, v in zip("xyz", offset, strict=True)], seed=0
+    )
+    randomizer.bind(free, mujoco.MjData(free))
+    randomizer.begin_episode()
+    randomizer.apply()
+    np.testing.assert_array_equal(_swing(free), _swing(compiled))
+
+
+def test_body_com_offset_on_manipulator_names_the_simple_ball() -> None:
+    with pytest.raises(ValueError, match=re.escape("centre of mass of ['ball']")):
+        s2r.wrap(s2r.make("dmc/manipulator-bring_ball"), BodyComOffset(add=Uniform(-0.01, 0.01)), seed=0).reset(seed=0)
+    env = s2r.wrap(
+        s2r.make("dmc/manipulator-bring_ball"), BodyComOffset(add=Uniform(-0.01, 0.01), bodies="*arm"), seed=0
+    )
+    _, info = env.reset(seed=0)
+    assert any(k.startswith("body_ipos[upper_arm]") for k in info["sim2real"]["params"])
+    env.step(env.action_space.sample())
+    env.close()
+
+
 # ---------------------------------------------------------------------------------------------- latency units
 
 
