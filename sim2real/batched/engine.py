@@ -1,0 +1,286 @@
+"""The batched engine: N worlds of one task, each its own ``MjModel`` copy with its own draws, stepped together.
+
+World ``i`` *is* ``sim2real.wrap(sim2real.make(task), *effects, seed=(seed, i))``: it is built and reset through
+that single env (so its draws, its reported parameters and the task's own episode randomness are those of the
+single env by construction: no address handling or drawing is repeated here). Only ``step`` bypasses the
+Python env stack: the engine writes all controls, advances every world's MuJoCo data with the same C calls in
+the same order as dm-control's legacy step (``mj_step2``, ``mj_step`` for further substeps, ``mj_step1``), copies
+the state each task needs into preallocated ``(N, ...)`` arrays, and computes every world's observation and
+reward with one numpy operation each (:mod:`sim2real.batched.kernels`).
+
+Why not ``mujoco.rollout`` for the stepping: a rollout restarts each world from ``mjSTATE_FULLPHYSICS``, which
+leaves out the constraint solver's warm start (``qacc_warmstart``, reset to zero), and its outputs are the state
+and the sensors of the *pre*-integration forward pass, not the kinematics of the new state an observation
+reads. Either one breaks bitwise equality with the single env (the first whenever a joint limit or contact is
+active). Each world keeping its own ``MjData`` keeps both; ``benchmarks/bench_eval.py`` measures what it costs
+against the closed-loop rollout limit.
+
+Example:
+    >>> import sim2real as s2r
+    >>> envs = make_batched("dmc/reacher-easy", 3, s2r.Damping(scale=s2r.Uniform(0.5, 2.0)), seed=0)
+    >>> obs, params = envs.reset(seed=0)
+    >>> obs.shape, params["dof_damping[shoulder]"].shape
+    ((3, 6), (3,))
+    >>> obs, reward, terminated, truncated, diverged = envs.step(np.zeros((3, 2), np.float32))
+    >>> reward.shape, bool(truncated.any())
+    ((3,), False)
+    >>> envs.close()
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from sim2real.batched.kernels import KERNELS, Kernel, kernel_for
+
+__all__ = ["BatchedEnv", "make_batched", "supports"]
+
+_STATE_SPEC = int(mujoco.mjtState.mjSTATE_TIME | mujoco.mjtState.mjSTATE_QPOS | mujoco.mjtState.mjSTATE_QVEL)
+
+
+def supports(task: Any, *effects: Any) -> str | None:
+    """Why the batched engine cannot run ``task`` with ``effects`` (None when it can).
+
+    Example:
+        >>> import sim2real as s2r
+        >>> supports("dmc/reacher-easy", s2r.Mass(scale=s2r.Uniform(0.8, 1.2))) is None
+        True
+        >>> supports("dmc/jaco-reach_site")
+        "no batched kernel for task 'dmc/jaco-reach_site'"
+    """
+    from randomizers import Effect, Interval, Push
+    from sim2real.wrapping import _flatten
+
+    if not isinstance(task, str) or task not in KERNELS:
+        return f"no batched kernel for task {task!r}"
+    for effect in _flatten(effects):
+        if not isinstance(effect, Effect):
+            return f"signal models ({type(effect).__name__}) are not batched yet"
+        if isinstance(effect, Push) or isinstance(effect.schedule, Interval):
+            return f"{type(effect).__name__} acts during the episode (per-step effects are not batched)"
+        if type(effect).__module__.startswith("randomizers.visual"):
+            return f"{type(effect).__name__} is a visual effect (the batched engine does not render)"
+    return None
+
+
+def _check_count(num_envs: Any) -> int:
+    if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
+        raise ValueError(f"`num_envs` must be an int >= 1. Received {num_envs!r}.")
+    return int(num_envs)
+
+
+class BatchedEnv:
+    """``num_envs`` worlds of one task stepped together (see the module docstring).
+
+    Args:
+        task: a task id with a batched kernel (:data:`sim2real.batched.kernels.KERNELS`).
+        num_envs: worlds N.
+        effects: physics effects from :mod:`randomizers` (drawn per episode; per-step effects are refused).
+        seed: root seed; world ``i`` draws from the streams of ``(seed, i)``.
+        options: keyword arguments for :func:`sim2real.make`.
+
+    Attributes:
+        num_envs: N.
+        envs: the single envs behind the worlds (built and reset through them; do not step them).
+        models: each world's ``MjModel``.
+        datas: each world's ``MjData``.
+        params: address -> ``(N,)`` values in use this episode (NaN for an address a world does not draw).
+        step_limit: control steps per episode (the task's own limit).
+    """
+
+    def __init__(self, task: str, num_envs: int, effects: Sequence[Any] = (), *, seed: int = 0, **options: Any) -> None:
+        from sim2real.physics import find_physics
+        from sim2real.tasks import make
+        from sim2real.wrapping import wrap
+
+        n = _check_count(num_envs)
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise ValueError(f"`seed` must be an int >= 0. Received {seed!r}.")
+        reason = supports(task, *effects)
+        if reason is not None:
+            raise ValueError(
+                f"`task` and `effects` must be supported by the batched engine (tasks {sorted(KERNELS)}, physics "
+                f"effects drawn per episode): {reason}. Received task {task!r}."
+            )
+        self.task = task
+        self.num_envs = n
+        self.seed = int(seed)
+        self.kernel: Kernel = kernel_for(task)
+        self.envs = [wrap(make(task, **options), *effects, seed=(self.seed, i)) for i in range(n)]
+        handles = [find_physics(env) for env in self.envs]
+        self.models = [h.model for h in handles]  # type: ignore[union-attr]
+        self.datas = [h.data for h in handles]  # type: ignore[union-attr]
+        adapter = self.envs[0].unwrapped
+        dm = adapter.dm_env
+        self._n_sub = int(dm._n_sub_steps)
+        self.step_limit: float = float(dm._step_limit)
+        legacy = bool(getattr(dm.physics, "legacy_step", True))
+        rk4 = self.models[0].opt.integrator == mujoco.mjtIntegrator.mjINT_RK4
+        # dm-control's step: Euler-type integrators finish the step mj_step1 already began (mj_step2), then
+        # take the remaining substeps whole and end with mj_step1 so the data is in sync with the new state.
+        self._split_step = legacy and not rk4
+        self._sync_after = legacy
+        m0 = self.models[0]
+        self._nq, self._nv = m0.nq, m0.nv
+        self._state = np.zeros((n, 1 + m0.nq + m0.nv))
+        self._ctrl = [d.ctrl for d in self.datas]
+        self._gathered = {f: np.zeros((n, *getattr(self.datas[0], f).shape)) for f in self.kernel.fields}
+        self._views = {f: [getattr(d, f) for d in self.datas] for f in self.kernel.fields}
+        self._obs = np.zeros((n, self.kernel.obs_dim), np.float32)
+        self._steps = np.zeros(n, np.int64)
+        self._reset_diverged = np.zeros(n, bool)
+        self._diverged = np.zeros(n, bool)
+        self._action_dim = m0.nu
+        self.params: dict[str, np.ndarray] = {}
+        self._world_params: list[dict[str, float]] = [{} for _ in range(n)]
+        self._closed = False
+
+    @property
+    def observation_dim(self) -> int:
+        """Length of each world's flat float32 observation."""
+        return self.kernel.obs_dim
+
+    @property
+    def action_dim(self) -> int:
+        """Controls per world."""
+        return int(self._action_dim)
+
+    @property
+    def steps(self) -> np.ndarray:
+        """``(N,)`` control steps taken in each world's current episode (a copy)."""
+        return self._steps.copy()
+
+    def reset(
+        self, seed: int | Sequence[int | None] | None = None, indices: Sequence[int] | np.ndarray | None = None
+    ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Starts a new episode in the worlds ``indices`` (default: all).
+
+        Args:
+            seed: None (each world continues its own streams), one int (world ``i`` is reset with
+                ``seed + i``, as gymnasium vector envs do) or one seed per reset world.
+            indices: the worlds to reset.
+
+        Returns:
+            ``(obs, params)``: ``(N, obs_dim)`` float32 observations of all worlds (a copy) and address ->
+            ``(N,)`` values in use.
+        """
+        self._check_open()
+        idx = np.arange(self.num_envs) if indices is None else np.asarray(indices, dtype=np.int64).reshape(-1)
+        if seed is None or isinstance(seed, (int, np.integer)):
+            seeds: list[int | None] = [None if seed is None else int(seed) + int(i) for i in idx]
+        else:
+            seeds = list(seed)
+            if len(seeds) != len(idx):
+                raise ValueError(
+                    f"`seed` must be None, an int or one seed per reset world ({len(idx)}). Received {len(seeds)}."
+                )
+        for i, s in zip(idx.tolist(), seeds, strict=True):
+            obs, info = self.envs[i].reset(seed=s)
+            self._obs[i] = obs
+            report = info["sim2real"]
+            self._world_params[i] = report["params"]
+            self._reset_diverged[i] = self._diverged[i] = bool(report["diverged"])
+            self._steps[i] = 0
+            mujoco.mj_getState(self.models[i], self.datas[i], self._state[i], _STATE_SPEC)
+        self.kernel.bind(self.models, self.envs)
+        keys = sorted({k for p in self._world_params for k in p})
+        self.params = {k: np.array([p.get(k, math.nan) for p in self._world_params]) for k in keys}
+        return self._obs.copy(), dict(self.params)
+
+    def step(
+        self, actions: np.ndarray, mask: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """One control step of every world (of the worlds where ``mask`` is True).
+
+        Args:
+            actions: ``(N, action_dim)`` controls (cast to float64 as the dm-control adapter does).
+            mask: ``(N,)`` bool, the worlds to step (the others keep their state; their rewards are 0).
+
+        Returns:
+            ``(obs, reward, terminated, truncated, diverged)``: ``(N, obs_dim)`` float32, ``(N,)`` float64 and
+            three ``(N,)`` bool arrays (fresh arrays). A world whose physics diverged ends its episode with
+            ``truncated=True``, ``diverged=True``, reward 0 and its last finite observation, as the single env.
+        """
+        actions = np.asarray(actions, dtype=np.float64)
+        if actions.shape != (self.num_envs, self._action_dim):
+            raise ValueError(
+                f"`actions` must have shape ({self.num_envs}, {self._action_dim}). Received {actions.shape}."
+            )
+        n = self.num_envs
+        active = np.ones(n, bool) if mask is None else np.asarray(mask, dtype=bool).copy()
+        stuck = active & self._reset_diverged  # a reset that diverged: the next step ends the episode unstepped
+        active &= ~self._reset_diverged
+        before = self._state[:, 0].copy()
+        models, datas, ctrl, state = self.models, self.datas, self._ctrl, self._state
+        views = [(self._gathered[f], self._views[f]) for f in self.kernel.fields]
+        split, sync, n_sub = self._split_step, self._sync_after, self._n_sub
+        for i in np.flatnonzero(active).tolist():
+            m, d = models[i], datas[i]
+            ctrl[i][:] = actions[i]
+            if split:
+                mujoco.mj_step2(m, d)
+                if n_sub > 1:
+                    mujoco.mj_step(m, d, n_sub - 1)
+            else:
+                mujoco.mj_step(m, d, n_sub)
+            if sync:
+                mujoco.mj_step1(m, d)
+            mujoco.mj_getState(m, d, state[i], _STATE_SPEC)
+            for buffer, view in views:
+                buffer[i] = view[i]
+        qpos = state[:, 1 : 1 + self._nq]
+        qvel = state[:, 1 + self._nq :]
+        # MuJoCo resets a world whose positions, velocities or accelerations went bad (its clock restarts):
+        # dm-control raises PhysicsError there, and the adapter ends the episode with the last observation.
+        diverged = active & (state[:, 0] < before)
+        fresh = self.kernel.observe(qpos, qvel, self._gathered)
+        keep = active & ~diverged
+        self._obs[keep] = fresh[keep]
+        reward = np.where(keep, self.kernel.reward(qpos, qvel, self._gathered), 0.0)
+        self._steps[active] += 1
+        truncated = (keep & (self._steps >= self.step_limit)) | diverged | stuck
+        self._diverged |= diverged
+        self._reset_diverged &= ~stuck
+        terminated = np.zeros(n, bool)
+        return self._obs.copy(), reward, terminated, truncated, self._diverged & (diverged | stuck)
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise RuntimeError("BatchedEnv is closed.")
+
+    def close(self) -> None:
+        """Closes every world's env (restoring its nominal model bitwise)."""
+        if not self._closed:
+            self._closed = True
+            for env in self.envs:
+                env.close()
+
+
+def make_batched(task: str, num_envs: int, *effects: Any, seed: int = 0, **options: Any) -> BatchedEnv:
+    """``num_envs`` worlds of ``task`` stepped together; world ``i`` is bitwise the single env
+    ``sim2real.wrap(sim2real.make(task), *effects, seed=(seed, i))`` (draws, observations, rewards, ends).
+
+    Args:
+        task: a task id with a batched kernel (``sim2real.batched.kernels.KERNELS``).
+        num_envs: worlds N.
+        *effects: physics effects from :mod:`randomizers` drawn per episode (lists are flattened).
+        seed: root seed of every world's streams.
+        **options: keyword arguments for :func:`sim2real.make`.
+
+    Raises:
+        ValueError: a task without a kernel, effects the engine cannot batch, bad counts or seeds.
+
+    Example:
+        >>> import sim2real as s2r
+        >>> envs = make_batched("dmc/reacher-hard", 2, seed=3)
+        >>> obs, params = envs.reset(seed=[5, 6])
+        >>> single = s2r.wrap(s2r.make("dmc/reacher-hard"), seed=(3, 1))
+        >>> bool((single.reset(seed=6)[0] == obs[1]).all())
+        True
+    """
+    return BatchedEnv(task, num_envs, effects, seed=seed, **options)

@@ -1,0 +1,157 @@
+"""The batched engine (issue 15): each world bitwise equal to its single env, the VectorEnv's autoreset, errors."""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import sim2real as s2r
+from sim2real.batched import BatchedVectorEnv, make_batched, supports
+
+# A short time limit (0.3 s = 15 control steps) so episodes end, and the next one starts, inside the test.
+SHORT = {"time_limit": 0.3}
+
+
+def _effects(kind: int) -> list:
+    sets = [
+        [],
+        [s2r.Mass(scale=s2r.Uniform(0.7, 1.3)), s2r.Damping(scale=s2r.Uniform(0.5, 2.0))],
+        [
+            s2r.ActuatorGain(scale=s2r.Uniform(0.8, 1.2)),
+            s2r.Friction(scale=s2r.Uniform(0.5, 1.5)),
+            s2r.Armature(add=s2r.Uniform(0.0, 0.01)),
+            s2r.Gravity(add=s2r.Normal(0.0, 0.5)),
+        ],
+    ]
+    return sets[kind]
+
+
+def _compare(task: str, seed: int, kind: int, episodes: int, num: int = 3) -> int:
+    """Steps the batched worlds and their single twins with the same actions; returns the steps compared."""
+    effects = _effects(kind)
+    batched = make_batched(task, num, *effects, seed=seed, **SHORT)
+    singles = [s2r.wrap(s2r.make(task, **SHORT), *effects, seed=(seed, i)) for i in range(num)]
+    rng = np.random.default_rng(seed)
+    compared = 0
+    try:
+        for episode in range(episodes):
+            # First episode: explicit reset seeds; later ones: each world continues its own streams.
+            seeds = [1000 * seed + i for i in range(num)] if episode == 0 else None
+            obs, params = batched.reset(seed=seeds)
+            for i, env in enumerate(singles):
+                o, info = env.reset(seed=None if seeds is None else seeds[i])
+                assert np.array_equal(o, obs[i])
+                reported = info["sim2real"]["params"]
+                assert sorted(reported) == sorted(params)
+                for key, value in reported.items():
+                    assert params[key][i] == value, key  # bitwise, the same draw
+            ended = np.zeros(num, bool)
+            while not ended.all():
+                # Out-of-range actions too: MuJoCo clamps them in both paths.
+                actions = rng.uniform(-1.5, 1.5, (num, batched.action_dim)).astype(np.float32)
+                obs, reward, terminated, truncated, diverged = batched.step(actions)
+                for i, env in enumerate(singles):
+                    o, r, te, tr, info = env.step(actions[i])
+                    assert np.array_equal(o, obs[i]), (episode, i)
+                    assert r == reward[i] and te == terminated[i] and tr == truncated[i]
+                    assert bool(info["sim2real"]["diverged"]) == diverged[i]
+                    compared += 1
+                ended = terminated | truncated
+            assert (batched.steps == 15).all()
+    finally:
+        batched.close()
+        for env in singles:
+            env.close()
+    return compared
+
+
+@pytest.mark.parametrize(
+    ("task", "seed", "kind"),
+    [("dmc/reacher-easy", 0, 0), ("dmc/reacher-easy", 3, 1), ("dmc/reacher-hard", 11, 2), ("dmc/reacher-easy", 5, 2)],
+)
+def test_each_world_is_bitwise_its_single_env(task: str, seed: int, kind: int) -> None:
+    assert _compare(task, seed, kind, episodes=3) == 3 * 3 * 15
+
+
+def test_reacher_rewards_are_bitwise_over_a_full_episode_that_reaches() -> None:
+    # A proportional controller towards the target earns reward 1 on many steps: the sparse reward is compared
+    # where it is not all zeros (a kernel that always returned 0 would fail here).
+    effects = _effects(1)
+    batched = make_batched("dmc/reacher-easy", 2, *effects, seed=2, time_limit=2.0)
+    singles = [s2r.wrap(s2r.make("dmc/reacher-easy", time_limit=2.0), *effects, seed=(2, i)) for i in range(2)]
+    obs, _ = batched.reset(seed=[4, 9])
+    for i, env in enumerate(singles):
+        env.reset(seed=[4, 9][i])
+    total = np.zeros(2)
+    for _ in range(100):
+        actions = np.clip(5.0 * np.stack([obs[:, 2] * -obs[:, 0], obs[:, 3]], axis=1) - 0.5 * obs[:, 4:6], -1, 1)
+        actions = actions.astype(np.float32)
+        obs, reward, _, _, _ = batched.step(actions)
+        for i, env in enumerate(singles):
+            assert env.step(actions[i])[1] == reward[i]
+        total += reward
+    batched.close()
+    assert total.max() > 0  # the reward was compared where it is not all zeros
+
+
+def test_vector_env_autoresets_like_sync_vector_env() -> None:
+    effects = _effects(1)
+    ours = BatchedVectorEnv("dmc/reacher-easy", 3, *effects, seed=4, **SHORT)
+    theirs = s2r.make_vec("dmc/reacher-easy", 3, *effects, seed=4, **SHORT)
+    assert ours.metadata["autoreset_mode"] == gym.vector.AutoresetMode.NEXT_STEP
+    assert ours.observation_space == theirs.observation_space and ours.action_space == theirs.action_space
+    o1, i1 = ours.reset(seed=8)
+    o2, i2 = theirs.reset(seed=8)
+    assert np.array_equal(o1, o2)
+    draws = {k: v for k, v in i2["sim2real"]["params"].items() if not k.startswith("_")}  # gymnasium's masks
+    assert sorted(i1["sim2real"]["params"]) == sorted(draws)
+    for key, values in draws.items():
+        assert np.array_equal(i1["sim2real"]["params"][key], values)
+    rng = np.random.default_rng(0)
+    resets = 0
+    for _ in range(40):  # 15-step episodes: two autoresets per world
+        actions = rng.uniform(-1, 1, (3, 2)).astype(np.float32)
+        a = ours.step(actions)
+        b = theirs.step(actions)
+        for x, y in zip(a[:4], b[:4], strict=True):
+            assert np.array_equal(x, y)
+        if "sim2real" in a[4] and "reset" in a[4]["sim2real"]:
+            resets += int(a[4]["sim2real"]["reset"].sum())
+            for key, values in a[4]["sim2real"]["params"].items():  # the new episode's draws, as the sub-envs report
+                assert np.array_equal(values, b[4]["sim2real"]["params"][key])
+    assert resets == 6
+    ours.close()
+    theirs.close()
+
+
+def test_close_restores_the_nominal_model() -> None:
+    nominal = s2r.make("dmc/reacher-easy").unwrapped.physics.model.body_mass.copy()
+    batched = make_batched("dmc/reacher-easy", 2, s2r.Mass(scale=s2r.Uniform(0.5, 0.6)), seed=0)
+    batched.reset(seed=0)
+    assert not np.array_equal(batched.models[0].body_mass, nominal)
+    batched.close()
+    assert np.array_equal(batched.models[0].body_mass, nominal)
+    with pytest.raises(RuntimeError, match="closed"):
+        batched.reset()
+
+
+def test_errors_name_the_argument_and_what_is_allowed() -> None:
+    with pytest.raises(ValueError, match=r"`task` and `effects` must be supported .*no batched kernel for task "
+                       r"'dmc/jaco-reach_site'"):  # fmt: skip
+        make_batched("dmc/jaco-reach_site", 2)
+    assert "signal models" in str(supports("dmc/reacher-easy", s2r.ObservationNoise(s2r.Gaussian(std=0.1))))
+    assert "per-step" in str(supports("dmc/reacher-easy", s2r.Push(force=s2r.Uniform(0, 1), interval=10.0)))
+    with pytest.raises(ValueError, match=r"`num_envs` must be an int >= 1. Received 0."):
+        make_batched("dmc/reacher-easy", 0)
+    batched = make_batched("dmc/reacher-easy", 2)
+    batched.reset()
+    with pytest.raises(ValueError, match=r"`actions` must have shape \(2, 2\). Received \(2,\)."):
+        batched.step(np.zeros(2))
+    with pytest.raises(ValueError, match=r"`seed` must be None, an int or one seed per reset world \(2\). Received 1."):
+        batched.reset(seed=[1])
+    batched.close()
