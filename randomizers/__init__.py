@@ -13,6 +13,8 @@ Example:
 from __future__ import annotations
 
 from randomizers.addressing import element_names, select
+from randomizers.adr import ADR, ADRHistory, Episode, Pin
+from randomizers.adr_randomizer import ADRRandomizer
 from randomizers.com import BodyComOffset
 from randomizers.config import (
     EFFECT_TYPES,
@@ -75,10 +77,13 @@ from randomizers.visual import (
 )
 
 __all__ = [
+    "ADR",
     "EFFECT_FIELDS",
     "EFFECT_TYPES",
     "FIELD_EFFECTS",
     "SIGNAL_TYPES",
+    "ADRHistory",
+    "ADRRandomizer",
     "ActuatorGain",
     "Address",
     "Armature",
@@ -92,6 +97,7 @@ __all__ = [
     "Damping",
     "Distribution",
     "Effect",
+    "Episode",
     "Friction",
     "FrictionLoss",
     "GeomColor",
@@ -106,6 +112,7 @@ __all__ = [
     "ParameterBinding",
     "ParameterSet",
     "PhysicsRandomizer",
+    "Pin",
     "Product",
     "Push",
     "Sampler",

@@ -35,7 +35,7 @@ import gymnasium as gym
 
 from noise_models.corruptor import ActionNoise, ObservationNoise
 from noise_models.timing import TimeModel
-from randomizers import EFFECT_TYPES, Effect, Texture
+from randomizers import ADR, EFFECT_TYPES, Effect, Texture
 from randomizers.seeding import SeedLike, normalize_seed
 
 __all__ = ["make_vec", "wrap"]
@@ -49,7 +49,7 @@ def _flatten(effects: Iterable[Any]) -> list[Any]:
     for item in effects:
         if isinstance(item, (list, tuple)):
             out.extend(_flatten(item))
-        elif isinstance(item, (Effect, *_SIGNAL_TYPES)):
+        elif isinstance(item, (Effect, ADR, *_SIGNAL_TYPES)):
             out.append(item)
         else:
             raise TypeError(
@@ -69,13 +69,16 @@ def _is_torchrl_env(env: Any) -> bool:
     return isinstance(env, EnvBase)
 
 
-def wrap(env: Any, *effects: Any, seed: SeedLike = None) -> Any:
+def wrap(env: Any, *effects: Any, adr: ADR | None = None, seed: SeedLike = None) -> Any:
     """Applies ``effects`` to ``env`` and returns the same kind of environment.
 
     Args:
         env: a ``gymnasium.Env``, a ``dm_env.Environment`` (dm-control) or a TorchRL ``EnvBase``.
         *effects: physics effects from :mod:`randomizers` and signal models from :mod:`noise_models`
-            (lists are flattened).
+            (lists are flattened). An :class:`~randomizers.ADR` among them is taken as ``adr``.
+        adr: automatic domain randomisation: the controller's effects draw from its live ranges and every
+            finished episode is reported to it (:mod:`sim2real.wrappers.adr`); share one controller between
+            the envs of a process freely.
         seed: root seed of every stream (int, tuple of ints or None for fresh entropy). Each effect
             and model draws from its own stream keyed by (seed, name, episode).
 
@@ -87,12 +90,22 @@ def wrap(env: Any, *effects: Any, seed: SeedLike = None) -> Any:
 
     Raises:
         TypeError: unsupported env kind, or physics effects on an env without MuJoCo.
+        ValueError: more than one ADR controller.
     """
     items = _flatten(effects)
+    controllers = [e for e in items if isinstance(e, ADR)] + ([] if adr is None else [adr])
+    if adr is not None and not isinstance(adr, ADR):
+        raise TypeError(f"`adr` must be an ADR controller (sim2real.ADR) or None. Received {adr!r}.")
+    if len(controllers) > 1:
+        raise ValueError(
+            f"`adr` must be one ADR controller; merge their effects into one. Received {len(controllers)}."
+        )
+    adr = controllers[0] if controllers else None
+    items = [e for e in items if not isinstance(e, ADR)]
     flat = [e for e in items if isinstance(e, Effect)]
     signals = [e for e in items if not isinstance(e, Effect)]
     normalize_seed(seed)
-    if any(isinstance(e, Texture) for e in flat):
+    if any(isinstance(e, Texture) for e in (*flat, *(adr.effects if adr else ()))):
         # Texture edits must reach every live render context, also of envs not built by make().
         from sim2real.pixels import track_render_contexts
 
@@ -107,7 +120,11 @@ def wrap(env: Any, *effects: Any, seed: SeedLike = None) -> Any:
         from sim2real.wrappers.gym import RandomizePhysics
         from sim2real.wrappers.signals import CorruptSignals
 
-        if flat or not signals:
+        if adr is not None:
+            from sim2real.wrappers.adr import AutoRandomizePhysics
+
+            env = AutoRandomizePhysics(env, flat, adr, seed)
+        elif flat or not signals:
             env = RandomizePhysics(env, flat, seed)
         return CorruptSignals(env, signals, seed) if signals else env
     if _is_torchrl_env(env):
@@ -116,7 +133,11 @@ def wrap(env: Any, *effects: Any, seed: SeedLike = None) -> Any:
         from sim2real.wrappers.torchrl import CorruptSignalsTransform, RandomizePhysicsTransform
 
         transforms: list[Any] = []
-        if flat or not signals:
+        if adr is not None:
+            from sim2real.wrappers.adr import make_adr_transform
+
+            transforms.append(make_adr_transform(flat, adr, seed))
+        elif flat or not signals:
             transforms.append(RandomizePhysicsTransform(flat, seed))
         if signals:
             transforms.append(CorruptSignalsTransform(signals, seed))
@@ -132,7 +153,11 @@ def wrap(env: Any, *effects: Any, seed: SeedLike = None) -> Any:
         from sim2real.wrappers.dm import RandomizePhysicsDmEnv
         from sim2real.wrappers.signals import CorruptSignalsDmEnv
 
-        if flat or not signals:
+        if adr is not None:
+            from sim2real.wrappers.adr import AutoRandomizePhysicsDmEnv
+
+            env = AutoRandomizePhysicsDmEnv(env, flat, adr, seed)
+        elif flat or not signals:
             env = RandomizePhysicsDmEnv(env, flat, seed)
         return CorruptSignalsDmEnv(env, signals, seed) if signals else env
     raise TypeError(
@@ -145,6 +170,7 @@ def make_vec(
     task_id: str,
     num_envs: int,
     *effects: Any,
+    adr: ADR | None = None,
     seed: int | None = None,
     vectorization: str = "sync",
     **options: Any,
@@ -152,6 +178,11 @@ def make_vec(
     """A gymnasium vector env of ``num_envs`` wrapped copies of a task; env ``i`` draws from the
     streams rooted at ``(seed, i)``, so every sub-env gets independent draws even with
     ``reset(seed=None)``.
+
+    With ``adr``, every sub-env draws from the one controller's ranges and pins its own boundaries (its boundary
+    stream is rooted at ``(seed, i)`` too); finished episodes reach the controller in the order they end, which
+    for ``"sync"`` is: step by step, sub-env 0 first. ``"async"`` would give each process a copy of the
+    controller, so it is refused with ``adr``.
 
     Example:
         >>> import sim2real
@@ -169,8 +200,13 @@ def make_vec(
         raise ValueError(f"`num_envs` must be an int >= 1. Received {num_envs!r}.")
     if vectorization not in ("sync", "async"):
         raise ValueError(f"`vectorization` must be one of ['sync', 'async']. Received {vectorization!r}.")
+    if adr is not None and vectorization != "sync":
+        raise ValueError(
+            "`vectorization` must be 'sync' with `adr` (one controller shared in this process; 'async' would copy "
+            f"it into every worker). Received {vectorization!r}."
+        )
     root = 0 if seed is None else seed
-    fns = [(lambda i=i: wrap(make(task_id, **options), *effects, seed=(root, i))) for i in range(num_envs)]
+    fns = [(lambda i=i: wrap(make(task_id, **options), *effects, adr=adr, seed=(root, i))) for i in range(num_envs)]
     if vectorization == "sync":
         return gym.vector.SyncVectorEnv(fns)
     return gym.vector.AsyncVectorEnv(fns)
