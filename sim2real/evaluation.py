@@ -88,6 +88,7 @@ class _Job:
     count: int
     seed: int
     max_steps: int | None
+    engine: str = "auto"
 
 
 @dataclass(frozen=True)
@@ -99,6 +100,7 @@ class _JobResult:
     successes: dict[str, np.ndarray]
     draws: dict[str, np.ndarray]
     steps: int
+    engine: str = "per-env"
 
 
 #: Conditions per job: a job builds its envs once and reuses them for each of its conditions.
@@ -136,6 +138,16 @@ def _run_job(job: _Job) -> list[_JobResult]:
     restore_threads = _single_torch_thread()
     try:
         for cond in job.conditions:
+            if _batched_reason(job, cond) is None:
+                from sim2real.batched import BatchedEnv
+
+                # The same single envs, reset seeds and streams, stepped together (bitwise the per-env results).
+                worlds = BatchedEnv(job.task, n, cond.effects, envs=base, stream_seeds=[job.seed] * n)
+                try:
+                    out.append(_batched_episodes(job, cond, worlds, seeds, policies))
+                finally:
+                    worlds.close()
+                continue
             envs = [wrap(b, *cond.effects, seed=job.seed) if cond.effects else b for b in base]
             try:
                 out.append(_episodes(job, cond, envs, seeds, policies))
@@ -147,6 +159,45 @@ def _run_job(job: _Job) -> list[_JobResult]:
         for env in base:
             env.close()
     return out
+
+
+def _batched_reason(job: _Job, cond: Condition) -> str | None:
+    """Why ``cond`` runs per env (None: it runs on the batched engine)."""
+    if job.engine == "per-env":
+        return "engine='per-env' was asked for"
+    from sim2real.batched import supports
+
+    return supports(job.task, *cond.effects, options=job.options)
+
+
+def _batched_episodes(
+    job: _Job, cond: Condition, worlds: Any, seeds: list[int], policies: list[tuple[str, Any]]
+) -> _JobResult:
+    """:func:`_episodes` on the batched engine: the same resets, the same sums in the same order."""
+    n = worlds.num_envs
+    returns: dict[str, np.ndarray] = {}
+    lengths: dict[str, np.ndarray] = {}
+    draws: dict[str, np.ndarray] = {}
+    steps = 0
+    for p, (name, policy) in enumerate(policies):
+        obs, params = worlds.reset(seed=seeds)
+        if p == 0:
+            draws = {k: params[k] for k in sorted(params)}
+        total = np.zeros(n)
+        length = np.zeros(n, dtype=np.int64)
+        done = np.zeros(n, dtype=bool)
+        t = 0
+        while not done.all() and (job.max_steps is None or t < job.max_steps):
+            active = ~done
+            obs, reward, terminated, truncated, _ = worlds.step(policy(obs), mask=active)
+            total += reward  # 0.0 where a world is done, as the per-env loop leaves those sums untouched
+            length += active
+            done |= terminated | truncated
+            t += 1
+        steps += int(length.sum())
+        returns[name] = total
+        lengths[name] = length
+    return _JobResult(cond.name, job.first, returns, lengths, {}, draws, steps, engine="batched")
 
 
 def _single_torch_thread() -> Callable[[], None]:
@@ -236,6 +287,7 @@ def evaluate(
     backend: str = "serial",
     workers: int | None = None,
     progress: bool = False,
+    engine: str = "auto",
 ) -> Evaluation:
     """Scores every policy on every condition with batched closed-loop episodes.
 
@@ -253,6 +305,9 @@ def evaluate(
         backend: ``"serial"`` (in this process), ``"local"`` (process pool) or ``"ray"``; results are the same.
         workers: processes for the ``local``/``ray`` backends (default: CPU count).
         progress: show a progress bar.
+        engine: ``"auto"`` steps a condition's envs on the batched engine (:mod:`sim2real.batched`) when the
+            task and its effects are supported and one by one otherwise; ``"per-env"`` always steps them one by
+            one. Both give bitwise the same results; ``Evaluation.engines`` says which ran each condition.
 
     Raises:
         ValueError: bad counts, duplicate names, an unknown backend.
@@ -266,6 +321,8 @@ def evaluate(
         raise ValueError(f"`max_steps` must be None or an int >= 1. Received {max_steps!r}.")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"`seed` must be an int >= 0. Received {seed!r}.")
+    if engine not in ("auto", "per-env"):
+        raise ValueError(f"`engine` must be one of ['auto', 'per-env']. Received {engine!r}.")
     conditions = tuple(conditions)
     if not conditions or not all(isinstance(c, Condition) for c in conditions):
         raise TypeError(
@@ -299,6 +356,7 @@ def evaluate(
             min(batch, episodes - first),
             int(seed),
             max_steps,
+            engine,
         )
         for group in groups.values()
         for first in range(0, episodes, batch)
@@ -340,6 +398,7 @@ def _collect(
     for res in results:
         by_condition.setdefault(res.condition, []).append(res)
     steps = 0
+    engines: dict[str, str] = {}
     for cond in conditions:
         if not cond.simulated:
             assert cond.returns is not None and cond.successes is not None
@@ -351,6 +410,7 @@ def _collect(
             continue
         parts = sorted(by_condition[cond.name], key=lambda r: r.first)
         steps += sum(r.steps for r in parts)
+        engines[cond.name] = parts[0].engine
         for p in policies:
             returns[p][cond.name] = np.concatenate([r.returns[p] for r in parts])
             lengths[p][cond.name] = np.concatenate([r.lengths[p] for r in parts])
@@ -375,4 +435,5 @@ def _collect(
         draws=_nested(draws, np.float64),
         env_steps=steps,
         seconds=seconds,
+        engines=engines,
     )

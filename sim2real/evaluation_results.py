@@ -58,6 +58,9 @@ class Evaluation:
         returns, successes, lengths, draws: see above.
         env_steps: environment steps taken.
         seconds: wall-clock time of the evaluation (not part of :meth:`to_dict`, which is reproducible).
+        engines: simulated condition -> ``"batched"`` (stepped on :mod:`sim2real.batched`) or ``"per-env"``; how
+            it ran, not what it computed (both engines give bitwise the same results), so not part of
+            :meth:`to_dict` either.
     """
 
     task: str
@@ -72,6 +75,7 @@ class Evaluation:
     draws: Mapping[str, Mapping[str, np.ndarray]]
     env_steps: int = 0
     seconds: float = field(default=0.0, compare=False)
+    engines: Mapping[str, str] = field(default_factory=dict, compare=False)
 
     def condition(self, name: str) -> Condition:
         """The condition called ``name``."""

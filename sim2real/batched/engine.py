@@ -30,7 +30,7 @@ Example:
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import mujoco
@@ -38,13 +38,17 @@ import numpy as np
 
 from sim2real.batched.kernels import KERNELS, Kernel, kernel_for
 
-__all__ = ["BatchedEnv", "make_batched", "supports"]
+__all__ = ["OPTIONS", "BatchedEnv", "make_batched", "supports"]
 
 _STATE_SPEC = int(mujoco.mjtState.mjSTATE_TIME | mujoco.mjtState.mjSTATE_QPOS | mujoco.mjtState.mjSTATE_QVEL)
 
 
-def supports(task: Any, *effects: Any) -> str | None:
-    """Why the batched engine cannot run ``task`` with ``effects`` (None when it can).
+#: ``sim2real.make`` options a batched world may take (the others change what the kernels compute).
+OPTIONS = ("time_limit",)
+
+
+def supports(task: Any, *effects: Any, options: Mapping[str, Any] | None = None) -> str | None:
+    """Why the batched engine cannot run ``task`` with ``effects`` and ``make`` ``options`` (None when it can).
 
     Example:
         >>> import sim2real as s2r
@@ -58,6 +62,9 @@ def supports(task: Any, *effects: Any) -> str | None:
 
     if not isinstance(task, str) or task not in KERNELS:
         return f"no batched kernel for task {task!r}"
+    unknown = sorted(set(options or {}) - set(OPTIONS))
+    if unknown:
+        return f"task options {unknown} are not batched (allowed: {list(OPTIONS)})"
     for effect in _flatten(effects):
         if not isinstance(effect, Effect):
             return f"signal models ({type(effect).__name__}) are not batched yet"
@@ -82,7 +89,11 @@ class BatchedEnv:
         num_envs: worlds N.
         effects: physics effects from :mod:`randomizers` (drawn per episode; per-step effects are refused).
         seed: root seed; world ``i`` draws from the streams of ``(seed, i)``.
-        options: keyword arguments for :func:`sim2real.make`.
+        envs: N envs from :func:`sim2real.make` to use as the worlds instead of making new ones (evaluation
+            reuses its envs across conditions); :meth:`close` then releases them, restored and still open.
+        stream_seeds: the root seed of each world's streams instead of ``(seed, i)`` (evaluation wraps every
+            env with its own root seed and tells episodes apart by reset seed).
+        options: keyword arguments for :func:`sim2real.make` (only :data:`OPTIONS`).
 
     Attributes:
         num_envs: N.
@@ -93,7 +104,17 @@ class BatchedEnv:
         step_limit: control steps per episode (the task's own limit).
     """
 
-    def __init__(self, task: str, num_envs: int, effects: Sequence[Any] = (), *, seed: int = 0, **options: Any) -> None:
+    def __init__(
+        self,
+        task: str,
+        num_envs: int,
+        effects: Sequence[Any] = (),
+        *,
+        seed: int = 0,
+        envs: Sequence[Any] | None = None,
+        stream_seeds: Sequence[Any] | None = None,
+        **options: Any,
+    ) -> None:
         from sim2real.physics import find_physics
         from sim2real.tasks import make
         from sim2real.wrapping import wrap
@@ -101,7 +122,7 @@ class BatchedEnv:
         n = _check_count(num_envs)
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise ValueError(f"`seed` must be an int >= 0. Received {seed!r}.")
-        reason = supports(task, *effects)
+        reason = supports(task, *effects, options=options)
         if reason is not None:
             raise ValueError(
                 f"`task` and `effects` must be supported by the batched engine (tasks {sorted(KERNELS)}, physics "
@@ -111,7 +132,13 @@ class BatchedEnv:
         self.num_envs = n
         self.seed = int(seed)
         self.kernel: Kernel = kernel_for(task)
-        self.envs = [wrap(make(task, **options), *effects, seed=(self.seed, i)) for i in range(n)]
+        for argument, given in (("envs", envs), ("stream_seeds", stream_seeds)):
+            if given is not None and len(given) != n:
+                raise ValueError(f"`{argument}` must hold one entry per world ({n}). Received {len(given)}.")
+        self._owned = envs is None
+        bases = [make(task, **options) for _ in range(n)] if envs is None else list(envs)
+        roots = [(self.seed, i) for i in range(n)] if stream_seeds is None else list(stream_seeds)
+        self.envs = [wrap(base, *effects, seed=root) for base, root in zip(bases, roots, strict=True)]
         handles = [find_physics(env) for env in self.envs]
         self.models = [h.model for h in handles]  # type: ignore[union-attr]
         self.datas = [h.data for h in handles]  # type: ignore[union-attr]
@@ -254,11 +281,14 @@ class BatchedEnv:
             raise RuntimeError("BatchedEnv is closed.")
 
     def close(self) -> None:
-        """Closes every world's env (restoring its nominal model bitwise)."""
+        """Closes every world's env, or releases the ``envs`` given (nominal model restored bitwise, still open)."""
         if not self._closed:
             self._closed = True
             for env in self.envs:
-                env.close()
+                if self._owned:
+                    env.close()
+                else:
+                    env.release()
 
 
 def make_batched(task: str, num_envs: int, *effects: Any, seed: int = 0, **options: Any) -> BatchedEnv:
