@@ -13,7 +13,7 @@ Example:
 from __future__ import annotations
 
 from randomizers.addressing import element_names, select
-from randomizers.adr import ADR, ADRHistory, Episode, Pin
+from randomizers.adr import ADR, ADRHistory, Episode, EpisodeResult, Pin
 from randomizers.adr_randomizer import ADRRandomizer
 from randomizers.com import BodyComOffset
 from randomizers.config import (
@@ -98,6 +98,7 @@ __all__ = [
     "Distribution",
     "Effect",
     "Episode",
+    "EpisodeResult",
     "Friction",
     "FrictionLoss",
     "GeomColor",

@@ -44,7 +44,7 @@ from randomizers.config import effect_to_config, load_effects
 from randomizers.distributions import LogUniform, Uniform
 from randomizers.effects import Effect
 
-__all__ = ["ADR", "METRICS", "ADRHistory", "Episode", "Pin"]
+__all__ = ["ADR", "METRICS", "ADRHistory", "Episode", "EpisodeResult", "Pin"]
 
 Side = Literal["low", "high"]
 _SIDES: tuple[Side, Side] = ("low", "high")
@@ -76,6 +76,19 @@ class Episode:
     episode_return: float
     length: int
     success: bool | None = None
+
+
+@dataclass(frozen=True)
+class EpisodeResult:
+    """One finished episode as the controller records it: its pin (or None), metric and frames.
+
+    A worker's copy of the controller (:meth:`ADR.worker_copy`) collects these instead of applying them; the
+    driver hands them back with :meth:`ADR.apply_results`.
+    """
+
+    pin: Pin | None
+    metric: float
+    frames: int
 
 
 @dataclass(frozen=True)
@@ -210,6 +223,8 @@ Received Gravity(add=Normal(mean=0.0, std=0.1), axes='xyz').
         self.stale = 0
         self._history: list[tuple[int, tuple[float, ...], tuple[float, ...], float]] = []
         self._dists: list[Uniform | LogUniform] = []
+        #: None on a controller; the results collected so far on a worker copy (:meth:`worker_copy`).
+        self.collected: list[EpisodeResult] | None = None
         self._changed()
 
     # -- arguments -------------------------------------------------------------------------------
@@ -308,9 +323,14 @@ Received Gravity(add=Normal(mean=0.0, std=0.1), axes='xyz').
         A result whose pinned value is no longer that boundary (the boundary moved while the episode ran, on
         another environment's results) measured a different value and is dropped (counted in ``stale``).
 
+        On a worker copy (:meth:`worker_copy`) the result is only collected, and nothing moves.
+
         Returns:
             Whether a boundary moved.
         """
+        if self.collected is not None:
+            self.collected.append(EpisodeResult(pin, float(metric), int(frames)))
+            return False
         self.frames += int(frames)
         if pin is None:
             return False
@@ -339,6 +359,28 @@ Received Gravity(add=Normal(mean=0.0, std=0.1), axes='xyz').
             return False
         self._changed()
         return True
+
+    def apply_results(self, results: Sequence[EpisodeResult]) -> int:
+        """Records ``results`` in the order given (the order that makes a distributed run deterministic) and
+        returns how many boundary moves they caused.
+
+        Example:
+            >>> from randomizers import Damping
+            >>> adr = ADR([Damping(scale=Uniform(0.0, 2.0))], delta=0.5, m=1, t_low=0.2, t_high=0.8)
+            >>> worker = adr.worker_copy()
+            >>> worker.record(Pin("Damping[joints=*]", "high", 1.0), 1.0, frames=30)
+            False
+            >>> adr.apply_results(worker.collected), adr.ranges["Damping[joints=*]"], adr.frames
+            (1, (1.0, 1.5), 30)
+        """
+        return sum(self.record(r.pin, r.metric, r.frames) for r in results)
+
+    def worker_copy(self) -> ADR:
+        """A copy with the same ranges that collects results (``collected``) instead of applying them: what a
+        worker of a distributed round runs with while the controller stays with the driver."""
+        copy = ADR.from_state(self.state(), self.metric)
+        copy.collected = []
+        return copy
 
     def _moved(self, i: int, side: Side, outward: bool) -> float:
         step = float(self.delta[i]) * (1.0 if (side == "high") == outward else -1.0)
