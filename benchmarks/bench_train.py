@@ -27,6 +27,15 @@ Usage:
     .venv/bin/python benchmarks/bench_train.py --quick              # smoke test
 
 The last line printed is ``RESULT ...`` with each task's ratio against the goal.
+
+``--algo sac`` measures instead the SAC update (issue #14): updates/s of :class:`sim2real.agents.sac.SACUpdate`
+(what :func:`train` runs, batches sampled from its replay buffer) against a minimal plain-PyTorch SAC update
+(``benchmarks/sac_reference.py``: actor + twin critics + targets + temperature, one Adam) and, for the record,
+TorchRL's ``SACLoss`` + ``SoftUpdate`` on TensorDict batches from a TorchRL ``ReplayBuffer`` (the path ``train``
+used before). Same 256x256 networks, batch 256, one thread, CPU time, blocks alternating; the goal is
+sim2real/plain >= 0.8 (see ``bench_sac.py``).
+
+    .venv/bin/python benchmarks/bench_train.py --algo sac [--repeats 7 --updates 60]
 """
 
 from __future__ import annotations
@@ -120,7 +129,16 @@ def main() -> None:
         "--threads", type=int, default=1, help="torch.set_num_threads (0 keeps torch's default); see CPU frames/s"
     )
     parser.add_argument("--quick", action="store_true", help="tiny run to check the script works")
+    parser.add_argument("--algo", choices=("ppo", "sac"), default="ppo",
+                        help="ppo: stack-over-plain training fps; sac: SAC updates/s against plain PyTorch")
+    parser.add_argument("--updates", type=int, default=60, help="--algo sac: updates per timed block")
     args = parser.parse_args()
+    if args.algo == "sac":
+        from bench_sac import main as sac_main
+
+        sac_main(repeats=1 if args.quick else args.repeats, updates=10 if args.quick else args.updates,
+                 threads=args.threads)  # fmt: skip
+        return
     frames, repeats, warmup_frames = args.frames, args.repeats, args.warmup_frames
     if args.quick:
         frames, repeats, warmup_frames = 1_000, 1, 500

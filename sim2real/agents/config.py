@@ -255,7 +255,9 @@ class PPOConfig(_ConfigBase):
 
 @dataclass(frozen=True)
 class SACConfig(_ConfigBase):
-    """Soft actor-critic (TorchRL ``SACLoss`` with twin Q networks, a plain uniform replay buffer).
+    """Soft actor-critic with twin Q networks and a learned temperature (:mod:`sim2real.agents.sac`: the update
+    written on plain tensors, a uniform replay buffer). Log-probabilities, the entropy target ``-act_dim`` and the
+    critics' action input live in the normalised action box ``[-1, 1]``.
 
     Attributes:
         frames: total environment steps collected.

@@ -168,8 +168,9 @@ def train(
 
     Args:
         task_or_env: a task id, a gymnasium env or a TorchRL env (see :func:`make_train_env`).
-        config: :class:`PPOConfig` (``ClipPPOLoss`` + ``GAE``) or :class:`SACConfig` (``SACLoss``, uniform
-            replay buffer).
+        config: :class:`PPOConfig` (TorchRL ``ClipPPOLoss`` + ``GAE``) or :class:`SACConfig` (the hand-written
+            update of :mod:`sim2real.agents.sac` on a uniform replay buffer; a task id or gymnasium env is then
+            stepped through gymnasium, a TorchRL env through TorchRL).
         effects: physics effects and signal models applied with :func:`sim2real.wrap` (domain randomisation).
         seed: seeds weights, exploration, minibatch order, env and effects.
         progress: show a tqdm bar on stderr.
@@ -206,14 +207,16 @@ def train(
         stack.callback(torch.set_num_threads, previous_threads)
         stack.enter_context(torch.random.fork_rng(devices=[]))
         torch.manual_seed(seed)
-        env = make_train_env(task_or_env, effects, seed)
-        try:
-            if isinstance(config, PPOConfig):
+        if isinstance(config, SACConfig):
+            from sim2real.agents.sac_loop import train_sac
+
+            policy, rows, frames = train_sac(task_or_env, config, effects=effects, seed=seed, progress=progress, log=log)
+        else:
+            env = make_train_env(task_or_env, effects, seed)
+            try:
                 policy, rows, frames = _train_ppo(env, config, seed, progress, log)
-            else:
-                policy, rows, frames = _train_sac(env, config, seed, progress, log)
-        finally:
-            env.close()
+            finally:
+                env.close()
     wall = time.perf_counter() - start
     names = sorted({k for row in rows for k in row}, key=lambda k: (k != "frames", k))
     metrics = MappingProxyType({k: tuple(float(row.get(k, math.nan)) for row in rows) for k in names})
@@ -404,80 +407,6 @@ def _train_ppo(env: Any, cfg: PPOConfig, seed: int, progress: bool, log: Any) ->
                                 sums[key] += float(out[key].detach())
                         steps += 1
                 row.update({k: v / max(steps, 1) for k, v in sums.items()})
-                collector.update_policy_weights_()
-                rows.append(row)
-                _log(log, row, frames)
-                bar.update(n)
-                if math.isfinite(row["episode_return"]):
-                    bar.set_postfix(ret=f"{row['episode_return']:.2f}")
-    finally:
-        collector.shutdown()
-    return actor, rows, frames
-
-
-def _train_sac(env: Any, cfg: SACConfig, seed: int, progress: bool, log: Any) -> tuple[Any, list[dict], int]:
-    import torch
-    from torchrl.collectors import Collector
-    from torchrl.data import LazyTensorStorage, RandomSampler, ReplayBuffer
-    from torchrl.objectives import SACLoss, SoftUpdate
-
-    from sim2real.agents.nets import actor_normalizer, build_actor, build_qvalue
-
-    obs_dim, act_dim, low, high = _bounds(env)
-    actor = build_actor("sac", obs_dim, low, high, cfg.hidden_sizes, cfg.activation, cfg.init_log_std)
-    norm = actor_normalizer(actor)
-    _fit_normalizer(env, norm, cfg.obs_norm_frames)
-    qvalue = build_qvalue(obs_dim, act_dim, cfg.hidden_sizes, cfg.activation, norm)
-    loss_module = SACLoss(
-        actor,
-        qvalue,
-        num_qvalue_nets=2,
-        loss_function="l2",
-        alpha_init=cfg.alpha_init,
-        action_spec=env.action_spec,
-    )
-    loss_module.make_value_estimator(gamma=cfg.gamma)
-    target = SoftUpdate(loss_module, tau=cfg.tau)
-    optim = torch.optim.Adam(loss_module.parameters(), lr=cfg.lr)
-    buffer = ReplayBuffer(
-        storage=LazyTensorStorage(cfg.buffer_size),
-        sampler=RandomSampler(),
-        batch_size=cfg.batch_size,
-        generator=torch.Generator().manual_seed(seed),
-    )
-    collector = Collector(
-        env,
-        actor,
-        frames_per_batch=cfg.frames_per_batch,
-        total_frames=cfg.frames,
-        init_random_frames=cfg.init_random_frames,
-        auto_register_policy_transforms=False,
-    )
-    updates = max(1, round(cfg.utd_ratio * cfg.frames_per_batch))
-    rows: list[dict[str, float]] = []
-    frames = 0
-    try:
-        with _bar(cfg.frames, progress, "sac") as bar:
-            for data in collector:
-                data = data.reshape(-1)
-                n = data.numel()
-                frames += n
-                row = {"frames": float(frames), **_episode_stats(data)}
-                if cfg.reward_scale != 1.0:
-                    data["next", "reward"] = data["next", "reward"] * cfg.reward_scale
-                buffer.extend(data)
-                if frames >= cfg.init_random_frames and len(buffer) >= cfg.batch_size:
-                    sums = {"loss_actor": 0.0, "loss_qvalue": 0.0, "loss_alpha": 0.0, "alpha": 0.0}
-                    for _ in range(updates):
-                        out = loss_module(buffer.sample())
-                        total = out["loss_actor"] + out["loss_qvalue"] + out["loss_alpha"]
-                        optim.zero_grad()
-                        total.backward()
-                        optim.step()
-                        target.step()
-                        for key in sums:
-                            sums[key] += float(out[key].detach())
-                    row.update({k: v / updates for k, v in sums.items()})
                 collector.update_policy_weights_()
                 rows.append(row)
                 _log(log, row, frames)
