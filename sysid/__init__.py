@@ -12,6 +12,7 @@ Example:
 
 from __future__ import annotations
 
+from sysid.csv_import import UNITS, CsvWarning, load_column_map, load_csv, log_format
 from sysid.design import DesignResult, candidate_grid, design_experiment, fisher_information, parameter_space
 from sysid.excitation import (
     EXCITATIONS,
@@ -31,7 +32,6 @@ from sysid.logs import (
     LogError,
     TrajectoryLog,
     channel_names,
-    load_csv,
     load_log,
     record_log,
     save_log,
@@ -48,8 +48,10 @@ __all__ = [
     "OPTIONAL_KEYS",
     "PRBS",
     "REQUIRED_KEYS",
+    "UNITS",
     "ActuatorLimits",
     "Chirp",
+    "CsvWarning",
     "DesignResult",
     "ExcitationPolicy",
     "FitResult",
@@ -68,8 +70,10 @@ __all__ = [
     "estimate_online",
     "fisher_information",
     "fit",
+    "load_column_map",
     "load_csv",
     "load_log",
+    "log_format",
     "make_excitation",
     "parameter_space",
     "record_log",

@@ -17,7 +17,8 @@ act           (T, na)       optional; actuator activations (only for models with
 meta          ()            JSON string: ``task``, ``timestep`` (s), ``control_timestep`` (s),
                             ``joint_names``, ``actuator_names``, ``sensor_names`` and, for
                             simulated logs, ``true_params`` ({address: value}) and
-                            ``true_latency_steps`` ({"action": k, "obs": k})
+                            ``true_latency_seconds`` ({"action": s, "obs": s}); an older log's
+                            ``true_latency_steps`` (control steps) is read as seconds
 ============  ============  ========================================================================
 
 Every loader validates and raises :class:`LogError` (a ``ValueError``) naming the key, what is allowed
@@ -42,15 +43,12 @@ Example:
 
 from __future__ import annotations
 
-import csv
-import difflib
-import fnmatch
 import itertools
 import json
 import math
 import os
 import zipfile
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -59,6 +57,7 @@ import mujoco
 import mujoco.rollout
 import numpy as np
 
+from noise_models.timing import convert_time
 from randomizers.files import atomic_write
 
 __all__ = [
@@ -67,7 +66,6 @@ __all__ = [
     "LogError",
     "TrajectoryLog",
     "channel_names",
-    "load_csv",
     "load_log",
     "record_log",
     "save_log",
@@ -92,6 +90,22 @@ def _as_array(value: Any, key: str) -> np.ndarray:
         raise LogError(f"`{key}` must be a numeric array. Received {type(value).__name__}: {err}.") from err
 
 
+def _latency_in_seconds(meta: Mapping[str, Any]) -> dict[str, Any]:
+    """Older logs stored ``true_latency_steps`` (control steps); the log format keeps every time in seconds."""
+    out = dict(meta)
+    legacy = out.pop("true_latency_steps")
+    if not isinstance(legacy, Mapping):
+        raise LogError(f"`meta['true_latency_steps']` must map 'action'/'obs' to control steps. Received {legacy!r}.")
+    substeps = max(1, round(float(out["control_timestep"]) / float(out["timestep"])))
+    seconds = {
+        str(side): convert_time(float(steps), "control_steps", "seconds", timestep=float(out["timestep"]),
+                                substeps=substeps)
+        for side, steps in legacy.items()
+    }
+    out.setdefault("true_latency_seconds", seconds)
+    return out
+
+
 @dataclass(frozen=True, eq=False)
 class TrajectoryLog:
     """A logged trajectory (one or several episodes) at the control rate.
@@ -106,7 +120,7 @@ class TrajectoryLog:
         episode: (T,) integer episode index (non-decreasing), or None for a single episode.
         act: (T, na) actuator activations, or None.
         meta: ``task``, ``timestep``, ``control_timestep``, ``joint_names``, ``actuator_names``,
-            ``sensor_names``, optionally ``true_params`` and ``true_latency_steps``.
+            ``sensor_names``, optionally ``true_params`` and ``true_latency_seconds``.
 
     Construction validates shapes, finiteness and time order (see :func:`validate_log`); arrays are
     stored read-only.
@@ -149,6 +163,8 @@ class TrajectoryLog:
             raise LogError(f"`meta` must be a mapping (JSON object). Received {type(self.meta).__name__}.")
         object.__setattr__(self, "meta", dict(self.meta))
         validate_log(self)
+        if "true_latency_steps" in self.meta:
+            object.__setattr__(self, "meta", _latency_in_seconds(self.meta))
 
     @property
     def num_steps(self) -> int:
@@ -365,6 +381,16 @@ def load_log(path: str | os.PathLike[str], model: mujoco.MjModel | None = None) 
     where = str(path)
     if not Path(path).is_file():
         raise FileNotFoundError(f"`path` {where!r} does not exist.")
+    with open(path, "rb") as handle:
+        head = handle.read(4)
+    if head != b"PK\x03\x04":
+        from sysid.csv_import import log_format
+
+        if log_format(path) == "csv":
+            raise LogError(
+                f"`path` {where!r} is a CSV text file, not a .npz trajectory log; read it with "
+                "sysid.load_csv(path, columns, meta) or `sim2real sysid fit LOG.csv --columns MAP.yaml`."
+            )
     try:
         with np.load(path, allow_pickle=False) as npz:
             arrays = {key: npz[key] for key in npz.files}
@@ -399,98 +425,6 @@ def load_log(path: str | os.PathLike[str], model: mujoco.MjModel | None = None) 
             _check_model(log, model)
         except LogError as err:
             raise LogError(f"{where}: {err}") from err
-    return log
-
-
-def _resolve_columns(spec: str | Sequence[str], header: list[str], key: str, where: str) -> list[int]:
-    patterns = [spec] if isinstance(spec, str) else list(spec)
-    if not patterns or not all(isinstance(p, str) for p in patterns):
-        raise LogError(f"`columns['{key}']` must be a column name, a pattern or a list of them. Received {spec!r}.")
-    out: list[int] = []
-    for pattern in patterns:
-        hits = [i for i, name in enumerate(header) if fnmatch.fnmatchcase(name, pattern)]
-        if not hits:
-            close = difflib.get_close_matches(pattern, header, n=3, cutoff=0.5)
-            hint = f" Close matches: {', '.join(repr(c) for c in close)}." if close else ""
-            raise LogError(
-                f"`columns['{key}']` names column {pattern!r}, which {where} does not have.{hint} "
-                f"Received columns: {', '.join(repr(h) for h in header)}."
-            )
-        out.extend(hits)
-    return out
-
-
-def load_csv(
-    path: str | os.PathLike[str],
-    columns: Mapping[str, str | Sequence[str]],
-    meta: Mapping[str, Any],
-    model: mujoco.MjModel | None = None,
-    delimiter: str = ",",
-) -> TrajectoryLog:
-    """Imports a real-robot CSV log (one header row) through a column mapping.
-
-    Args:
-        path: the CSV file.
-        columns: log key -> CSV column name(s) or fnmatch patterns, in order, e.g.
-            ``{"time": "t", "qpos": ["j0_pos", "j1_pos"], "qvel": "j*_vel", "ctrl": ["u0", "u1"]}``.
-            Keys ``time``, ``qpos``, ``qvel`` and ``ctrl`` are required; ``sensordata``, ``episode`` and
-            ``act`` are optional.
-        meta: at least ``timestep`` and ``control_timestep`` (seconds); ``task`` and names are kept.
-        model: when given, the widths must match it.
-        delimiter: the CSV field separator.
-
-    Raises:
-        LogError: a mapped column is missing (close matches listed), a cell is not a number, or the
-            resulting log is invalid.
-
-    Example:
-        >>> import os, tempfile
-        >>> path = os.path.join(tempfile.mkdtemp(), "robot.csv")
-        >>> _ = open(path, "w").write("t,q,dq,u\\n0,0,0,1\\n0.01,0,0.1,1\\n0.02,0.001,0.2,0\\n")
-        >>> log = load_csv(path, {"time": "t", "qpos": "q", "qvel": "dq", "ctrl": "u"},
-        ...                meta={"timestep": 0.01, "control_timestep": 0.01})
-        >>> log.qvel[:, 0].tolist()
-        [0.0, 0.1, 0.2]
-    """
-    where = repr(str(path))
-    if not Path(path).is_file():
-        raise FileNotFoundError(f"`path` {where} does not exist.")
-    if not isinstance(columns, Mapping):
-        raise LogError(f"`columns` must map log keys to CSV column names. Received {type(columns).__name__}.")
-    allowed = ("time", "qpos", "qvel", "ctrl", "sensordata", "episode", "act")
-    unknown = [k for k in columns if k not in allowed]
-    missing = [k for k in ("time", "qpos", "qvel", "ctrl") if k not in columns]
-    if unknown or missing:
-        raise LogError(
-            f"`columns` must map the keys time, qpos, qvel, ctrl (and optionally sensordata, episode, act). "
-            f"Received keys {sorted(columns)} (missing {missing}, unknown {unknown})."
-        )
-    with open(path, newline="") as handle:
-        rows = list(csv.reader(handle, delimiter=delimiter))
-    if len(rows) < 3:
-        raise LogError(f"`path` {where} must hold a header row and at least 2 data rows. Received {len(rows)} row(s).")
-    header = [h.strip() for h in rows[0]]
-    body = rows[1:]
-    for i, row in enumerate(body):
-        if len(row) != len(header):
-            raise LogError(
-                f"`path` {where} row {i + 2} must have {len(header)} fields like the header. Received {len(row)} "
-                "(truncated file?)."
-            )
-    try:
-        table = np.array([[float(x) if x.strip() else math.nan for x in row] for row in body], dtype=np.float64)
-    except ValueError as err:
-        raise LogError(f"`path` {where} must hold only numbers below the header. Received {err}.") from err
-    arrays: dict[str, np.ndarray] = {}
-    for key, spec in columns.items():
-        idx = _resolve_columns(spec, header, key, f"CSV file {where}")
-        data = table[:, idx]
-        arrays[key] = data[:, 0] if key in ("time", "episode") else data
-    if "episode" in arrays and np.all(np.isfinite(arrays["episode"])):
-        arrays["episode"] = arrays["episode"].astype(np.int64)
-    log = TrajectoryLog(**arrays, meta=dict(meta))
-    if model is not None:
-        _check_model(log, model)
     return log
 
 
@@ -653,7 +587,10 @@ def record_log(
         "joint_names": [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or f"#{j}" for j in range(model.njnt)],
         "actuator_names": [n[5:-1] for n in names["ctrl"]],
         "sensor_names": names["sensordata"],
-        "true_latency_steps": {"action": int(action_latency), "obs": int(obs_latency)},
+        "true_latency_seconds": {
+            side: convert_time(steps_, "control_steps", "seconds", timestep=float(model.opt.timestep), substeps=n_substeps)
+            for side, steps_ in (("action", action_latency), ("obs", obs_latency))
+        },
         "noise_std": sigmas,
     }
     if true_params is not None:

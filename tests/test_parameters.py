@@ -446,7 +446,7 @@ def test_fitted_latency_survives_export_in_physics_steps(task: str, kind: str, p
     model = ActionLatency if kind == "action" else ObservationLatency
     assert exported == [model(seconds=20 * dt)]
     again = record(task, effects=exported, policy="prbs", episodes=1, steps=30, seed=1)
-    assert again.meta["true_latency_steps"] == log.meta["true_latency_steps"]
+    assert again.meta["true_latency_seconds"] == log.meta["true_latency_seconds"]
     np.testing.assert_array_equal(again.qpos, log.qpos)
     np.testing.assert_array_equal(again.sensordata, log.sensordata)
     if kind == "action":  # and the simulator a policy trains in delays the actuators by the same physics steps
@@ -472,4 +472,5 @@ def test_observation_latency_export_keeps_physics_steps_on_manipulator() -> None
     exported = [e for e in fit.to_effects() if isinstance(e, ObservationLatency)]
     assert exported == [ObservationLatency(seconds=20 * dt)]
     again = record(task, effects=exported, policy="prbs", episodes=1, steps=20, seed=1)
-    assert again.meta["true_latency_steps"] == log.meta["true_latency_steps"] == {"action": 0, "obs": 2}
+    assert again.meta["true_latency_seconds"] == log.meta["true_latency_seconds"]
+    assert log.meta["true_latency_seconds"] == {"action": 0.0, "obs": pytest.approx(20 * dt)}

@@ -69,7 +69,12 @@ def test_record_matches_python_step_loop(model: mujoco.MjModel) -> None:
     np.testing.assert_array_equal(log.qpos, np.array(qpos))
     np.testing.assert_array_equal(log.sensordata, np.array(sensors)[np.clip(np.arange(30) - 1, 0, None)])
     assert log.meta["control_timestep"] == pytest.approx(0.015)
-    assert log.meta["true_latency_steps"] == {"action": 2, "obs": 1}
+    assert log.meta["true_latency_seconds"] == {"action": pytest.approx(0.03), "obs": pytest.approx(0.015)}
+    legacy = TrajectoryLog(
+        time=log.time, qpos=log.qpos, qvel=log.qvel, ctrl=log.ctrl, meta={**{k: v for k, v in log.meta.items() if k != "true_latency_seconds"},
+              "true_latency_steps": {"action": 2, "obs": 1}},
+    )  # an older log: latency in control steps, read as seconds
+    assert legacy.meta["true_latency_seconds"] == {"action": pytest.approx(0.03), "obs": pytest.approx(0.015)}
 
 
 def test_round_trip_and_atomic_write(tmp_path, log: TrajectoryLog, model: mujoco.MjModel) -> None:

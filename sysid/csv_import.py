@@ -1,0 +1,434 @@
+"""Real drivers' CSV logs: column mapping, units, scale/offset, a jittery time column, gaps, and format detection.
+
+:func:`load_csv` turns a robot driver's CSV into a :class:`~sysid.logs.TrajectoryLog` at the control rate:
+
+* **units** per column (:data:`UNITS`: ``s``, ``ms``, ``us`` for time; ``rad``, ``deg``, ``m``, ``mm`` for
+  positions; ``rad/s``, ``deg/s``, ``m/s``, ``mm/s`` for velocities) and then ``scale``/``offset``:
+  ``value = scale * (raw in SI units) + offset`` (offset in the log's units: rad, rad/s, s, actuator units);
+* **time** converted to seconds and checked against ``meta["control_timestep"]``: a median spacing more than 20%
+  away is an error (it names the column and, when the ratio is ~1000 or ~10^6, the unit it looks like);
+* **jitter**: rows within a segment are resampled onto the control grid ``t0 + k * control_timestep`` (states
+  interpolated linearly, commands taken from the nearest row: a command is held for its control step); the
+  largest deviation from the grid is ``meta["csv"]["max_jitter_s"]``;
+* **gaps**: a spacing over 1.5 control steps (dropped rows) ends the segment; the log continues in a new segment
+  (the ``episode`` key numbers the segments, so the fit restarts from the logged state there) and a
+  :class:`CsvWarning` says where. Nothing is interpolated across a gap;
+* **degrees**: with ``model``, a position column of a hinge joint with limits whose ``|q|`` exceeds 2π warns,
+  naming the column.
+
+Errors (:class:`~sysid.logs.LogError`) name the file, the row (as numbered in the file, the header is row 1) and
+the column. :func:`log_format` tells a ``.npz`` log from a CSV by the file's first bytes.
+
+Example:
+    >>> import os, tempfile, warnings
+    >>> path = os.path.join(tempfile.mkdtemp(), "robot.csv")
+    >>> rows = ["t_ms,q_deg,dq,u"] + [f"{10 * k + (1 if k % 2 else 0)},{k},0,1" for k in range(6) if k != 3]
+    >>> _ = open(path, "w").write("\\n".join(rows) + "\\n")
+    >>> with warnings.catch_warnings(record=True) as caught:
+    ...     warnings.simplefilter("always")
+    ...     log = load_csv(path, {"time": "t_ms", "qpos": "q_deg", "qvel": "dq", "ctrl": "u"},
+    ...                    meta={"timestep": 0.01, "control_timestep": 0.01}, units={"t_ms": "ms", "q_deg": "deg"})
+    >>> log.episode.tolist(), log.meta["csv"]["segments"], log.meta["csv"]["max_jitter_s"]
+    ([0, 0, 0, 1, 1], 2, 0.001)
+    >>> str(caught[0].message).split(";")[0]
+    "'robot.csv': 1 gap(s) in time column 't_ms', the first before row 5 (0.02 s after the previous row, 2 control steps)"
+    >>> log_format(path)
+    'csv'
+"""
+
+from __future__ import annotations
+
+import csv
+import difflib
+import fnmatch
+import itertools
+import math
+import os
+import warnings
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from sysid.logs import LogError, TrajectoryLog, _check_model
+
+__all__ = ["UNITS", "CsvWarning", "load_column_map", "load_csv", "log_format"]
+
+#: Unit name -> (kind, factor to SI).
+UNITS: dict[str, tuple[str, float]] = {
+    "s": ("time", 1.0),
+    "ms": ("time", 1e-3),
+    "us": ("time", 1e-6),
+    "rad": ("position", 1.0),
+    "deg": ("position", math.pi / 180.0),
+    "m": ("position", 1.0),
+    "mm": ("position", 1e-3),
+    "rad/s": ("velocity", 1.0),
+    "deg/s": ("velocity", math.pi / 180.0),
+    "m/s": ("velocity", 1.0),
+    "mm/s": ("velocity", 1e-3),
+}
+_KIND_OF_KEY = {"time": ("time",), "qpos": ("position",), "qvel": ("velocity",)}
+_KEYS = ("time", "qpos", "qvel", "ctrl", "sensordata", "episode", "act")
+_STATE_KEYS = ("qpos", "qvel", "sensordata", "act")
+_GAP = 1.5  # a spacing over this many control steps is a gap (dropped rows)
+_SPACING_TOLERANCE = 0.2
+
+
+class CsvWarning(UserWarning):
+    """A CSV log loaded, but something in it deserves a look (gaps, angles that look like degrees)."""
+
+
+def log_format(path: str | os.PathLike[str]) -> str:
+    """``"npz"`` (a zip archive), ``"csv"`` (text with a delimiter on its first line) or ``"unknown"``.
+
+    Example:
+        >>> import os, tempfile
+        >>> path = os.path.join(tempfile.mkdtemp(), "x.bin")
+        >>> _ = open(path, "wb").write(bytes(range(256)))
+        >>> log_format(path)
+        'unknown'
+    """
+    with open(path, "rb") as handle:
+        head = handle.read(4096)
+    if head.startswith(b"PK\x03\x04") or head.startswith(b"PK\x05\x06"):
+        return "npz"
+    try:
+        text = head.decode("utf-8")
+    except UnicodeDecodeError:
+        return "unknown"
+    first = text.splitlines()[0] if text else ""
+    return "csv" if any(d in first for d in (",", ";", "\t")) else "unknown"
+
+
+def load_column_map(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Reads a column map YAML (what ``sim2real sysid fit LOG.csv --columns MAP.yaml`` takes)::
+
+        columns: {time: t_ms, qpos: "q*_deg", qvel: "dq*", ctrl: "u*"}   # required; see load_csv
+        units: {t_ms: ms, "q*_deg": deg}                                  # optional
+        scale: {"u*": 0.5}                                                # optional
+        offset: {q2_deg: 0.01}                                            # optional, log units
+        meta: {control_timestep: 0.02}                                    # optional; default: the model's
+        delimiter: ","                                                    # optional
+
+    Raises:
+        LogError: the file does not parse, is not a mapping, lacks ``columns`` or holds an unknown key.
+    """
+    import yaml
+
+    where = repr(os.fspath(path))
+    try:
+        config = yaml.safe_load(Path(path).read_text())
+    except OSError as err:
+        raise LogError(f"--columns {where}: cannot read it: {err.strerror or err}.") from err
+    except yaml.YAMLError as err:
+        raise LogError(f"--columns {where}: not valid YAML: {err}") from err
+    allowed = ("columns", "units", "scale", "offset", "meta", "delimiter")
+    if not isinstance(config, Mapping) or "columns" not in config:
+        raise LogError(
+            f"--columns {where} must be a mapping with a `columns:` key (and optionally "
+            f"{', '.join(allowed[1:])}). Received {type(config).__name__}."
+        )
+    unknown = sorted(set(config) - set(allowed))
+    if unknown:
+        raise LogError(f"--columns {where}: keys must be among {list(allowed)}. Received unknown {unknown}.")
+    for key in ("columns", "units", "scale", "offset", "meta"):
+        if key in config and not isinstance(config[key], Mapping):
+            raise LogError(f"--columns {where}: `{key}` must be a mapping. Received {config[key]!r}.")
+    return dict(config)
+
+
+def _resolve_columns(spec: str | Sequence[str], header: list[str], key: str, where: str) -> list[int]:
+    patterns = [spec] if isinstance(spec, str) else list(spec)
+    if not patterns or not all(isinstance(p, str) for p in patterns):
+        raise LogError(f"`columns['{key}']` must be a column name, a pattern or a list of them. Received {spec!r}.")
+    out: list[int] = []
+    for pattern in patterns:
+        hits = [i for i, name in enumerate(header) if fnmatch.fnmatchcase(name, pattern)]
+        if not hits:
+            close = difflib.get_close_matches(pattern, header, n=3, cutoff=0.5)
+            hint = f" Close matches: {', '.join(repr(c) for c in close)}." if close else ""
+            raise LogError(
+                f"`columns['{key}']` names column {pattern!r}, which {where} does not have.{hint} "
+                f"Received columns: {', '.join(repr(h) for h in header)}."
+            )
+        out.extend(hits)
+    return out
+
+
+def _per_column(
+    option: Mapping[str, Any] | None, name: str, header: list[str], mapped: dict[int, str], where: str
+) -> dict[int, Any]:
+    """``{column index: value}`` for an option keyed by column names or patterns (every one must hit a mapped
+    column)."""
+    out: dict[int, Any] = {}
+    if option is None:
+        return out
+    if not isinstance(option, Mapping):
+        raise LogError(f"`{name}` must map CSV column names (or patterns) to values. Received {option!r}.")
+    for pattern, value in option.items():
+        hits = [i for i in mapped if fnmatch.fnmatchcase(header[i], str(pattern))]
+        if not hits:
+            raise LogError(
+                f"`{name}` names column {pattern!r}, which is not a mapped column of {where}. "
+                f"Mapped columns: {', '.join(repr(header[i]) for i in sorted(mapped))}."
+            )
+        for i in hits:
+            out[i] = value
+    return out
+
+
+def _number(value: Any, name: str, column: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise LogError(f"`{name}` of column {column!r} must be a finite number. Received {value!r}.")
+    return float(value)
+
+
+def _table(rows: list[list[str]], header: list[str], used: list[int], where: str) -> np.ndarray:
+    table = np.full((len(rows), len(header)), np.nan)
+    for r, row in enumerate(rows):
+        if len(row) != len(header):
+            raise LogError(
+                f"`path` {where} row {r + 2} must have {len(header)} fields like the header. Received {len(row)} "
+                "(truncated file?)."
+            )
+        for c in used:
+            cell = row[c].strip()
+            try:
+                table[r, c] = float(cell) if cell else math.nan
+            except ValueError:
+                raise LogError(
+                    f"`path` {where} row {r + 2}, column {header[c]!r} must hold a number. Received {row[c]!r}."
+                ) from None
+            if not math.isfinite(table[r, c]):
+                raise LogError(
+                    f"`path` {where} row {r + 2}, column {header[c]!r} must hold a finite number (dropped rows are "
+                    f"removed, not left empty). Received {row[c]!r}."
+                )
+    return table
+
+
+def _check_degrees(qpos: np.ndarray, names: list[str], explicit: set[str], model: mujoco.MjModel, where: str) -> None:
+    for j in range(model.njnt):
+        if model.jnt_type[j] != mujoco.mjtJoint.mjJNT_HINGE or not model.jnt_limited[j]:
+            continue
+        k = int(model.jnt_qposadr[j])
+        if k >= qpos.shape[1] or names[k] in explicit:
+            continue
+        peak = float(np.max(np.abs(qpos[:, k])))
+        if peak > 2 * math.pi:
+            joint = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or f"#{j}"
+            low, high = model.jnt_range[j]
+            warnings.warn(
+                f"{where}: column {names[k]!r} (qpos of hinge {joint!r}, range [{low:.3g}, {high:.3g}] rad) reaches "
+                f"|q| = {peak:.4g} > 2π: it looks like degrees; add units: {{{names[k]}: deg}}.",
+                CsvWarning,
+                stacklevel=3,
+            )
+
+
+def _segments(
+    time: np.ndarray, episode: np.ndarray | None, dt: float, column: str, where: str
+) -> tuple[list[tuple[int, int]], list[dict[str, float]]]:
+    """Row ranges of the segments (episodes split at gaps) and the gaps found."""
+    edges = [0, time.shape[0]]
+    if episode is not None:
+        edges += (np.flatnonzero(np.diff(episode) != 0) + 1).tolist()
+    steps = np.diff(time)
+    same = np.ones(steps.shape, dtype=bool) if episode is None else np.diff(episode) == 0
+    back = np.flatnonzero((steps <= 0) & same)
+    if back.size:
+        i = int(back[0]) + 1
+        raise LogError(
+            f"{where} row {i + 2}, time column {column!r} must increase within a segment. Received "
+            f"{time[i]!r} s after {time[i - 1]!r} s."
+        )
+    inner = steps[same]
+    spacing = float(np.median(inner)) if inner.size else dt
+    if abs(spacing - dt) > _SPACING_TOLERANCE * dt:
+        ratio = spacing / dt
+        hint = ""
+        for unit, factor in (("ms", 1e3), ("us", 1e6)):
+            if abs(ratio / factor - 1) < _SPACING_TOLERANCE:
+                hint = f" It looks like {unit}: add units: {{{column}: {unit}}}."
+        raise LogError(
+            f"{where}: time column {column!r} has a median spacing of {spacing:.6g} s, but meta['control_timestep'] "
+            f"is {dt:.6g} s (the log must hold one row per control step).{hint}"
+        )
+    gap_rows = np.flatnonzero(same & (steps > _GAP * dt)) + 1
+    gaps = [{"row": int(i) + 2, "dt_s": float(steps[i - 1])} for i in gap_rows]
+    edges = sorted(set(edges) | set(gap_rows.tolist()))
+    return [(a, b) for a, b in itertools.pairwise(edges) if b > a], gaps
+
+
+def _resample(
+    arrays: dict[str, np.ndarray], bounds: list[tuple[int, int]], dt: float
+) -> tuple[dict[str, np.ndarray], np.ndarray, float, int]:
+    """Each segment on its control grid; returns the arrays, the segment index per row, the max jitter and the
+    number of one-row segments dropped."""
+    out: dict[str, list[np.ndarray]] = {key: [] for key in arrays if key != "episode"}
+    segment: list[np.ndarray] = []
+    jitter = 0.0
+    dropped = 0
+    for a, b in bounds:
+        t = arrays["time"][a:b]
+        if b - a < 2:
+            dropped += 1
+            continue
+        k = np.round((t - t[0]) / dt)
+        residual = (t - t[0]) - k * dt
+        jitter = max(jitter, float(np.max(np.abs(residual))))
+        n = int(np.floor((t[-1] - t[0]) / dt + 0.5)) + 1
+        grid = t[0] + dt * np.arange(n)
+        exact = n == t.shape[0] and bool(np.all(np.abs(residual) <= 1e-9 * dt))
+        nearest = np.clip(np.searchsorted(t, grid - 0.5 * dt), 0, t.shape[0] - 1)
+        for key, values in arrays.items():
+            if key == "episode":
+                continue
+            block = values[a:b]
+            if key == "time":
+                out[key].append(block.copy() if exact else grid)
+            elif exact:
+                out[key].append(block.copy())
+            elif key == "ctrl":
+                out[key].append(block[nearest])  # a command is held for its control step: never interpolated
+            else:
+                out[key].append(np.column_stack([np.interp(grid, t, block[:, c]) for c in range(block.shape[1])]))
+        segment.append(np.full(t.shape[0] if exact else n, len(segment)))
+    if not segment:
+        raise LogError("the CSV log has no segment of 2 or more rows between its gaps.")
+    return {key: np.concatenate(v) for key, v in out.items()}, np.concatenate(segment), jitter, dropped
+
+
+def load_csv(
+    path: str | os.PathLike[str],
+    columns: Mapping[str, str | Sequence[str]],
+    meta: Mapping[str, Any],
+    model: mujoco.MjModel | None = None,
+    delimiter: str = ",",
+    *,
+    units: Mapping[str, str] | None = None,
+    scale: Mapping[str, float] | None = None,
+    offset: Mapping[str, float] | None = None,
+) -> TrajectoryLog:
+    """Imports a real-robot CSV log (one header row) through a column mapping (see the module docstring).
+
+    Args:
+        path: the CSV file.
+        columns: log key -> CSV column name(s) or fnmatch patterns, in order, e.g.
+            ``{"time": "t", "qpos": ["j0_pos", "j1_pos"], "qvel": "j*_vel", "ctrl": ["u0", "u1"]}``.
+            Keys ``time``, ``qpos``, ``qvel`` and ``ctrl`` are required; ``sensordata``, ``episode`` and
+            ``act`` are optional.
+        meta: at least ``timestep`` and ``control_timestep`` (seconds); ``task`` and names are kept.
+        model: when given, the widths must match it and hinge angles are checked for degrees.
+        delimiter: the CSV field separator.
+        units: column name or pattern -> a unit of :data:`UNITS` (time columns need a time unit, ``qpos`` a
+            position unit, ``qvel`` a velocity unit); unlisted columns are taken as SI already.
+        scale: column name or pattern -> factor applied after the unit conversion.
+        offset: column name or pattern -> added after scaling (in the log's units).
+
+    Returns:
+        A validated log on the control grid; ``meta["csv"]`` holds ``file``, ``units``, ``max_jitter_s``,
+        ``gaps`` (``[{"row", "dt_s"}]``), ``segments`` and ``resampled``.
+
+    Raises:
+        LogError: a mapped column is missing (close matches listed), a cell is not a number (file, row and
+            column named), a unit does not fit its column, the time spacing does not match ``control_timestep``,
+            or the resulting log is invalid.
+        FileNotFoundError: no such file.
+    """
+    where = repr(str(path))
+    if not Path(path).is_file():
+        raise FileNotFoundError(f"`path` {where} does not exist.")
+    if not isinstance(columns, Mapping):
+        raise LogError(f"`columns` must map log keys to CSV column names. Received {type(columns).__name__}.")
+    unknown = [k for k in columns if k not in _KEYS]
+    missing = [k for k in ("time", "qpos", "qvel", "ctrl") if k not in columns]
+    if unknown or missing:
+        raise LogError(
+            f"`columns` must map the keys time, qpos, qvel, ctrl (and optionally sensordata, episode, act). "
+            f"Received keys {sorted(columns)} (missing {missing}, unknown {unknown})."
+        )
+    for key in ("timestep", "control_timestep"):
+        value = meta.get(key)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
+            raise LogError(f"`meta['{key}']` must be a positive number of seconds. Received {value!r}.")
+    with open(path, newline="") as handle:
+        rows = list(csv.reader(handle, delimiter=delimiter))
+    if len(rows) < 3:
+        raise LogError(f"`path` {where} must hold a header row and at least 2 data rows. Received {len(rows)} row(s).")
+    header = [h.strip() for h in rows[0]]
+    index = {key: _resolve_columns(spec, header, key, f"CSV file {where}") for key, spec in columns.items()}
+    mapped = {i: key for key, idx in index.items() for i in idx}
+    table = _table(rows[1:], header, sorted(mapped), where)
+    unit_of = _per_column(units, "units", header, mapped, f"CSV file {where}")
+    factors = np.ones(len(header))
+    for i, unit in unit_of.items():
+        if unit not in UNITS:
+            raise LogError(f"`units` of column {header[i]!r} must be one of {list(UNITS)}. Received {unit!r}.")
+        kind, factor = UNITS[unit]
+        allowed = _KIND_OF_KEY.get(mapped[i])
+        if mapped[i] == "episode" or (allowed is not None and kind not in allowed):
+            fits = [u for u, (k, _) in UNITS.items() if allowed is not None and k in allowed]
+            raise LogError(
+                f"`units` of column {header[i]!r} (mapped to {mapped[i]}) must be one of {fits or 'none'}. "
+                f"Received {unit!r} (a {kind} unit)."
+            )
+        factors[i] = factor
+    scales = {i: _number(v, "scale", header[i]) for i, v in _per_column(scale, "scale", header, mapped, where).items()}
+    offsets = {
+        i: _number(v, "offset", header[i]) for i, v in _per_column(offset, "offset", header, mapped, where).items()
+    }
+    table = table * factors
+    for i, value in scales.items():
+        table[:, i] *= value
+    for i, value in offsets.items():
+        table[:, i] += value
+    arrays = {key: table[:, idx[0]] if key in ("time", "episode") else table[:, idx] for key, idx in index.items()}
+    dt = float(meta["control_timestep"])
+    time_column = header[index["time"][0]]
+    episode = arrays.pop("episode", None)
+    if episode is not None and not np.all(episode == np.round(episode)):
+        bad = int(np.flatnonzero(episode != np.round(episode))[0])
+        raise LogError(
+            f"{where} row {bad + 2}, column {header[index['episode'][0]]!r} must hold integer episode indices. "
+            f"Received {episode[bad]!r}."
+        )
+    if model is not None:
+        names = [header[i] for i in index["qpos"]]
+        explicit = {header[i] for i in unit_of if mapped[i] == "qpos"}
+        _check_degrees(arrays["qpos"], names, explicit, model, f"CSV file {where}")
+    bounds, gaps = _segments(arrays["time"], episode, dt, time_column, f"CSV file {where}")
+    resampled, segment, jitter, dropped = _resample(arrays, bounds, dt)
+    name = Path(path).name
+    if gaps:
+        first = gaps[0]
+        warnings.warn(
+            f"{name!r}: {len(gaps)} gap(s) in time column {time_column!r}, the first before row {first['row']} "
+            f"({first['dt_s']:.6g} s after the previous row, {first['dt_s'] / dt:.3g} control steps); the log "
+            "continues in a new segment after each gap (nothing is interpolated across it)"
+            + (f"; {dropped} one-row segment(s) dropped" if dropped else ""),
+            CsvWarning,
+            stacklevel=2,
+        )
+    report = {
+        "file": name,
+        "units": {header[i]: u for i, u in sorted(unit_of.items())},
+        "max_jitter_s": round(jitter, 12),
+        "gaps": gaps,
+        "segments": int(segment.max()) + 1,
+        "resampled": bool(jitter > 1e-9 * dt),
+    }
+    log = TrajectoryLog(
+        **resampled,
+        episode=segment if segment.max() > 0 else None,
+        meta={**dict(meta), "csv": report},
+    )
+    if model is not None:
+        try:
+            _check_model(log, model)
+        except LogError as err:
+            raise LogError(f"CSV file {where}: {err}") from err
+    return log
