@@ -19,6 +19,7 @@ Example:
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import Any
 
 import gymnasium as gym
@@ -29,7 +30,9 @@ from noise_models.timing import ActionLatency, ObservationLatency, convert_time
 from randomizers import Effect, PhysicsRandomizer
 from randomizers.parameters import effect_for, parse_assignment
 from sim2real.calibration import calibrate
+from sim2real.home import parse_home, plan_excitation, resolve_home
 from sim2real.physics import PhysicsHandle, find_physics
+from sim2real.sources import Source, open_source, parse_source_id
 
 __all__ = ["RecordTrajectory", "calibrate", "parse_set", "record"]
 
@@ -58,7 +61,7 @@ def _limits(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
 
 
 def record(
-    task: str,
+    task: str | Source,
     *,
     sets: Sequence[str] = (),
     effects: Sequence[Any] = (),
@@ -70,11 +73,15 @@ def record(
     latency: int = 0,
     obs_latency: int = 0,
     amplitude: float = 0.5,
+    home: str | Sequence[float] | None = None,
+    gravity_comp: bool = False,
 ) -> Any:
-    """Records an excitation log of ``task`` (open loop, exact physics through ``mujoco.rollout``).
+    """Records an excitation log of ``task`` (exact physics through ``mujoco.rollout``).
 
     Args:
-        task: a task id (``sim2real tasks``); composer tasks are not supported (their model changes each reset).
+        task: a task id (``sim2real tasks``), a ``model:``/``env:`` id or a :class:`sim2real.sources.Source`
+            (``--model robot.xml``, ``--env package.module:factory``); composer tasks are not supported (their
+            model changes each reset).
         sets: perturbations in :func:`parse_set` form, applied to the model the log is recorded on.
         effects: perturbations as effect objects (e.g. ``FitResult.to_effects()``): physics effects are drawn
             once (seed ``seed``) and applied like ``sets``; an ``ActionLatency``/``ObservationLatency`` with a
@@ -88,10 +95,18 @@ def record(
         latency: action latency in **control steps** (the actuators apply ``ctrl[t - latency]``).
         obs_latency: sensor latency in **control steps** (``sensordata`` lags the state).
         amplitude: excitation amplitude as a fraction of each actuator's half-range, in (0, 1].
+        home: where episodes start and what the excitation swings around: ``"current"`` (the env's own reset
+            state for ``reset(seed=seed + e)``, servos centred on the middle of their range: the default for task
+            ids), ``"keyframe"`` (the keyframe named ``home``, else the first, else ``qpos0``: the default for
+            models and env factories) or explicit joint positions. With a fixed home pose servos swing around
+            it, and the amplitude is halved until every limited joint stays inside its range
+            (:func:`sim2real.home.plan_excitation`); ``meta["excitation"]["notes"]`` says when.
+        gravity_comp: add the torque that holds the arm against gravity at its current pose to the torque
+            motors' commands (needs a fixed home pose); the logged ``ctrl`` is what was sent.
 
     Returns:
         A :class:`sysid.TrajectoryLog` whose ``meta`` holds the task, the true parameter values of every
-        perturbed address and the true latencies.
+        perturbed address, the true latencies and the excitation (home pose, amplitude used, notes).
     """
     import sysid
     from sim2real.tasks import make
@@ -113,12 +128,22 @@ def record(
             raise TypeError(
                 f"`effects[{i}]` must be a physics effect or an ActionLatency/ObservationLatency. Received {item!r}."
             )
-    env = make(task)
-    handle = _require(env, task)
+    source = task if isinstance(task, Source) else parse_source_id(task)
+    chosen = parse_home(home)
+    if chosen is None:
+        chosen = "current" if source.kind == "task" else "keyframe"
+    if gravity_comp and chosen == "current":
+        raise ValueError("`gravity_comp` needs a fixed home pose: give home='keyframe' or joint positions.")
+    if source.kind == "task":
+        env: Any = make(source.value)
+        handle = _require(env, source.value)
+    else:
+        env, handle = open_source(source)
     if handle.recompiles:
-        env.close()
+        _close(env)
         raise ValueError(
-            f"`task` {task!r} recompiles its model every episode; record a dm-control suite, gym or sim2real task."
+            f"`task` {source.label!r} recompiles its model every episode; record a dm-control suite, gym or "
+            "sim2real task, an MJCF file or an env factory."
         )
     substeps = handle.substeps or 1
     for model_ in latencies:
@@ -129,9 +154,13 @@ def record(
             obs_latency = delay
     effects = physical
     starts = []
-    for e in range(episodes):
-        env.reset(seed=seed + e)
-        starts.append((np.array(handle.data.qpos), np.array(handle.data.qvel)))
+    if chosen == "current":
+        for e in range(episodes):
+            if isinstance(env, gym.Env):
+                env.reset(seed=seed + e)
+            elif e == 0 and callable(getattr(env, "reset", None)):
+                env.reset()  # dm_env / TorchRL: their own reset state, the same for every episode
+            starts.append((np.array(handle.data.qpos), np.array(handle.data.qvel)))
     model = handle.model
     true_params: dict[str, float] = {}
     if effects:
@@ -143,8 +172,27 @@ def record(
         model = _copy_model(model)
         randomizer.restore_nominal()
     dt = float(model.opt.timestep) * substeps
-    excitation = sysid.make_excitation(policy, _limits(model), amplitude=amplitude, seed=seed)
-    ctrl = np.stack([excitation.signal(steps, dt, t0=e * steps * dt) for e in range(episodes)])
+    excitation_meta: dict[str, Any] = {"policy": policy, "amplitude": float(amplitude), "gravity_comp": gravity_comp}
+    try:
+        if chosen == "current":
+            excitation = sysid.make_excitation(policy, _limits(model), amplitude=amplitude, seed=seed)
+            ctrl = np.stack([excitation.signal(steps, dt, t0=e * steps * dt) for e in range(episodes)])
+            excitation_meta.update(home="current", notes=[])
+        else:
+            pose = resolve_home(chosen, model)
+            plan = plan_excitation(
+                model, pose, policy=policy, amplitude=amplitude, steps=steps, episodes=episodes, substeps=substeps,
+                seed=seed, gravity_comp=gravity_comp, latency=latency,
+            )
+            ctrl = plan.ctrl
+            starts = [(plan.home, np.zeros(model.nv))] * episodes
+            excitation_meta.update(
+                home=plan.home.tolist(), amplitude=plan.amplitude, requested_amplitude=plan.requested,
+                notes=list(plan.notes),
+            )
+    except ValueError:
+        _close(env)
+        raise
     log = sysid.record_log(
         model,
         ctrl,
@@ -155,11 +203,17 @@ def record(
         obs_latency=obs_latency,
         noise_std=obs_noise if obs_noise > 0 else None,
         rng=np.random.default_rng([seed, 0x10C]) if obs_noise > 0 else None,
-        task=task,
+        task=source.id,
         true_params=true_params,
     )
-    env.close()
-    return log
+    _close(env)
+    return replace(log, meta={**log.meta, "excitation": excitation_meta})
+
+
+def _close(env: Any) -> None:
+    close = getattr(env, "close", None)
+    if callable(close):
+        close()
 
 
 def _control_steps(model: Any, timestep: float, substeps: int) -> int:

@@ -41,7 +41,8 @@ def test_record_then_fit_recovers_truth_and_latency() -> None:
         seed=3,
         latency=2,
     )
-    assert log.meta["true_latency_steps"]["action"] == 2
+    handle = s2r.find_physics(s2r.make("sim2real/arm-reach"))
+    assert log.meta["true_latency_seconds"]["action"] == pytest.approx(2 * handle.substeps * handle.model.opt.timestep)
     model = s2r.find_physics(s2r.make("sim2real/arm-reach")).model
     result = sysid.fit(log, model, ["dof_damping[*_pitch]"], latency=True, progress=False)
     truth = log.meta["true_params"]

@@ -1,0 +1,88 @@
+"""What every ``sim2real`` command shares: the usage error, output checks, argument types and env sources."""
+
+from __future__ import annotations
+
+import argparse
+import os
+from collections.abc import Callable
+from typing import Any
+
+from sim2real.sources import Source, SourceError, resolve_source
+
+__all__ = ["UsageError", "add_source_arguments", "check_outputs", "int_at_least", "source_of", "writing"]
+
+
+class UsageError(Exception):
+    """Bad input found after parsing; ``main`` prints it and returns 2."""
+
+
+def check_outputs(files: dict[str, str | None], folder: tuple[str, str, bool] | None = None) -> None:
+    """Checks every output of a command (``{"--out": path, "--report": path}``, files; ``folder`` is
+    ``(argument, path, new)``) before any work, so a bad path fails at once and creates nothing."""
+    from sim2real.output_paths import OutputPathError, check_distinct, check_file, check_folder
+
+    given = {argument: path for argument, path in files.items() if path is not None}
+    try:
+        for argument, path in given.items():
+            check_file(path, argument)
+        check_distinct(given)
+        if folder is not None:
+            check_folder(folder[1], folder[0], new=folder[2])
+    except OutputPathError as err:
+        raise UsageError(str(err)) from err
+
+
+def writing(path: str | os.PathLike[str], write: Callable[[], Any]) -> Any:
+    """Runs ``write`` (an atomic write of ``path``); a failure of the file system (disk full, a folder removed
+    meanwhile) becomes one line and exit 2. The atomic writer has already removed its temporary file."""
+    try:
+        return write()
+    except OSError as err:
+        reason = err.strerror or str(err)
+        raise UsageError(f"cannot write {os.fspath(path)!r}: {reason}.") from err
+
+
+def int_at_least(minimum: int) -> Callable[[str], int]:
+    """An argparse type: an int ``>= minimum``."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        if value is None or value < minimum:
+            raise argparse.ArgumentTypeError(f"must be an int >= {minimum}. Received {text!r}.")
+        return value
+
+    parse.__name__ = f"int >= {minimum}"
+    return parse
+
+
+def add_source_arguments(
+    parser: argparse.ArgumentParser, *, default_task: str | None = None, task_help: str = "task id (`sim2real tasks`)"
+) -> None:
+    """Adds the mutually exclusive ``--task``/``--model``/``--env`` (resolved by :func:`source_of`)."""
+    group = parser.add_argument_group("env source (one of)").add_mutually_exclusive_group()
+    default = f" (default: {default_task})" if default_task else ""
+    group.add_argument("--task", default=None, help=f"{task_help}{default}")
+    group.add_argument(
+        "--model", metavar="ROBOT.xml", help="your own robot: an MJCF file (see README 'Your own robot')"
+    )
+    group.add_argument(
+        "--env",
+        metavar="PACKAGE.MODULE:FACTORY",
+        help="your own env: a callable returning a gymnasium env or a dm_env.Environment",
+    )
+    parser.set_defaults(_default_task=default_task)
+
+
+def source_of(args: argparse.Namespace, *, task: str | None = None) -> Source:
+    """The :class:`Source` of ``--task``/``--model``/``--env`` (``task`` is a positional task id, if any)."""
+    given_task = args.task if task is None else task
+    if task is not None and args.task is not None:
+        raise UsageError(f"give the task once (positional or --task). Received {task!r} and --task {args.task!r}.")
+    try:
+        source = resolve_source(given_task, args.model, args.env, default_task=getattr(args, "_default_task", None))
+    except SourceError as err:
+        raise UsageError(str(err)) from err
+    return source

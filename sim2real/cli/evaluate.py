@@ -1,0 +1,76 @@
+"""``sim2real evaluate`` and ``sim2real study``."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+from typing import TextIO
+
+from sim2real.cli._common import UsageError, check_outputs, source_of, writing
+
+__all__ = ["cmd_evaluate", "cmd_study"]
+
+
+def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
+    from sim2real._gl import RenderingUnavailable
+    from sim2real.report import GapReport
+    from sim2real.spec import SpecError, load_spec
+    from sysid import FitResult
+
+    try:
+        spec = load_spec(Path(args.config))
+        options = dict(spec.report)
+        fit = FitResult.from_json(Path(options.pop("fit"))) if "fit" in options else None
+    except FileNotFoundError as err:
+        raise UsageError(str(err)) from err
+    except (SpecError, ValueError) as err:
+        raise UsageError(str(err)) from err
+    if args.task is not None or args.model is not None or args.env is not None:
+        spec = dataclasses.replace(spec, task=source_of(args).id)  # the command line overrides the spec's source
+    check_outputs({}, ("--out", args.out, False))
+    from sim2real.agents.checkpoint import CheckpointError
+
+    try:  # checkpoints are loaded and checked here, before any worker starts
+        evaluation = spec.run(backend=args.backend, workers=args.workers, progress=not args.quiet)
+    except CheckpointError as err:
+        raise UsageError(str(err)) from err
+    notes = options.pop("notes", ())
+    notes = [notes] if isinstance(notes, str) else list(notes)
+    try:
+        sheet = spec.contact_sheet()
+    except RenderingUnavailable as err:  # the report still has every number; say why the images are missing
+        sheet = None
+        notes.append(f"no contact sheet of the visual effects: {err}")
+    report = GapReport.build(evaluation, fit=fit, contact_sheet=sheet, rng=spec.seed, notes=tuple(notes), **options)
+    files = writing(args.out, lambda: report.write(Path(args.out)))
+    print(report.summary(), file=out)
+    print(f"wrote {files.html}", file=out)
+    return 0
+
+
+def cmd_study(args: argparse.Namespace, stdout: TextIO) -> int:
+    from sim2real.output_paths import free_folder
+    from sim2real.study import DEFAULT_OUT, run_study
+
+    out = args.out if args.out is not None else str(free_folder(DEFAULT_OUT))
+    check_outputs({}, ("--out", out, True))
+    try:
+        result = run_study(
+            args.task,
+            out,
+            budget=args.budget,
+            backend=args.backend,
+            seed=args.seed,
+            workers=args.workers,
+            progress=not args.quiet,
+            log=None if args.quiet else sys.stderr,
+        )
+    except ValueError as err:
+        raise UsageError(str(err)) from err
+    except OSError as err:
+        raise UsageError(f"cannot write {out!r}: {err.strerror or err}.") from err
+    print(result.summary, file=stdout)
+    print(f"report: {result.report}", file=stdout)
+    return 0

@@ -1,0 +1,154 @@
+"""``sim2real record`` and ``sim2real sysid fit``: excitation logs and fits, on a task, an MJCF file or an env factory.
+
+``sysid fit`` reads a ``.npz`` log or a driver's CSV: the format is found from the file's first bytes (a ``.npz``
+is a zip archive), never guessed from a failed load, and a CSV needs ``--columns MAP.yaml`` (the column mapping,
+units, scale and offset of :func:`sysid.load_csv`; ``timestep``/``control_timestep`` default to the model's).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+from pathlib import Path
+from typing import Any, TextIO
+
+from sim2real.cli._common import UsageError, check_outputs, source_of, writing
+from sim2real.sources import Source, SourceError, open_source
+
+__all__ = ["cmd_record", "cmd_sysid"]
+
+
+def cmd_record(args: argparse.Namespace, out: TextIO) -> int:
+    import sysid
+    from sim2real.home import parse_home
+    from sim2real.recording import record
+
+    check_outputs({"--out": args.out})
+    source = source_of(args)
+    try:
+        home = parse_home(args.home)
+        log = record(
+            source,
+            sets=args.sets,
+            policy=args.policy,
+            episodes=args.episodes,
+            steps=args.steps,
+            seed=args.seed,
+            obs_noise=args.obs_noise,
+            latency=args.latency,
+            obs_latency=args.obs_latency,
+            amplitude=args.amplitude,
+            home=home,
+            gravity_comp=args.gravity_comp,
+        )
+    except (TypeError, ValueError) as err:  # SourceError is a ValueError
+        raise UsageError(str(err)) from err
+    writing(args.out, lambda: sysid.save_log(log, args.out))
+    excitation = log.meta.get("excitation", {})
+    where = "the env's reset state" if excitation.get("home") == "current" else "the home pose"
+    print(
+        f"wrote {args.out}: {log.num_steps} rows ({args.episodes} episode(s) of {source.label}, policy {args.policy} "
+        f"around {where}, amplitude {excitation.get('amplitude', args.amplitude):g}); "
+        f"true params {log.meta.get('true_params', {})}",
+        file=out,
+    )
+    for note in excitation.get("notes", ()):
+        print(f"note: {note}", file=out)
+    return 0
+
+
+def _model_of(source: Source) -> Any:
+    """The MjModel (and the env to close) of a source."""
+    try:
+        env, handle = open_source(source)
+    except SourceError as err:
+        raise UsageError(str(err)) from err
+    return env, handle
+
+
+def _load(path: str, columns: str | None, model: Any, substeps: int | None) -> Any:
+    import sysid
+
+    kind = sysid.log_format(path)
+    if kind == "csv":
+        if columns is None:
+            raise UsageError(
+                f"{path!r} is a CSV file; give --columns MAP.yaml (column mapping, units, scale/offset; see "
+                "sysid.load_csv) to read it."
+            )
+        mapping = sysid.load_column_map(Path(columns))
+        meta = dict(mapping.get("meta", {}))
+        meta.setdefault("timestep", float(model.opt.timestep))
+        meta.setdefault("control_timestep", float(model.opt.timestep) * (substeps or 1))
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", sysid.CsvWarning)
+            log = sysid.load_csv(
+                path,
+                mapping["columns"],
+                meta=meta,
+                model=model,
+                units=mapping.get("units"),
+                scale=mapping.get("scale"),
+                offset=mapping.get("offset"),
+                delimiter=mapping.get("delimiter", ","),
+            )
+        for item in caught:
+            print(f"sim2real sysid fit: warning: {item.message}", file=sys.stderr)
+        return log
+    if columns is not None:
+        raise UsageError(f"--columns applies to CSV logs; {path!r} is a .npz log. Received --columns {columns!r}.")
+    return sysid.load_log(path, model=model)
+
+
+def _fit_report_html(result: Any, task: str, log_path: str) -> str:
+    import base64
+    import html
+
+    from sim2real.report import html_page, png_bytes  # the one page shell and PNG export of every HTML report
+
+    image = base64.b64encode(png_bytes(result.plot())).decode("ascii")
+    warnings = "".join(f"<li>{html.escape(w)}</li>" for w in result.warnings) or "<li>none</li>"
+    body = (
+        f"<h1>System identification: {html.escape(task)}</h1><p>log: {html.escape(log_path)}</p>"
+        f"<pre>{html.escape(result.summary())}</pre><h2>Warnings</h2><ul>{warnings}</ul>"
+        f"<h2>Fit and residuals</h2><figure><img alt='fit' src='data:image/png;base64,{image}'></figure>"
+    )
+    return html_page(f"sysid fit: {task}", body)
+
+
+def cmd_sysid(args: argparse.Namespace, out: TextIO) -> int:
+    import sysid
+    from randomizers.files import atomic_write
+
+    if args.sysid_command != "fit":
+        raise UsageError("choose a sysid command: `sim2real sysid fit LOG --task TASK --params ...`")
+    if args.task is None and args.model is None and args.env is None:
+        raise UsageError("give the model to fit: --task TASK, --model ROBOT.xml or --env MODULE:FACTORY.")
+    check_outputs({"--out": args.out, "--report": args.report})
+    source = source_of(args)
+    if not Path(args.log).is_file():
+        raise UsageError(f"cannot read the log: `log` {args.log!r} does not exist.")
+    env, handle = _model_of(source)
+    try:
+        log = _load(args.log, args.columns, handle.model, handle.substeps)
+        params = [p.strip() for p in args.params.split(",") if p.strip()]
+        result = sysid.fit(
+            log, handle.model, params, latency=True if args.latency else None, seed=args.seed, progress=not args.quiet
+        )
+    except FileNotFoundError as err:
+        raise UsageError(f"cannot read {err}") from err
+    except (TypeError, ValueError) as err:  # LogError is a ValueError
+        raise UsageError(str(err)) from err
+    finally:
+        close = getattr(env, "close", None)
+        if callable(close):
+            close()
+    # The page is rendered before anything is written, so a failure while drawing it leaves no JSON behind.
+    page = _fit_report_html(result, source.label, args.log) if args.report else None
+    writing(args.out, lambda: result.to_json(args.out))
+    if page is not None:
+        writing(args.report, lambda: atomic_write(args.report, page))
+    print(result.summary(), file=out)
+    print(f"wrote {args.out}" + (f" and {args.report}" if args.report else ""), file=out)
+    return 0
