@@ -18,8 +18,9 @@ separately, with the stepping-only rate it implies.
 The rollout arm runs fewer episodes (``--rollout-episodes``) since its throughput does not depend on the
 count. Usage::
 
-    .venv/bin/python benchmarks/bench_eval.py             # full run (goal: batched / rollout >= 10)
-    .venv/bin/python benchmarks/bench_eval.py --quick     # smoke test
+    .venv/bin/python benchmarks/bench_eval.py --torchrl             # issue 6 (goal: batched / rollout >= 10)
+    .venv/bin/python benchmarks/bench_eval.py --torchrl --quick     # smoke test
+    .venv/bin/python benchmarks/bench_eval.py [--quick]             # issue 15's P4 (below)
 """
 
 from __future__ import annotations
@@ -112,14 +113,14 @@ def raw_limit(steps: int) -> float:
     return steps / (time.perf_counter() - start)
 
 
-def main() -> None:
+def main_torchrl(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=64, help="parameter samples of the batched arm")
     parser.add_argument("--rollout-episodes", type=int, default=4, help="episodes of the rollout arm")
     parser.add_argument("--steps", type=int, default=1000, help="control steps per episode (reacher: 1000)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--quick", action="store_true", help="smoke test: 8 samples, 100 steps, 1 repeat")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     if args.quick:
         args.episodes, args.rollout_episodes, args.steps, args.repeats = 8, 2, 100, 1
     import torch
@@ -153,5 +154,206 @@ def main() -> None:
           f"batched reaches {statistics.median(fast) / limit:.2f} of the raw mj_step limit")  # fmt: skip
 
 
+# ------------------------------------------------------------------------------------------ issue 15: P4
+#
+# The batched engine (sim2real.batched) against today's batched evaluation (evaluate(engine="per-env")),
+# a plain gymnasium SyncVectorEnv with hand-written reset-time DR, and the closed-loop mujoco.rollout limit
+# (one Rollout call per control step over N model copies, policy on the state, no observation or reward code).
+# Every arm runs the same numpy MLP policy (64-64 tanh) on N parameter samples; figures are control steps/s,
+# arms alternate order in each repeat, medians over repeats.
+
+P4_TASKS = {"dmc/reacher-easy": ("reacher", "easy"), "dmc/manipulator-bring_ball": ("manipulator", "bring_ball")}
+P4_GOALS = {"limit": 0.5, "sync": 4.0, "today": 7.0}
+
+
+class NumpyMLP:
+    """A fixed random 64-64 tanh MLP in numpy: the same policy cost in every arm."""
+
+    batched = True  # sim2real.agents.as_policy: takes a (B, obs_dim) batch
+
+    def __init__(self, obs_dim: int, act_dim: int, seed: int = 0) -> None:
+        import numpy as np
+
+        rng = np.random.default_rng(seed)
+        self.w = [rng.normal(0, 1 / np.sqrt(i), (i, o)) for i, o in ((obs_dim, 64), (64, 64), (64, act_dim))]
+
+    def __call__(self, obs: Any) -> Any:
+        import numpy as np
+
+        h = np.tanh(np.asarray(obs, dtype=np.float64) @ self.w[0])
+        h = np.tanh(h @ self.w[1])
+        return np.tanh(h @ self.w[2]).astype(np.float32)
+
+
+def _hand_dr_env(task: str, index: int, seed: int) -> Any:
+    """The task with reset-time DR written by hand: the same three effects as :func:`effects`, scaled on the model."""
+    import gymnasium as gym
+    import numpy as np
+
+    class HandDR(gym.Wrapper):
+        def __init__(self, env: Any) -> None:
+            super().__init__(env)
+            physics = env.unwrapped.physics
+            self.model, self.data = physics.model.ptr, physics.data.ptr
+            self.nominal = (self.model.body_mass.copy(), self.model.body_inertia.copy(),
+                            self.model.dof_damping.copy(), self.model.actuator_gear.copy())  # fmt: skip
+            self.rng = np.random.default_rng((seed, index))
+
+        def reset(self, **kwargs: Any) -> Any:
+            mass, inertia, damping, gear = self.nominal
+            m = self.model
+            s = self.rng.uniform(0.7, 1.3, m.nbody)
+            m.body_mass[:] = mass * s
+            m.body_inertia[:] = inertia * s[:, None]
+            m.dof_damping[:] = damping * self.rng.uniform(0.5, 2.0, m.nv)
+            m.actuator_gear[:, 0] = gear[:, 0] * self.rng.uniform(0.8, 1.2, m.nu)
+            mujoco.mj_setConst(m, self.data)
+            return self.env.reset(**kwargs)
+
+    return HandDR(s2r.make(task))
+
+
+def _p4_engine(task: str, num: int, steps: int) -> tuple[float, float]:
+    """The batched engine stepped directly: (control steps/s stepping only, seconds to build the N worlds)."""
+    from sim2real.batched import make_batched
+
+    start = time.perf_counter()
+    worlds = make_batched(task, num, *effects(), seed=0)
+    build = time.perf_counter() - start
+    policy = NumpyMLP(worlds.observation_dim, worlds.action_dim)
+    obs, _ = worlds.reset(seed=0)
+    start = time.perf_counter()
+    for _ in range(steps):
+        obs, *_ = worlds.step(policy(obs))
+    rate = num * steps / (time.perf_counter() - start)
+    worlds.close()
+    return rate, build
+
+
+def _p4_evaluate(task: str, num: int, steps: int, engine: str) -> tuple[float, str]:
+    """``evaluate`` end to end (env construction included): (env steps/s, engine that ran)."""
+    env = s2r.make(task)
+    policy = NumpyMLP(env.observation_space.shape[0], env.action_space.shape[0])
+    start = time.perf_counter()
+    result = evaluate({"mlp": policy}, task, [randomized(effects())], episodes=num, batch=num, seed=0,
+                      max_steps=steps, engine=engine)  # fmt: skip
+    return result.env_steps / (time.perf_counter() - start), result.engines["randomized"]
+
+
+def _p4_sync(task: str, num: int, steps: int) -> float:
+    """A plain gymnasium SyncVectorEnv of hand-DR envs (construction excluded)."""
+    import gymnasium as gym
+
+    envs = gym.vector.SyncVectorEnv([lambda i=i: _hand_dr_env(task, i, 0) for i in range(num)])
+    policy = NumpyMLP(envs.single_observation_space.shape[0], envs.single_action_space.shape[0])
+    obs, _ = envs.reset(seed=0)
+    start = time.perf_counter()
+    for _ in range(steps):
+        obs, *_ = envs.step(policy(obs))
+    rate = num * steps / (time.perf_counter() - start)
+    envs.close()
+    return rate
+
+
+def _p4_limit(domain: str, name: str, num: int, steps: int) -> float:
+    """Closed loop, one ``Rollout.rollout`` call per control step over ``num`` model copies (policy on qpos/qvel)."""
+    import copy
+
+    import numpy as np
+    from dm_control import suite
+    from mujoco import rollout as mj_rollout
+
+    env = suite.load(domain, name)
+    n_sub = env._n_sub_steps
+    m0 = env.physics.model.ptr
+    models = [copy.copy(m0) for _ in range(num)]
+    rng = np.random.default_rng(0)
+    for m in models:
+        m.body_mass[:] *= rng.uniform(0.7, 1.3, m.nbody)
+        m.dof_damping[:] *= rng.uniform(0.5, 2.0, m.nv)
+    threads = os.cpu_count() or 1
+    datas = [mujoco.MjData(m0) for _ in range(threads)]
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    nstate = mujoco.mj_stateSize(m0, spec)
+    state = np.zeros((num, nstate))
+    d0 = mujoco.MjData(m0)
+    mujoco.mj_getState(m0, d0, state[0], spec)
+    state[:] = state[0]
+    out = np.empty((num, n_sub, nstate))
+    sens = np.empty((num, n_sub, m0.nsensordata))
+    control = np.empty((num, n_sub, m0.nu))
+    policy = NumpyMLP(m0.nq + m0.nv, m0.nu)
+    qslice = slice(1, 1 + m0.nq + m0.nv)  # state = [time, qpos, qvel, ...]
+    pool = mj_rollout.Rollout(nthread=threads)
+    start = time.perf_counter()
+    for _ in range(steps):
+        control[:] = policy(state[:, qslice])[:, None, :]
+        pool.rollout(models, datas, state, control, skip_checks=True, nstep=n_sub, state=out, sensordata=sens)
+        state[:] = out[:, -1]
+    rate = num * steps / (time.perf_counter() - start)
+    pool.close()
+    return rate
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description="P4 (issue 15): batched engine vs evaluate, SyncVectorEnv, limit")
+    parser.add_argument("--samples", type=int, default=64, help="parameter samples (worlds) per arm")
+    parser.add_argument("--steps", type=int, nargs=2, default=[1000, 200], help="control steps: reacher, manipulator")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--quick", action="store_true", help="smoke test: 8 samples, 50 steps, 1 repeat")
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.samples, args.steps, args.repeats = 8, [50, 20], 1
+    import numpy as np
+
+    from sim2real.batched import supports
+
+    n = args.samples
+    print(f"# bench_eval P4  python {platform.python_version()}  mujoco {mujoco.__version__}  numpy {np.__version__}  "
+          f"{os.cpu_count()} CPUs; {n} samples, {args.repeats} repeats, numpy 64-64 MLP policy")  # fmt: skip
+    for (task, (domain, name)), steps in zip(P4_TASKS.items(), args.steps, strict=True):
+        batched = supports(task, *effects()) is None
+        arms: dict[str, Any] = {
+            "today": lambda t=task, s=steps: _p4_evaluate(t, n, s, "per-env")[0],
+            "sync": lambda t=task, s=steps: _p4_sync(t, n, s),
+            "limit": lambda d=domain, m=name, s=steps: _p4_limit(d, m, n, s),
+        }
+        if batched:
+            arms["engine"] = lambda t=task, s=steps: _p4_engine(t, n, s)[0]
+            arms["evaluate"] = lambda t=task, s=steps: _p4_evaluate(t, n, s, "auto")[0]
+        rates: dict[str, list[float]] = {k: [] for k in arms}
+        for r in range(args.repeats):
+            order = list(arms) if r % 2 == 0 else list(arms)[::-1]
+            for arm in order:
+                rates[arm].append(arms[arm]())
+        med = {k: statistics.median(v) for k, v in rates.items()}
+        print(f"\n## {task}: {n} worlds x {steps} control steps")
+        for arm, label in (("engine", "batched engine (stepping; make_batched)"),
+                           ("evaluate", "evaluate(engine='auto') end to end"),
+                           ("today", "evaluate(engine='per-env') end to end (today)"),
+                           ("sync", "SyncVectorEnv + hand-written reset DR"),
+                           ("limit", "closed-loop mujoco.rollout limit")):  # fmt: skip
+            if arm in med:
+                runs = ", ".join(f"{x:.0f}" for x in rates[arm])
+                print(f"{label:48s} {med[arm]:10.0f} control steps/s  (runs: {runs})")
+        if not batched:
+            print(f"batched engine: not available ({supports(task, *effects())}); evaluate falls back to per-env")
+            continue
+        build = _p4_engine(task, n, 1)[1]
+        e = med["engine"]
+        print(f"building {n} worlds: {build:.2f} s (not in the engine figure)")
+        print(
+            f"RESULT {task}: engine/limit = {e / med['limit']:.2f} (goal >= {P4_GOALS['limit']}), "
+            f"engine/sync = {e / med['sync']:.1f}x (goal >= {P4_GOALS['sync']:.0f}x), "
+            f"evaluate auto/per-env (both end to end, builds included) = {med['evaluate'] / med['today']:.1f}x "
+            f"(goal >= {P4_GOALS['today']:.0f}x); engine stepping / today end to end = {e / med['today']:.1f}x"
+        )
+
+
 if __name__ == "__main__":
-    main()
+    import sys
+
+    if "--torchrl" in sys.argv:
+        main_torchrl([a for a in sys.argv[1:] if a != "--torchrl"])
+    else:
+        main()

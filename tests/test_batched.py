@@ -196,3 +196,41 @@ def test_evaluate_uses_the_engine_and_reports_byte_identical_results() -> None:
     assert (auto.lengths["still"]["sim"] == 50).all()  # the 1 s limit (50 steps) ends before max_steps
     with pytest.raises(ValueError, match=r"`engine` must be one of \['auto', 'per-env'\]. Received 'gpu'."):
         evaluate(_reach, "dmc/reacher-easy", [nominal()], engine="gpu")
+
+
+def test_torchrl_env_passes_check_env_specs_and_matches_the_single_envs() -> None:
+    torch = pytest.importorskip("torch")
+    from tensordict import TensorDict
+    from torchrl.envs.utils import check_env_specs
+
+    from sim2real.batched.torchrl_env import BatchedTorchRLEnv
+
+    effects = _effects(1)
+    env = BatchedTorchRLEnv("dmc/reacher-easy", 3, *effects, seed=6, **SHORT)
+    check_env_specs(env, seed=0)
+    singles = [s2r.wrap(s2r.make("dmc/reacher-easy", **SHORT), *effects, seed=(6, i)) for i in range(3)]
+    env.set_seed(20)
+    td = env.reset()
+    for i, single in enumerate(singles):
+        obs, info = single.reset(seed=20 + i)
+        assert np.array_equal(td["observation"][i].numpy(), obs)
+        params = info["sim2real"]["params"]
+        assert td["sim2real_params"][i].tolist() == [params[name] for name in env.param_names]
+    rng = np.random.default_rng(1)
+    for _ in range(15):
+        actions = rng.uniform(-1, 1, (3, 2)).astype(np.float32)
+        td = env.step(TensorDict({"action": torch.as_tensor(actions)}, batch_size=[3]))["next"]
+        for i, single in enumerate(singles):
+            obs, reward, _, truncated, _ = single.step(actions[i])
+            assert np.array_equal(td["observation"][i].numpy(), obs)
+            assert float(td["reward"][i]) == reward and bool(td["truncated"][i]) == truncated
+    assert td["done"].all()  # 15 steps: every world's episode ended
+    # A partial reset starts a new episode in world 1 only, continuing its streams like the single env's reset().
+    td = env.reset(TensorDict({"_reset": torch.tensor([[False], [True], [False]])}, batch_size=[3]))
+    obs, info = singles[1].reset()
+    assert np.array_equal(td["observation"][1].numpy(), obs)
+    assert env.engine.steps.tolist() == [15, 0, 15]  # worlds 0 and 2 were left alone
+    assert td["sim2real_params"][1].tolist() == [info["sim2real"]["params"][n] for n in env.param_names]
+    env.close()
+    for single in singles:
+        single.close()
