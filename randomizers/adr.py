@@ -119,6 +119,16 @@ def _real(name: str, value: object) -> float:
     return out
 
 
+def _yaml_number(value: object) -> object:
+    # PyYAML (YAML 1.1) reads ``1e-3`` without a dot as a string.
+    if isinstance(value, str):
+        try:
+            return float(value)
+        except ValueError:
+            return value
+    return value
+
+
 def _entropy(log: bool, low: float, high: float) -> float:
     # Differential entropy of the range's own distribution: log(width) for Uniform (the paper's measure);
     # for LogUniform, log(log(high/low)) + (log low + log high) / 2. A point range has -inf.
@@ -433,7 +443,9 @@ Received Gravity(add=Normal(mean=0.0, std=0.1), axes='xyz').
         unknown = sorted(set(config) - allowed)
         if unknown:
             raise ValueError(f"`config` of ADR has unknown keys {unknown}. Allowed: {sorted(allowed)}.")
-        kwargs = {k: v for k, v in config.items() if k not in ("effects", "metric")}
+        kwargs: dict[str, Any] = {k: _yaml_number(v) for k, v in config.items() if k not in ("effects", "metric")}
+        if isinstance(kwargs.get("delta"), Mapping):
+            kwargs["delta"] = {k: _yaml_number(v) for k, v in kwargs["delta"].items()}
         chosen = metric if metric is not None else (config.get("metric") or "auto")
         return cls(load_effects({"effects": config["effects"]}), metric=chosen, **kwargs)
 

@@ -382,3 +382,59 @@ def test_rounds_are_deterministic_in_item_order_on_every_backend() -> None:
     replay = slider_adr()
     replay.apply_results([r for results in rnd.results for r in results])
     assert replay.state() == first.state()
+
+
+# -- training ------------------------------------------------------------------------------------------------
+ADR_YAML = """
+effects:
+  - {type: Damping, scale: [0.2, 5.0]}
+  - {type: Mass, scale: [0.5, 2.0], bodies: '*'}
+delta: 0.1
+t_low: -1e9
+t_high: -1e8
+m: 1
+p_boundary: 1.0
+metric: return
+"""
+
+
+def test_config_adr_round_trips_and_bad_adr_is_named() -> None:
+    from sim2real.agents import PPOConfig, SACConfig
+
+    for cls in (PPOConfig, SACConfig):
+        cfg = cls(frames=1000, adr=ADR_YAML)
+        assert cls.from_yaml(cfg.to_yaml()) == cfg
+        assert ADR.from_config(__import__("yaml").safe_load(cfg.adr)).keys == ("Damping[joints=*]", "Mass[bodies=*]")
+    with pytest.raises(ValueError) as err:
+        PPOConfig(adr=ADR_YAML.replace("t_low: -1e9", "t_low: 0.0"))
+    assert str(err.value) == "`adr`: `t_low` of ADR must be < `t_high`. Received t_low=0.0, t_high=-100000000.0."
+
+
+def test_train_logs_ranges_and_checkpoints_the_state(tmp_path: Any) -> None:
+    from sim2real.agents import PPOConfig, load_checkpoint, train
+
+    cfg = PPOConfig(frames=600, frames_per_batch=300, minibatch_size=150, epochs=1, obs_norm_frames=0, adr=ADR_YAML)
+    result = train("sim2real/arm-reach", cfg, seed=0, progress=False, logger="csv", log_dir=tmp_path)
+    assert result.adr is not None and result.effects is None
+    adr = ADR.from_state(result.adr)
+    assert adr.frames == 600  # three 200-step episodes
+    assert len(adr.history.frames) == 4  # every finished episode was pinned (p_boundary 1) and widened (m 1)
+    assert result.log_dir is not None
+    logged = {p.relative_to(result.log_dir / "scalars").as_posix() for p in (result.log_dir / "scalars").rglob("*.csv")}
+    assert {"adr/Damping[joints=*]/low.csv", "adr/Mass[bodies=*]/high.csv"} <= logged
+    result.save(tmp_path / "policy.pt")
+    checkpoint = load_checkpoint(tmp_path / "policy.pt")
+    assert checkpoint.adr == result.adr and checkpoint.config == cfg
+
+
+def test_cli_train_adr_errors_exit_2_with_one_line(tmp_path: Any, capsys: Any) -> None:
+    from sim2real.cli import main
+
+    bad = tmp_path / "adr.yaml"
+    bad.write_text(ADR_YAML.replace("p_boundary: 1.0", "p_boundary: 2.0"))
+    code = main(["train", "--task", "sim2real/arm-reach", "--adr", str(bad), "--out", str(tmp_path / "p.pt")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert err == "sim2real train: error: --adr: `p_boundary` of ADR must be in [0, 1]. Received 2.0."
+    code = main(["train", "--task", "sim2real/arm-reach", "--adr", str(tmp_path / "no.yaml"), "--out", "p.pt"])
+    assert code == 2 and "--adr: cannot read" in capsys.readouterr().err

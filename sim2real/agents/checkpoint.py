@@ -77,6 +77,7 @@ class Checkpoint:
         path: the file it was read from.
         effects: the training randomisation as YAML (``sim2real.dump_config``), or None when trained without
             effects or saved without them.
+        adr: the ADR controller's final state as JSON (``randomizers.ADR.from_state(checkpoint.adr)``), or None.
     """
 
     policy: Any
@@ -89,6 +90,7 @@ class Checkpoint:
     created: str
     path: Path
     effects: str | None = None
+    adr: str | None = None
 
 
 def _versions() -> dict[str, str]:
@@ -123,6 +125,7 @@ def save_checkpoint(
     *,
     task: str | None = None,
     effects: str | None = None,
+    adr: str | None = None,
 ) -> None:
     """Writes ``policy`` (an actor from :func:`~sim2real.agents.train`) and its provenance to ``path`` atomically.
 
@@ -134,6 +137,7 @@ def save_checkpoint(
         run_id: id of the training run.
         task: task id it was trained on (checked again on load when given there).
         effects: the training randomisation as YAML text (:func:`sim2real.dump_config`), kept for provenance.
+        adr: the ADR controller's state as JSON (``ADR.to_json()``), saved with the policy it trained.
 
     Raises:
         TypeError: ``policy`` was not built by sim2real.agents, or ``config`` is not a PPO/SAC config.
@@ -162,6 +166,7 @@ def save_checkpoint(
         "versions": _versions(),
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "effects": effects,
+        "adr": adr,
     }
     atomic_write(path, lambda tmp: torch.save(payload, tmp))
 
@@ -241,6 +246,7 @@ def load_checkpoint(path: str | os.PathLike[str], *, task: str | None = None) ->
         created=str(data.get("created", "")),
         path=file,
         effects=data["effects"] if isinstance(data.get("effects"), str) else None,
+        adr=data["adr"] if isinstance(data.get("adr"), str) else None,
     )
 
 
@@ -311,6 +317,8 @@ def _check_fields(data: dict[str, Any], file: Path) -> None:
             raise CheckpointError(f"{where}: `{key}` must be {text}. Received {shown}.")
     if "effects" in data and not isinstance(data["effects"], (str, type(None))):
         raise CheckpointError(f"{where}: `effects` must be a str or None. Received {data['effects']!r}.")
+    if "adr" in data and not isinstance(data["adr"], (str, type(None))):
+        raise CheckpointError(f"{where}: `adr` must be a str or None. Received {data['adr']!r}.")
     for key, low in (("obs_dim", 1), ("seed", 0)):
         if not _is_int(data[key]) or data[key] < low:
             raise CheckpointError(f"{where}: `{key}` must be an int >= {low}. Received {data[key]!r}.")

@@ -96,6 +96,10 @@ class _ConfigBase:
             if f.type in ("float", float) and isinstance(value, str):
                 with contextlib.suppress(ValueError):
                     object.__setattr__(self, f.name, float(value))
+        if getattr(self, "adr", None) is not None:  # imported only then: it loads MuJoCo
+            from sim2real.agents.adr_training import adr_config_text
+
+            object.__setattr__(self, "adr", adr_config_text(self.adr))  # type: ignore[attr-defined]
         self._validate()
 
     def _validate(self) -> None:  # pragma: no cover - overridden
@@ -195,6 +199,9 @@ class PPOConfig(_ConfigBase):
         bc_frames: env steps of the baseline recorded for the warm start (not counted in ``frames``; on the
             training env, so under its randomisation); 0 disables it.
         bc_epochs: passes of mean-squared-error regression of the actor's deterministic action on them.
+        adr: automatic domain randomisation for the run: YAML of an ADR config (``effects`` with Uniform or
+            LogUniform hard limits, ``delta``, ``t_low``, ``t_high``, optional ``p_boundary``, ``m``, ``metric``,
+            ``initial``; see :meth:`randomizers.ADR.from_config`), stored canonicalised; None for none.
     """
 
     algo: ClassVar[str] = "ppo"
@@ -218,6 +225,7 @@ class PPOConfig(_ConfigBase):
     bc_baseline: str | None = None
     bc_frames: int = 0
     bc_epochs: int = 20
+    adr: str | None = None
 
     def _validate(self) -> None:
         _positive_int("frames", self.frames)
@@ -276,6 +284,9 @@ class SACConfig(_ConfigBase):
         reward_scale: rewards are multiplied by this before learning (logged returns stay unscaled).
         obs_norm_frames: random-action steps (not counted in ``frames``) whose observation mean and standard
             deviation (floored at 0.01) fix the networks' input normalisation; 0 disables it.
+        adr: automatic domain randomisation for the run: YAML of an ADR config (``effects`` with Uniform or
+            LogUniform hard limits, ``delta``, ``t_low``, ``t_high``, optional ``p_boundary``, ``m``, ``metric``,
+            ``initial``; see :meth:`randomizers.ADR.from_config`), stored canonicalised; None for none.
     """
 
     algo: ClassVar[str] = "sac"
@@ -295,6 +306,7 @@ class SACConfig(_ConfigBase):
     init_log_std: float = 0.0
     reward_scale: float = 1.0
     obs_norm_frames: int = 2_000
+    adr: str | None = None
 
     def _validate(self) -> None:
         _positive_int("frames", self.frames)

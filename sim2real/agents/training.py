@@ -45,6 +45,8 @@ class TrainResult:
         task: task id, or None when an env object was given without a gymnasium ``spec``.
         log_dir: folder of the logger's files, or None without a logger.
         effects: the randomisation trained under, as YAML (:func:`sim2real.dump_config`); None without effects.
+        adr: the ADR controller's final state as JSON (:meth:`randomizers.ADR.to_json`; its ``history`` has the
+            ranges and entropy vs frames), None without ADR.
     """
 
     policy: Any
@@ -57,12 +59,15 @@ class TrainResult:
     task: str | None = None
     log_dir: Path | None = field(default=None)
     effects: str | None = None
+    adr: str | None = None
 
     def save(self, path: str | os.PathLike[str]) -> None:
         """Writes a checkpoint (see :func:`~sim2real.agents.save_checkpoint`)."""
         from sim2real.agents.checkpoint import save_checkpoint
 
-        save_checkpoint(path, self.policy, self.config, self.seed, self.run_id, task=self.task, effects=self.effects)
+        save_checkpoint(
+            path, self.policy, self.config, self.seed, self.run_id, task=self.task, effects=self.effects, adr=self.adr
+        )
 
 
 def _task_id(task_or_env: Any) -> str | None:
@@ -200,6 +205,10 @@ def train(
         log.log_hparams({**config.to_dict(), "seed": seed, "task": task or "", "run_id": run_id})
     if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
         raise ValueError(f"`threads` must be an int >= 1. Received {threads!r}.")
+    from sim2real.agents.adr_training import log_adr, with_adr
+
+    plain, adr = with_adr(effects, config)  # an ADR in effects, or config.adr; logged with every batch
+    effects, log = [*plain, adr] if adr is not None else plain, log_adr(log, adr)
     start = time.perf_counter()
     previous_threads = torch.get_num_threads()
     torch.set_num_threads(threads)
@@ -230,7 +239,8 @@ def train(
         seed=seed,
         task=task,
         log_dir=_logger_dir(log),
-        effects=_effects_text(effects),
+        effects=_effects_text(plain),
+        adr=None if adr is None else adr.to_json(),
     )
 
 
