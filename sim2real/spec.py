@@ -2,7 +2,7 @@
 
 Format (paths are relative to the YAML file; every key but ``task`` and ``policies`` is optional)::
 
-    task: sim2real/arm-reach
+    task: sim2real/arm-reach   # or model: robot.xml (an MJCF file) or env: package.module:factory
     seed: 0
     episodes: 20            # per (policy, simulated condition)
     max_steps: 100          # cap on episode length (default: the task's limit)
@@ -52,8 +52,8 @@ from sim2real.evaluation import Condition, axis_values, grid, measured, nominal,
 __all__ = ["EvaluationSpec", "SpecError", "load_spec"]
 
 _TOP_KEYS = (
-    "task", "seed", "episodes", "max_steps", "batch", "task_options", "policies", "randomized", "real", "sweeps",
-    "grids", "report",
+    "task", "model", "env", "seed", "episodes", "max_steps", "batch", "task_options", "policies", "randomized",
+    "real", "sweeps", "grids", "report",
 )  # fmt: skip
 _REPORT_KEYS = ("title", "confidence", "alpha", "fraction", "statistic", "num_resamples", "fit", "notes")
 
@@ -197,9 +197,12 @@ def load_spec(source: str | os.PathLike[str] | Mapping[str, Any]) -> EvaluationS
     unknown = sorted(set(config) - set(_TOP_KEYS))
     if unknown:
         raise SpecError(f"{where}: keys must be among {list(_TOP_KEYS)}. Received unknown {unknown}.")
-    task = config.get("task")
-    if not isinstance(task, str):
-        raise SpecError(f"{where}: `task` must be a task id such as 'dmc/reacher-easy'. Received {task!r}.")
+    from sim2real.sources import SourceError, source_from_config
+
+    try:  # exactly one of task:, model: (an MJCF file, relative to this YAML) and env: (module:factory)
+        task = source_from_config(config, where, base).id
+    except SourceError as err:
+        raise SpecError(str(err)) from err
     policies_cfg = config.get("policies")
     if not isinstance(policies_cfg, Mapping) or not policies_cfg:
         raise SpecError(f"{where}: `policies` must be a non-empty mapping name -> policy. Received {policies_cfg!r}.")

@@ -130,3 +130,43 @@ def test_train_checks_the_default_log_folder_first(
         "sim2real train: error: --log-dir must be in a writable folder; '.' is not writable. Received 'sim2real_runs'.\n"
     )
     assert list(tmp_path.iterdir()) == []
+
+
+def test_train_evaluate_and_visualize_take_your_own_model(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--model robot.xml reaches train, evaluate (and the spec's `model:`) and visualize; tiny budgets."""
+    from sim2real.agents.checkpoint import load_checkpoint
+    from sysid.synthetic import generate_arm
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "arm.xml").write_text(generate_arm(dof=6, seed=7, actuators="position"))
+    (tmp_path / "tiny.yaml").write_text(
+        "algo: ppo\nframes: 64\nframes_per_batch: 64\nminibatch_size: 32\nepochs: 1\nobs_norm_frames: 16\n"
+        "hidden_sizes: [8]\n"
+    )
+    train = ["train", "--model", "arm.xml", "--agent-config", "tiny.yaml", "--no-log", "--quiet"]
+    assert main([*train, "--out", "arm.pt"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("sim2real train: ppo on arm.xml, 64 frames")
+    assert load_checkpoint("arm.pt").task == f"model:{tmp_path / 'arm.xml'}"
+    assert main(["train", "--model", "missing.xml", "--out", "x.pt", "--no-log"]) == 2
+    assert "sim2real train: error: `--model` 'missing.xml' does not exist" in capsys.readouterr().err
+
+    spec = "episodes: 2\nmax_steps: 10\nbatch: 2\npolicies: {ppo: {checkpoint: arm.pt}}\n"
+    (tmp_path / "eval.yaml").write_text("model: arm.xml\n" + spec)
+    assert main(["evaluate", "--config", "eval.yaml", "--out", "report", "--backend", "serial", "--quiet"]) == 0
+    assert f"1 policy evaluated on model:{tmp_path / 'arm.xml'}" in capsys.readouterr().out
+    assert (tmp_path / "report" / "report.json").is_file()
+    (tmp_path / "both.yaml").write_text("task: sim2real/arm-reach\nmodel: arm.xml\n" + spec)
+    assert main(["evaluate", "--config", "both.yaml", "--out", "r2", "--backend", "serial"]) == 2
+    assert capsys.readouterr().err == (
+        "sim2real evaluate: error: both.yaml: give one of task, model and env. Received task and model.\n"
+    )
+
+    assert main(["visualize", "--model", "arm.xml", "--n", "2", "--size", "24", "--out", "sheet.png"]) == 0
+    assert "wrote sheet.png (2 frames of arm.xml, 0 effect(s)" in capsys.readouterr().out
+    assert main(["visualize", "sim2real/arm-reach", "--model", "arm.xml", "--out", "s.png"]) == 2
+    assert capsys.readouterr().err == (
+        "sim2real visualize: error: give one of --task, --model and --env. Received --task and --model.\n"
+    )

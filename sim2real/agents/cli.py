@@ -29,7 +29,9 @@ def build_parser(prog: str = "sim2real train") -> argparse.ArgumentParser:
         prog=prog,
         description="Train a PPO or SAC policy with TorchRL (optionally under randomisation) and save a checkpoint.",
     )
-    parser.add_argument("--task", required=True, help="task id, e.g. sim2real/arm-reach (see `sim2real tasks`)")
+    from sim2real.cli._common import add_source_arguments
+
+    add_source_arguments(parser, task_help="task id, e.g. sim2real/arm-reach (see `sim2real tasks`)")
     parser.add_argument("--algo", choices=("ppo", "sac"), default="ppo", help="algorithm (default ppo)")
     parser.add_argument("--frames", type=int, default=None, help="environment steps (overrides the agent config)")
     parser.add_argument(
@@ -112,15 +114,20 @@ def cli_train(argv: Sequence[str] | None = None, out: TextIO | None = None) -> i
     path_error = _check_paths(args)
     if path_error is not None:
         return _fail(parser, path_error)
-    try:
-        sim2real.make(args.task).close()
+    from sim2real.sources import SourceError, resolve_source
+
+    try:  # --task, --model robot.xml or --env module:factory (sim2real.sources); the env is built once to check it
+        source = resolve_source(args.task, args.model, args.env)
+        source.make().close()
+    except SourceError as err:
+        return _fail(parser, str(err))
     except (TypeError, ValueError) as err:
         return _fail(parser, f"--task: {err}")
 
     from sim2real.agents.training import train
 
     result = train(
-        args.task,
+        source.id,
         config,
         effects=effects,
         seed=args.seed,
@@ -136,7 +143,7 @@ def cli_train(argv: Sequence[str] | None = None, out: TextIO | None = None) -> i
     first = f"{returns[0]:.3f}" if returns else "n/a"
     last = f"{returns[-1]:.3f}" if returns else "n/a"
     print(
-        f"sim2real train: {args.algo} on {args.task}, {result.frames} frames in {result.wall_time:.1f} s, "
+        f"sim2real train: {args.algo} on {source.label}, {result.frames} frames in {result.wall_time:.1f} s, "
         f"seed {args.seed}, {len(effects)} effect(s)",
         file=out,
     )
