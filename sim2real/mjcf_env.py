@@ -122,7 +122,7 @@ class MjcfEnv(gym.Env[np.ndarray, np.ndarray]):
             )
         except ValueError as err:
             where = repr(self.path) if self.path is not None else "`xml`"
-            raise ValueError(f"{where} is not a valid MJCF model: {str(err).strip()}") from err
+            raise ValueError(f"{where} is not a valid MJCF model: {' '.join(str(err).split())}") from err
         self.model = model
         model.vis.global_.offwidth = max(model.vis.global_.offwidth, self.width)
         model.vis.global_.offheight = max(model.vis.global_.offheight, self.height)

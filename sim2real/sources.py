@@ -286,7 +286,7 @@ def resolve_source(
             mujoco.MjModel.from_xml_path(source.value)
         except ValueError as err:
             raise SourceError(
-                f"`{arguments[1]}` {os.fspath(model)!r} is not a valid MJCF model: {str(err).strip()}"
+                f"`{arguments[1]}` {os.fspath(model)!r} is not a valid MJCF model: {' '.join(str(err).split())}"
             ) from err
         return source
     if not isinstance(env, str):
