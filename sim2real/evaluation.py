@@ -126,12 +126,9 @@ def _release(env: Any, base: Any) -> None:
 def _run_job(job: _Job) -> list[_JobResult]:
     """Runs ``job.count`` episodes of every policy on each of the job's conditions, all envs stepped together."""
     from sim2real.agents.policy import as_policy
-    from sim2real.tasks import make
-    from sim2real.wrapping import wrap
 
     n = job.count
-    params = job.conditions[0].params
-    base = [make(job.task, params=dict(params) if params is not None else None, **job.options) for _ in range(n)]
+    base = [job.conditions[0].base_env(job.task, **job.options) for _ in range(n)]
     seeds = [episode_seed(job.seed, job.first + i) for i in range(n)]
     policies = [(name, as_policy(source, task=job.task)) for name, source in job.policies]
     out = []
@@ -148,7 +145,7 @@ def _run_job(job: _Job) -> list[_JobResult]:
                 finally:
                     worlds.close()
                 continue
-            envs = [wrap(b, *cond.effects, seed=job.seed) if cond.effects else b for b in base]
+            envs = [cond.wrap(b, seed=job.seed) for b in base]
             try:
                 out.append(_episodes(job, cond, envs, seeds, policies))
             finally:
@@ -177,6 +174,7 @@ def _batched_episodes(
     n = worlds.num_envs
     returns: dict[str, np.ndarray] = {}
     lengths: dict[str, np.ndarray] = {}
+    successes: dict[str, np.ndarray] = {}
     draws: dict[str, np.ndarray] = {}
     steps = 0
     for p, (name, policy) in enumerate(policies):
@@ -186,18 +184,22 @@ def _batched_episodes(
         total = np.zeros(n)
         length = np.zeros(n, dtype=np.int64)
         done = np.zeros(n, dtype=bool)
+        success = np.zeros(n, dtype=bool)
         t = 0
         while not done.all() and (job.max_steps is None or t < job.max_steps):
             active = ~done
             obs, reward, terminated, truncated, _ = worlds.step(policy(obs), mask=active)
             total += reward  # 0.0 where a world is done, as the per-env loop leaves those sums untouched
             length += active
+            success = np.where(active, terminated, success)  # a task's is_success is its termination
             done |= terminated | truncated
             t += 1
         steps += int(length.sum())
         returns[name] = total
         lengths[name] = length
-    return _JobResult(cond.name, job.first, returns, lengths, {}, draws, steps, engine="batched")
+        if worlds.kernel.reports_success:
+            successes[name] = success
+    return _JobResult(cond.name, job.first, returns, lengths, successes, draws, steps, engine="batched")
 
 
 def _single_torch_thread() -> Callable[[], None]:

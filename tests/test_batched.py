@@ -15,6 +15,9 @@ from sim2real.batched import BatchedVectorEnv, make_batched, supports
 
 # A short time limit (0.3 s = 15 control steps) so episodes end, and the next one starts, inside the test.
 SHORT = {"time_limit": 0.3}
+OPTIONS = {"dmc/reacher-easy": SHORT, "dmc/reacher-hard": SHORT, "sim2real/arm-reach": {"max_episode_steps": 15}}
+# Actions a little beyond the action space: both paths clamp them (MuJoCo's ctrlrange, arm-reach's MAX_DELTA).
+ACTION_SCALE = {"dmc/reacher-easy": 1.5, "dmc/reacher-hard": 1.5, "sim2real/arm-reach": 0.08}
 
 
 def _effects(kind: int) -> list:
@@ -34,8 +37,9 @@ def _effects(kind: int) -> list:
 def _compare(task: str, seed: int, kind: int, episodes: int, num: int = 3) -> int:
     """Steps the batched worlds and their single twins with the same actions; returns the steps compared."""
     effects = _effects(kind)
-    batched = make_batched(task, num, *effects, seed=seed, **SHORT)
-    singles = [s2r.wrap(s2r.make(task, **SHORT), *effects, seed=(seed, i)) for i in range(num)]
+    options, scale = OPTIONS[task], ACTION_SCALE[task]
+    batched = make_batched(task, num, *effects, seed=seed, **options)
+    singles = [s2r.wrap(s2r.make(task, **options), *effects, seed=(seed, i)) for i in range(num)]
     rng = np.random.default_rng(seed)
     compared = 0
     try:
@@ -52,16 +56,18 @@ def _compare(task: str, seed: int, kind: int, episodes: int, num: int = 3) -> in
                     assert params[key][i] == value, key  # bitwise, the same draw
             ended = np.zeros(num, bool)
             while not ended.all():
-                # Out-of-range actions too: MuJoCo clamps them in both paths.
-                actions = rng.uniform(-1.5, 1.5, (num, batched.action_dim)).astype(np.float32)
+                actions = rng.uniform(-scale, scale, (num, batched.action_dim)).astype(np.float32)
                 obs, reward, terminated, truncated, diverged = batched.step(actions)
                 for i, env in enumerate(singles):
                     o, r, te, tr, info = env.step(actions[i])
                     assert np.array_equal(o, obs[i]), (episode, i)
                     assert r == reward[i] and te == terminated[i] and tr == truncated[i]
                     assert bool(info["sim2real"]["diverged"]) == diverged[i]
+                    if "is_success" in info:
+                        assert info["is_success"] == terminated[i]
                     compared += 1
-                ended = terminated | truncated
+                # A world that ended keeps stepping here (its single twin too): the engine steps whole batches.
+                ended |= terminated | truncated
             assert (batched.steps == 15).all()
     finally:
         batched.close()
@@ -72,7 +78,15 @@ def _compare(task: str, seed: int, kind: int, episodes: int, num: int = 3) -> in
 
 @pytest.mark.parametrize(
     ("task", "seed", "kind"),
-    [("dmc/reacher-easy", 0, 0), ("dmc/reacher-easy", 3, 1), ("dmc/reacher-hard", 11, 2), ("dmc/reacher-easy", 5, 2)],
+    [
+        ("dmc/reacher-easy", 0, 0),
+        ("dmc/reacher-easy", 3, 1),
+        ("dmc/reacher-hard", 11, 2),
+        ("dmc/reacher-easy", 5, 2),
+        ("sim2real/arm-reach", 0, 0),
+        ("sim2real/arm-reach", 4, 1),
+        ("sim2real/arm-reach", 9, 2),
+    ],
 )
 def test_each_world_is_bitwise_its_single_env(task: str, seed: int, kind: int) -> None:
     assert _compare(task, seed, kind, episodes=3) == 3 * 3 * 15
@@ -234,3 +248,22 @@ def test_torchrl_env_passes_check_env_specs_and_matches_the_single_envs() -> Non
     env.close()
     for single in singles:
         single.close()
+
+
+def test_evaluate_arm_reach_successes_and_early_ends_are_byte_identical() -> None:
+    from sim2real.agents import ReachController
+    from sim2real.evaluation import evaluate, nominal, randomized
+
+    conditions = [
+        nominal(),
+        randomized([s2r.Damping(scale=s2r.Uniform(0.5, 2.0)), s2r.Mass(scale=s2r.Uniform(0.8, 1.2))]),
+    ]
+    policies = {"reach": ReachController(), "zero": lambda o: np.zeros(3)}
+    kwargs = {"episodes": 4, "seed": 1, "max_steps": 60, "batch": 3}
+    auto = evaluate(policies, "sim2real/arm-reach", conditions, **kwargs)
+    per_env = evaluate(policies, "sim2real/arm-reach", conditions, engine="per-env", **kwargs)
+    assert set(auto.engines.values()) == {"batched"}
+    assert auto.to_json() == per_env.to_json()
+    # Episodes that succeed end early (terminated): lengths differ between worlds of one batch.
+    assert auto.successes["reach"]["sim"].any() and not auto.successes["zero"]["sim"].any()
+    assert len(set(auto.lengths["reach"]["sim"].tolist())) > 1

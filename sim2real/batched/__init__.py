@@ -14,8 +14,8 @@ Example:
 
 from __future__ import annotations
 
-from sim2real.batched.engine import OPTIONS, BatchedEnv, make_batched, supports
+from sim2real.batched.engine import BatchedEnv, make_batched, supports
 from sim2real.batched.kernels import KERNELS, Kernel, kernel_for
 from sim2real.batched.vector import BatchedVectorEnv
 
-__all__ = ["KERNELS", "OPTIONS", "BatchedEnv", "BatchedVectorEnv", "Kernel", "kernel_for", "make_batched", "supports"]
+__all__ = ["KERNELS", "BatchedEnv", "BatchedVectorEnv", "Kernel", "kernel_for", "make_batched", "supports"]

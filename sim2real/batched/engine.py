@@ -38,13 +38,9 @@ import numpy as np
 
 from sim2real.batched.kernels import KERNELS, Kernel, kernel_for
 
-__all__ = ["OPTIONS", "BatchedEnv", "make_batched", "supports"]
+__all__ = ["BatchedEnv", "make_batched", "supports"]
 
 _STATE_SPEC = int(mujoco.mjtState.mjSTATE_TIME | mujoco.mjtState.mjSTATE_QPOS | mujoco.mjtState.mjSTATE_QVEL)
-
-
-#: ``sim2real.make`` options a batched world may take (the others change what the kernels compute).
-OPTIONS = ("time_limit",)
 
 
 def supports(task: Any, *effects: Any, options: Mapping[str, Any] | None = None) -> str | None:
@@ -62,9 +58,10 @@ def supports(task: Any, *effects: Any, options: Mapping[str, Any] | None = None)
 
     if not isinstance(task, str) or task not in KERNELS:
         return f"no batched kernel for task {task!r}"
-    unknown = sorted(set(options or {}) - set(OPTIONS))
+    allowed = KERNELS[task]().options
+    unknown = sorted(set(options or {}) - set(allowed))
     if unknown:
-        return f"task options {unknown} are not batched (allowed: {list(OPTIONS)})"
+        return f"task options {unknown} are not batched (allowed: {list(allowed)})"
     for effect in _flatten(effects):
         if not isinstance(effect, Effect):
             return f"signal models ({type(effect).__name__}) are not batched yet"
@@ -93,7 +90,7 @@ class BatchedEnv:
             reuses its envs across conditions); :meth:`close` then releases them, restored and still open.
         stream_seeds: the root seed of each world's streams instead of ``(seed, i)`` (evaluation wraps every
             env with its own root seed and tells episodes apart by reset seed).
-        options: keyword arguments for :func:`sim2real.make` (only :data:`OPTIONS`).
+        options: keyword arguments for :func:`sim2real.make` (those the task's kernel lists in ``options``).
 
     Attributes:
         num_envs: N.
@@ -142,27 +139,35 @@ class BatchedEnv:
         handles = [find_physics(env) for env in self.envs]
         self.models = [h.model for h in handles]  # type: ignore[union-attr]
         self.datas = [h.data for h in handles]  # type: ignore[union-attr]
-        adapter = self.envs[0].unwrapped
-        dm = adapter.dm_env
-        self._n_sub = int(dm._n_sub_steps)
-        self.step_limit: float = float(dm._step_limit)
-        legacy = bool(getattr(dm.physics, "legacy_step", True))
-        rk4 = self.models[0].opt.integrator == mujoco.mjtIntegrator.mjINT_RK4
-        # dm-control's step: Euler-type integrators finish the step mj_step1 already began (mj_step2), then
-        # take the remaining substeps whole and end with mj_step1 so the data is in sync with the new state.
-        self._split_step = legacy and not rk4
-        self._sync_after = legacy
+        kernel = self.kernel
+        self._n_sub = kernel.substeps(self.envs[0])
+        self.step_limit: float = kernel.step_limit(self.envs[0])
         m0 = self.models[0]
+        if kernel.scheme == "dm_control":
+            legacy = bool(getattr(self.envs[0].unwrapped.dm_env.physics, "legacy_step", True))
+            rk4 = m0.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4
+            # dm-control's step: Euler-type integrators finish the step mj_step1 already began (mj_step2), then
+            # take the remaining substeps whole and end with mj_step1 so the data is in sync with the new state.
+            self._split_step, self._sync_after, self._forward_after = legacy and not rk4, legacy, False
+        else:
+            self._split_step, self._sync_after, self._forward_after = False, False, True
+        self._site = (
+            -1
+            if kernel.jacobian_site is None
+            else mujoco.mj_name2id(m0, mujoco.mjtObj.mjOBJ_SITE, kernel.jacobian_site)
+        )
         self._nq, self._nv = m0.nq, m0.nv
         self._state = np.zeros((n, 1 + m0.nq + m0.nv))
         self._ctrl = [d.ctrl for d in self.datas]
-        self._gathered = {f: np.zeros((n, *getattr(self.datas[0], f).shape)) for f in self.kernel.fields}
-        self._views = {f: [getattr(d, f) for d in self.datas] for f in self.kernel.fields}
+        self._gathered = {f: np.zeros((n, *getattr(self.datas[0], f).shape)) for f in kernel.fields}
+        self._views = {f: [getattr(d, f) for d in self.datas] for f in kernel.fields}
+        if self._site >= 0:
+            self._gathered["jacobian"] = np.zeros((n, 3, m0.nv))
         self._obs = np.zeros((n, self.kernel.obs_dim), np.float32)
         self._steps = np.zeros(n, np.int64)
         self._reset_diverged = np.zeros(n, bool)
         self._diverged = np.zeros(n, bool)
-        self._action_dim = m0.nu
+        self._action_dim = int(np.prod(self.envs[0].action_space.shape))
         self.params: dict[str, np.ndarray] = {}
         self._world_params: list[dict[str, float]] = [{} for _ in range(n)]
         self._closed = False
@@ -213,7 +218,12 @@ class BatchedEnv:
             self._world_params[i] = report["params"]
             self._reset_diverged[i] = self._diverged[i] = bool(report["diverged"])
             self._steps[i] = 0
-            mujoco.mj_getState(self.models[i], self.datas[i], self._state[i], _STATE_SPEC)
+            m, d = self.models[i], self.datas[i]
+            mujoco.mj_getState(m, d, self._state[i], _STATE_SPEC)
+            for field, views in self._views.items():
+                self._gathered[field][i] = views[i]
+            if self._site >= 0:
+                mujoco.mj_jacSite(m, d, self._gathered["jacobian"][i], None, self._site)
         self.kernel.bind(self.models, self.envs)
         keys = sorted({k for p in self._world_params for k in p})
         self.params = {k: np.array([p.get(k, math.nan) for p in self._world_params]) for k in keys}
@@ -244,11 +254,20 @@ class BatchedEnv:
         active &= ~self._reset_diverged
         before = self._state[:, 0].copy()
         models, datas, ctrl, state = self.models, self.datas, self._ctrl, self._state
-        views = [(self._gathered[f], self._views[f]) for f in self.kernel.fields]
-        split, sync, n_sub = self._split_step, self._sync_after, self._n_sub
+        gathered, kernel = self._gathered, self.kernel
+        controls = kernel.controls(actions, state[:, 1 : 1 + self._nq], gathered)
+        views = [(gathered[f], self._views[f]) for f in kernel.fields]
+        split, sync, forward, n_sub, site = (
+            self._split_step,
+            self._sync_after,
+            self._forward_after,
+            self._n_sub,
+            self._site,
+        )
+        jacobian = gathered.get("jacobian")
         for i in np.flatnonzero(active).tolist():
             m, d = models[i], datas[i]
-            ctrl[i][:] = actions[i]
+            ctrl[i][:] = controls[i]
             if split:
                 mujoco.mj_step2(m, d)
                 if n_sub > 1:
@@ -257,23 +276,29 @@ class BatchedEnv:
                 mujoco.mj_step(m, d, n_sub)
             if sync:
                 mujoco.mj_step1(m, d)
+            if forward:
+                mujoco.mj_forward(m, d)
             mujoco.mj_getState(m, d, state[i], _STATE_SPEC)
             for buffer, view in views:
                 buffer[i] = view[i]
+            if site >= 0:
+                mujoco.mj_jacSite(m, d, jacobian[i], None, site)  # type: ignore[index]
         qpos = state[:, 1 : 1 + self._nq]
         qvel = state[:, 1 + self._nq :]
-        # MuJoCo resets a world whose positions, velocities or accelerations went bad (its clock restarts):
-        # dm-control raises PhysicsError there, and the adapter ends the episode with the last observation.
+        # MuJoCo resets a world whose positions, velocities or accelerations went bad (its clock restarts).
+        # dm-control raises PhysicsError there and the adapter ends the episode with reward 0; a gymnasium env's
+        # own step returns what it computes, and RandomizePhysics ends the episode. Both keep the last observation.
         diverged = active & (state[:, 0] < before)
-        fresh = self.kernel.observe(qpos, qvel, self._gathered)
+        fresh, reward, terminated = kernel.outputs(qpos, qvel, gathered)
         keep = active & ~diverged
         self._obs[keep] = fresh[keep]
-        reward = np.where(keep, self.kernel.reward(qpos, qvel, self._gathered), 0.0)
+        paid = keep if kernel.diverged_reward == "zero" else active
+        reward = np.where(paid, reward, 0.0)
+        terminated = terminated & paid
         self._steps[active] += 1
         truncated = (keep & (self._steps >= self.step_limit)) | diverged | stuck
         self._diverged |= diverged
         self._reset_diverged &= ~stuck
-        terminated = np.zeros(n, bool)
         return self._obs.copy(), reward, terminated, truncated, self._diverged & (diverged | stuck)
 
     def _check_open(self) -> None:

@@ -1,18 +1,21 @@
-"""Per-task observation and reward kernels of the batched engine: what a task computes from its physics, for all
-worlds in one numpy operation per step.
+"""Per-task kernels of the batched engine: what a task computes around its physics, for all worlds at once.
 
-A kernel names the per-world MjData arrays it reads (:attr:`Kernel.fields`); the engine copies them, once per
-step and world, into preallocated ``(N, ...)`` buffers, and the kernel turns those buffers into the observation,
-reward and termination of every world at once. Each kernel repeats its task's arithmetic operation for operation
-(same operands, same order, float64 until the adapter's float32 cast), so a world's values are bitwise those of
-the single env; ``tests/test_batched.py`` checks it episode by episode.
+A kernel says how a control step advances one world (the C calls, in the task's order: :attr:`Kernel.scheme`),
+which per-world MjData arrays it reads (:attr:`Kernel.fields`; the engine copies them into preallocated
+``(N, ...)`` buffers after every step), how actions become controls (:meth:`Kernel.controls`) and how the
+buffers become observations, rewards and terminations (:meth:`Kernel.outputs`), each one numpy operation over
+all worlds. Every kernel repeats its task's arithmetic operation for operation (same operands, same order,
+float64 until the float32 observation cast), so each world's values are bitwise those of the single env;
+``tests/test_batched.py`` checks it episode by episode. Batched and per-row numpy agree bitwise on what the
+kernels use (``sqrt`` of the explicit sum of squares vs ``np.linalg.norm``; stacked ``matmul`` and
+``linalg.solve`` vs one matrix at a time), checked on random inputs and end to end.
 
 Example:
     >>> from sim2real.batched.kernels import KERNELS, kernel_for
     >>> sorted(KERNELS)
-    ['dmc/reacher-easy', 'dmc/reacher-hard']
-    >>> kernel_for("dmc/reacher-easy").obs_dim
-    6
+    ['dmc/reacher-easy', 'dmc/reacher-hard', 'sim2real/arm-reach']
+    >>> kernel_for("sim2real/arm-reach").obs_dim
+    16
 """
 
 from __future__ import annotations
@@ -23,42 +26,64 @@ from typing import Any
 import mujoco
 import numpy as np
 
-__all__ = ["KERNELS", "Kernel", "ReacherKernel", "kernel_for"]
+__all__ = ["KERNELS", "ArmReachKernel", "Kernel", "ReacherKernel", "kernel_for"]
+
+Outputs = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 class Kernel:
-    """What the engine needs from a task: which arrays to gather, and the vectorised observation and reward.
+    """What the engine needs from a task.
 
     Attributes:
         obs_dim: length of the flat float32 observation.
         fields: MjData attribute names gathered per world after every step (``(N, *shape)`` buffers).
+        scheme: ``"dm_control"`` (dm-control's legacy step: ``mj_step2``, further substeps, ``mj_step1``) or
+            ``"forward"`` (``mj_step`` over the substeps, then ``mj_forward``).
+        jacobian_site: a site whose translational Jacobian is computed per world after every step and reset
+            (``gathered["jacobian"]``, ``(N, 3, nv)``), or None.
+        diverged_reward: the reward of a step whose physics diverged: ``"zero"`` (dm-control adapter) or
+            ``"computed"`` (gymnasium envs: the env's own reward of the state MuJoCo fell back to).
+        reports_success: whether the single env reports ``info["is_success"]`` (then equal to ``terminated``).
+        options: the :func:`sim2real.make` options a batched world may take (others change what is computed).
     """
 
+    options: tuple[str, ...] = ()
     obs_dim: int = 0
     fields: tuple[str, ...] = ()
+    scheme: str = "dm_control"
+    jacobian_site: str | None = None
+    diverged_reward: str = "zero"
+    reports_success: bool = False
 
     def bind(self, models: Sequence[mujoco.MjModel], envs: Sequence[Any]) -> None:
         """Reads what stays fixed over an episode (called after every reset of any world)."""
 
-    def observe(self, qpos: np.ndarray, qvel: np.ndarray, gathered: dict[str, np.ndarray]) -> np.ndarray:
-        """``(N, obs_dim)`` float32 observations from the gathered ``(N, ...)`` arrays."""
-        raise NotImplementedError
+    def substeps(self, env: Any) -> int:
+        """Physics steps per control step of the single env ``env``."""
+        return int(env.unwrapped.dm_env._n_sub_steps)
 
-    def reward(self, qpos: np.ndarray, qvel: np.ndarray, gathered: dict[str, np.ndarray]) -> np.ndarray:
-        """``(N,)`` float64 rewards."""
+    def step_limit(self, env: Any) -> float:
+        """Control steps after which the single env truncates its episode."""
+        return float(env.unwrapped.dm_env._step_limit)
+
+    def controls(self, actions: np.ndarray, qpos: np.ndarray, gathered: dict[str, np.ndarray]) -> np.ndarray:
+        """``(N, nu)`` float64 controls written to ``data.ctrl`` from ``(N, action_dim)`` float64 actions."""
+        return actions
+
+    def outputs(self, qpos: np.ndarray, qvel: np.ndarray, gathered: dict[str, np.ndarray]) -> Outputs:
+        """``(obs, reward, terminated)``: ``(N, obs_dim)`` float32, ``(N,)`` float64, ``(N,)`` bool."""
         raise NotImplementedError
 
 
 class ReacherKernel(Kernel):
     """dm-control ``reacher``: observation ``[position, to_target, velocity]`` and the sparse reward
-    ``1.0 if |finger - target| <= r_target + r_finger else 0.0``.
+    ``1.0 if |finger - target| <= r_target + r_finger else 0.0``; never terminates.
 
-    ``to_target`` is ``geom_xpos[target, :2] - geom_xpos[finger, :2]``; the distance is
-    ``sqrt(dx*dx + dy*dy)``, the arithmetic ``np.linalg.norm`` does on a 2-vector (no fused multiply-add;
-    checked bitwise on 2e4 random vectors), and the radii sum is re-read at every reset (the task writes the
-    target's size in its ``initialize_episode``).
+    ``to_target`` is ``geom_xpos[target, :2] - geom_xpos[finger, :2]``; the radii sum is re-read at every
+    reset (the task writes the target's size in its ``initialize_episode``).
     """
 
+    options = ("time_limit",)
     obs_dim = 6
     fields = ("geom_xpos",)
 
@@ -73,23 +98,72 @@ class ReacherKernel(Kernel):
         sizes = np.stack([m.geom_size for m in models])
         self._radii = sizes[:, self._target, 0] + sizes[:, self._finger, 0]
 
-    def _to_target(self, gathered: dict[str, np.ndarray]) -> np.ndarray:
+    def outputs(self, qpos: np.ndarray, qvel: np.ndarray, gathered: dict[str, np.ndarray]) -> Outputs:
         xpos = gathered["geom_xpos"]
-        return xpos[:, self._target, :2] - xpos[:, self._finger, :2]
-
-    def observe(self, qpos: np.ndarray, qvel: np.ndarray, gathered: dict[str, np.ndarray]) -> np.ndarray:
-        return np.concatenate([qpos, self._to_target(gathered), qvel], axis=1, dtype=np.float32)
-
-    def reward(self, qpos: np.ndarray, qvel: np.ndarray, gathered: dict[str, np.ndarray]) -> np.ndarray:
-        d = self._to_target(gathered)
+        d = xpos[:, self._target, :2] - xpos[:, self._finger, :2]
+        obs = np.concatenate([qpos, d, qvel], axis=1, dtype=np.float32)
         dist = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])
-        return np.where((dist >= 0.0) & (dist <= self._radii), 1.0, 0.0)
+        reward = np.where((dist >= 0.0) & (dist <= self._radii), 1.0, 0.0)  # rewards.tolerance, margin 0
+        return obs, reward, np.zeros(len(obs), bool)
+
+
+class ArmReachKernel(Kernel):
+    """``sim2real/arm-reach``: one damped-least-squares IK step per action (vectorised over worlds), ``mj_step``
+    over 10 substeps then ``mj_forward``; observation ``[ee, target, qpos, qvel]``, reward ``-|ee - target|``,
+    terminated (and ``is_success``) when the distance is below the success threshold."""
+
+    options = ("max_episode_steps", "success_threshold")
+    obs_dim = 16
+    fields = ("site_xpos",)
+    scheme = "forward"
+    jacobian_site = "ee"
+    diverged_reward = "computed"
+    reports_success = True
+
+    def __init__(self) -> None:
+        self._ee = -1
+        self._qpos_idx = self._dof_idx = np.zeros(0, np.int64)
+        self._low = self._high = self._target = self._threshold = np.zeros(0)
+        self._max_delta = 0.0
+        self._damping_eye = np.zeros((3, 3))
+
+    def substeps(self, env: Any) -> int:
+        return int(env.unwrapped.n_substeps)
+
+    def step_limit(self, env: Any) -> float:
+        return float(env.unwrapped.max_episode_steps)
+
+    def bind(self, models: Sequence[mujoco.MjModel], envs: Sequence[Any]) -> None:
+        arm = envs[0].unwrapped
+        self._ee = arm._ee_site
+        self._qpos_idx, self._dof_idx = arm._qpos_idx, arm._dof_idx
+        self._low, self._high = arm._ctrl_low, arm._ctrl_high
+        self._max_delta = arm.MAX_DELTA
+        self._damping_eye = arm._damping_eye
+        self._target = np.stack([env.unwrapped._target_pos for env in envs])
+        self._threshold = np.array([env.unwrapped.success_threshold for env in envs])
+
+    def controls(self, actions: np.ndarray, qpos: np.ndarray, gathered: dict[str, np.ndarray]) -> np.ndarray:
+        dx = np.clip(actions, -self._max_delta, self._max_delta)
+        jac = gathered["jacobian"][:, :, self._dof_idx]
+        jt = jac.transpose(0, 2, 1)
+        solved = np.linalg.solve(jac @ jt + self._damping_eye, dx[:, :, None])
+        dq = (jt @ solved)[:, :, 0]
+        return np.clip(qpos[:, self._qpos_idx] + dq, self._low, self._high)
+
+    def outputs(self, qpos: np.ndarray, qvel: np.ndarray, gathered: dict[str, np.ndarray]) -> Outputs:
+        ee = gathered["site_xpos"][:, self._ee]
+        obs = np.concatenate([ee, self._target, qpos[:, self._qpos_idx], qvel[:, self._dof_idx]], axis=1)
+        d = ee - self._target
+        distance = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
+        return obs.astype(np.float32), -distance, distance < self._threshold
 
 
 #: Task id -> kernel factory: the tasks the batched engine runs (others fall back to per-env stepping).
 KERNELS: dict[str, Callable[[], Kernel]] = {
     "dmc/reacher-easy": ReacherKernel,
     "dmc/reacher-hard": ReacherKernel,
+    "sim2real/arm-reach": ArmReachKernel,
 }
 
 
