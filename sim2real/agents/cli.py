@@ -39,6 +39,12 @@ def build_parser(prog: str = "sim2real train") -> argparse.ArgumentParser:
         default=None,
         help="effects YAML (`effects:` physics randomisation and `signals:` noise/latency); default: none",
     )
+    parser.add_argument(
+        "--adr",
+        default=None,
+        help="automatic domain randomisation YAML (effects with hard limits, delta, t_low, t_high, ...); the "
+        "ranges grow from the nominal point and their final state is saved in the checkpoint",
+    )
     parser.add_argument("--agent-config", default=None, help="PPO/SAC hyperparameters YAML (its `algo` must match)")
     parser.add_argument("--seed", type=int, default=0, help="seed of weights, exploration, env and effects")
     parser.add_argument(
@@ -101,6 +107,13 @@ def cli_train(argv: Sequence[str] | None = None, out: TextIO | None = None) -> i
             config = replace(config, frames=args.frames)
         except ValueError as err:
             return _fail(parser, f"--frames: {err}")
+    if args.adr is not None:
+        try:
+            config = replace(config, adr=Path(args.adr).read_text(encoding="utf-8"))
+        except OSError as err:
+            return _fail(parser, f"--adr: cannot read {args.adr!r}: {err.strerror or err}.")
+        except ValueError as err:
+            return _fail(parser, f"--adr: {str(err).removeprefix('`adr`: ')}")
     effects: list[Any] = []
     if args.config is not None:
         import sim2real
