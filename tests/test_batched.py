@@ -15,9 +15,16 @@ from sim2real.batched import BatchedVectorEnv, make_batched, supports
 
 # A short time limit (0.3 s = 15 control steps) so episodes end, and the next one starts, inside the test.
 SHORT = {"time_limit": 0.3}
-OPTIONS = {"dmc/reacher-easy": SHORT, "dmc/reacher-hard": SHORT, "sim2real/arm-reach": {"max_episode_steps": 15}}
+OPTIONS = {
+    "dmc/reacher-easy": SHORT,
+    "dmc/reacher-hard": SHORT,
+    "sim2real/arm-reach": {"max_episode_steps": 15},
+    "dmc/manipulator-bring_ball": {"time_limit": 0.15},  # 15 steps of 0.01 s
+    "dmc/manipulator-bring_peg": {"time_limit": 0.15},
+    "dmc/manipulator-insert_ball": {"time_limit": 0.15},
+}
 # Actions a little beyond the action space: both paths clamp them (MuJoCo's ctrlrange, arm-reach's MAX_DELTA).
-ACTION_SCALE = {"dmc/reacher-easy": 1.5, "dmc/reacher-hard": 1.5, "sim2real/arm-reach": 0.08}
+ACTION_SCALE = {"sim2real/arm-reach": 0.08}
 
 
 def _effects(kind: int) -> list:
@@ -37,7 +44,7 @@ def _effects(kind: int) -> list:
 def _compare(task: str, seed: int, kind: int, episodes: int, num: int = 3) -> int:
     """Steps the batched worlds and their single twins with the same actions; returns the steps compared."""
     effects = _effects(kind)
-    options, scale = OPTIONS[task], ACTION_SCALE[task]
+    options, scale = OPTIONS[task], ACTION_SCALE.get(task, 1.5)
     batched = make_batched(task, num, *effects, seed=seed, **options)
     singles = [s2r.wrap(s2r.make(task, **options), *effects, seed=(seed, i)) for i in range(num)]
     rng = np.random.default_rng(seed)
@@ -86,6 +93,10 @@ def _compare(task: str, seed: int, kind: int, episodes: int, num: int = 3) -> in
         ("sim2real/arm-reach", 0, 0),
         ("sim2real/arm-reach", 4, 1),
         ("sim2real/arm-reach", 9, 2),
+        ("dmc/manipulator-bring_ball", 0, 0),
+        ("dmc/manipulator-bring_ball", 2, 1),
+        ("dmc/manipulator-bring_peg", 7, 2),
+        ("dmc/manipulator-insert_ball", 8, 1),
     ],
 )
 def test_each_world_is_bitwise_its_single_env(task: str, seed: int, kind: int) -> None:

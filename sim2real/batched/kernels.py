@@ -12,8 +12,8 @@ kernels use (``sqrt`` of the explicit sum of squares vs ``np.linalg.norm``; stac
 
 Example:
     >>> from sim2real.batched.kernels import KERNELS, kernel_for
-    >>> sorted(KERNELS)
-    ['dmc/reacher-easy', 'dmc/reacher-hard', 'sim2real/arm-reach']
+    >>> sorted(KERNELS)[:3]
+    ['dmc/manipulator-bring_ball', 'dmc/manipulator-bring_peg', 'dmc/manipulator-insert_ball']
     >>> kernel_for("sim2real/arm-reach").obs_dim
     16
 """
@@ -26,7 +26,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-__all__ = ["KERNELS", "ArmReachKernel", "Kernel", "ReacherKernel", "kernel_for"]
+__all__ = ["KERNELS", "ArmReachKernel", "Kernel", "ManipulatorKernel", "ReacherKernel", "kernel_for"]
 
 Outputs = tuple[np.ndarray, np.ndarray, np.ndarray]
 
@@ -159,11 +159,101 @@ class ArmReachKernel(Kernel):
         return obs.astype(np.float32), -distance, distance < self._threshold
 
 
+class ManipulatorKernel(Kernel):
+    """dm-control ``manipulator`` (bring/insert, ball/peg; fully observable): observation ``[arm_pos (sin, cos
+    per joint), arm_vel, touch, hand_pos, object_pos, object_vel, target_pos]``; the task's shaped reward through
+    dm-control's own ``rewards.tolerance`` on ``(N,)`` arrays; never terminates. Names are resolved once, so no
+    step goes through dm-control's named indexer."""
+
+    options = ("time_limit",)
+    obs_dim = 44
+    fields = ("xpos", "xquat", "site_xpos", "sensordata")
+
+    def __init__(self, use_peg: bool) -> None:
+        self._use_peg = use_peg
+        self._ids: dict[str, Any] = {}
+
+    def bind(self, models: Sequence[mujoco.MjModel], envs: Sequence[Any]) -> None:
+        from dm_control.suite import manipulator
+
+        m = models[0]
+
+        def ids(kind: mujoco.mjtObj, names: Sequence[str]) -> np.ndarray:
+            return np.array([mujoco.mj_name2id(m, kind, name) for name in names])
+
+        obj = "peg" if self._use_peg else "ball"
+        arm = ids(mujoco.mjtObj.mjOBJ_JOINT, manipulator._ARM_JOINTS)
+        obj_joints = ids(mujoco.mjtObj.mjOBJ_JOINT, [f"{obj}_{d}" for d in "xzy"])
+        bodies = ids(mujoco.mjtObj.mjOBJ_BODY, ["hand", obj, "target_peg" if self._use_peg else "target_ball"])
+        sites = ids(mujoco.mjtObj.mjOBJ_SITE, self._site_names())
+        touch = ids(mujoco.mjtObj.mjOBJ_SENSOR, manipulator._TOUCH_SENSORS)
+        self._ids = {
+            "arm_q": m.jnt_qposadr[arm],
+            "arm_v": m.jnt_dofadr[arm],
+            "obj_v": m.jnt_dofadr[obj_joints],
+            "bodies": bodies,
+            "sites": sites,
+            "touch": m.sensor_adr[touch],
+            "close": manipulator._CLOSE,
+        }
+
+    def _site_names(self) -> list[str]:
+        if self._use_peg:  # (site1, site2) pairs of site_distance, in _peg_reward's order
+            return ["peg_grasp", "grasp", "peg_pinch", "pinch", "peg", "target_peg", "target_peg_tip", "peg_tip"]
+        return ["ball", "target_ball"]
+
+    def _pose(self, xpos: np.ndarray, xquat: np.ndarray, body: int) -> np.ndarray:
+        return np.concatenate([xpos[:, body][:, [0, 2]], xquat[:, body][:, [0, 2]]], axis=1)
+
+    def outputs(self, qpos: np.ndarray, qvel: np.ndarray, gathered: dict[str, np.ndarray]) -> Outputs:
+        from dm_control.utils import rewards
+
+        ids = self._ids
+        n = len(qpos)
+        joint_pos = qpos[:, ids["arm_q"]]
+        arm_pos = np.stack([np.sin(joint_pos), np.cos(joint_pos)], axis=2).reshape(n, -1)
+        xpos, xquat = gathered["xpos"], gathered["xquat"]
+        hand, obj, target = ids["bodies"]
+        obs = np.concatenate(
+            [
+                arm_pos,
+                qvel[:, ids["arm_v"]],
+                np.log1p(gathered["sensordata"][:, ids["touch"]]),
+                self._pose(xpos, xquat, hand),
+                self._pose(xpos, xquat, obj),
+                qvel[:, ids["obj_v"]],
+                self._pose(xpos, xquat, target),
+            ],
+            axis=1,
+            dtype=np.float32,
+        )
+        site_xpos = gathered["site_xpos"]
+        close = ids["close"]
+
+        def is_close(pair: int) -> np.ndarray:
+            a, b = ids["sites"][2 * pair], ids["sites"][2 * pair + 1]
+            d = site_xpos[:, a] - site_xpos[:, b]
+            distance = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
+            return np.asarray(rewards.tolerance(distance, (0, close), close * 2))
+
+        if self._use_peg:
+            grasping = (is_close(0) + is_close(1)) / 2
+            bringing = (is_close(2) + is_close(3)) / 2
+            reward = np.maximum(bringing, grasping / 3)
+        else:
+            reward = is_close(0)
+        return obs, reward, np.zeros(n, bool)
+
+
 #: Task id -> kernel factory: the tasks the batched engine runs (others fall back to per-env stepping).
 KERNELS: dict[str, Callable[[], Kernel]] = {
     "dmc/reacher-easy": ReacherKernel,
     "dmc/reacher-hard": ReacherKernel,
     "sim2real/arm-reach": ArmReachKernel,
+    "dmc/manipulator-bring_ball": lambda: ManipulatorKernel(use_peg=False),
+    "dmc/manipulator-insert_ball": lambda: ManipulatorKernel(use_peg=False),
+    "dmc/manipulator-bring_peg": lambda: ManipulatorKernel(use_peg=True),
+    "dmc/manipulator-insert_peg": lambda: ManipulatorKernel(use_peg=True),
 }
 
 
