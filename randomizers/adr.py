@@ -42,7 +42,7 @@ import numpy as np
 
 from randomizers.config import effect_to_config, load_effects
 from randomizers.distributions import LogUniform, Uniform
-from randomizers.effects import Effect
+from randomizers.effects import ArrayEffect, Effect
 
 __all__ = ["ADR", "METRICS", "ADRHistory", "Episode", "EpisodeResult", "Pin"]
 
@@ -191,7 +191,8 @@ Received Gravity(add=Normal(mean=0.0, std=0.1), axes='xyz').
             if not isinstance(effect, Effect):
                 raise TypeError(f"`effects[{i}]` of ADR must be a physics effect. Received {effect!r}.")
             dist = getattr(effect, "distribution", None)
-            if type(dist) not in (Uniform, LogUniform) or not hasattr(effect, "operation"):
+            # One distribution over one model array: the effects whose bounds a range can replace.
+            if type(dist) not in (Uniform, LogUniform) or not isinstance(effect, ArrayEffect):
                 raise ValueError(
                     f"`effects[{i}]` of ADR must draw from Uniform or LogUniform (ADR moves their bounds). "
                     f"Received {effect!r}."

@@ -438,3 +438,24 @@ def test_cli_train_adr_errors_exit_2_with_one_line(tmp_path: Any, capsys: Any) -
     assert err == "sim2real train: error: --adr: `p_boundary` of ADR must be in [0, 1]. Received 2.0."
     code = main(["train", "--task", "sim2real/arm-reach", "--adr", str(tmp_path / "no.yaml"), "--out", "p.pt"])
     assert code == 2 and "--adr: cannot read" in capsys.readouterr().err
+
+
+def test_api_checkers_pass_with_adr() -> None:
+    from gymnasium.utils.env_checker import check_env
+    from torchrl.envs import DMControlEnv
+    from torchrl.envs.utils import check_env_specs
+
+    from randomizers import Correlated, MultivariateNormal
+
+    env = sim2real.wrap(Slider(goal=distance(THRESHOLD)), Mass(scale=Uniform(0.5, 1.5)), adr=slider_adr(), seed=0)
+    check_env(env, skip_render_check=True)
+    tenv = sim2real.wrap(DMControlEnv("reacher", "easy"), adr=slider_adr_reacher(), seed=0)
+    check_env_specs(tenv)
+    tenv.close()
+    joint = Correlated(["dof_damping[slide]"], MultivariateNormal((1.0,), ((0.01,),)))
+    with pytest.raises(ValueError, match=r"`effects\[0\]` of ADR must draw from Uniform or LogUniform"):
+        ADR([joint], delta=0.1, t_low=0.1, t_high=0.9)
+
+
+def slider_adr_reacher() -> ADR:
+    return ADR([Damping(scale=Uniform(0.0, 4.0)), Mass(scale=LogUniform(0.5, 2.0))], delta=0.1, t_low=0.1, t_high=0.9)
