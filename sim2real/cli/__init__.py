@@ -41,7 +41,8 @@ def main(argv: list[str] | None = None) -> int:
         argv: arguments without the program name (default ``sys.argv[1:]``).
 
     Returns:
-        The exit code: 0 on success, 2 on a usage error or bad input.
+        The exit code: 0 on success, 2 on a usage error or bad input, 3 when ``sysid fit`` finds that the fitted
+        model cannot reproduce the log (the fit is written but not exported).
     """
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["train"]:

@@ -147,7 +147,8 @@ def build_parser() -> argparse.ArgumentParser:
         description=(
             "Fit the addressed parameters of TASK's model (or --model ROBOT.xml, --env MODULE:FACTORY) to LOG (.npz "
             "from `sim2real record`, or a driver's CSV read through --columns MAP.yaml) and write the estimates, standard errors, 95%% intervals, Cramér-Rao bounds, noise levels, "
-            "fit percentages and identifiability warnings as JSON."
+            "fit percentages and identifiability warnings as JSON. Exit 3 when the fitted model cannot reproduce the log (the "
+            "JSON is still written; the reasons are printed)."
         ),
     )
     fit.add_argument("log", help="trajectory log (.npz from `sim2real record`) or a driver's CSV (with --columns)")
@@ -163,6 +164,15 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--latency", action="store_true", help="also estimate the action latency")
     fit.add_argument("--out", default="result.json", help="JSON output (default: %(default)s)")
     fit.add_argument("--report", help="also write an HTML page with the summary and the fit figure")
+    fit.add_argument(
+        "--export",
+        metavar="EFFECTS.yaml",
+        help=(
+            "also write the fit-then-randomise effects (FitResult.to_randomizers: each estimate +- 2 standard errors) "
+            "for `train --config` / `demo --config`; a fit that is not ok is not exported (exit 3) unless --force"
+        ),
+    )
+    fit.add_argument("--force", action="store_true", help="export a fit even when it is not ok")
     fit.add_argument("--seed", type=int_at_least(0), default=0, help="seed of the global search (default: %(default)s)")
     fit.add_argument("--quiet", action="store_true", help="no progress bar")
 

@@ -125,7 +125,7 @@ def cmd_sysid(args: argparse.Namespace, out: TextIO) -> int:
         raise UsageError("choose a sysid command: `sim2real sysid fit LOG --task TASK --params ...`")
     if args.task is None and args.model is None and args.env is None:
         raise UsageError("give the model to fit: --task TASK, --model ROBOT.xml or --env MODULE:FACTORY.")
-    check_outputs({"--out": args.out, "--report": args.report})
+    check_outputs({"--out": args.out, "--report": args.report, "--export": args.export})
     source = source_of(args)
     if not Path(args.log).is_file():
         raise UsageError(f"cannot read the log: `log` {args.log!r} does not exist.")
@@ -146,9 +146,30 @@ def cmd_sysid(args: argparse.Namespace, out: TextIO) -> int:
             close()
     # The page is rendered before anything is written, so a failure while drawing it leaves no JSON behind.
     page = _fit_report_html(result, source.label, args.log) if args.report else None
+    ok = bool(getattr(result, "ok", True))
+    effects = None
+    if args.export and (ok or args.force):
+        try:
+            effects = result.to_randomizers(force=True) if args.force else result.to_randomizers()
+        except ValueError as err:
+            raise UsageError(f"--export: {err}") from err
     writing(args.out, lambda: result.to_json(args.out))
+    written = [args.out]
     if page is not None:
         writing(args.report, lambda: atomic_write(args.report, page))
+        written.append(args.report)
+    if effects is not None:
+        writing(args.export, lambda: atomic_write(args.export, effects))
+        written.append(args.export)
     print(result.summary(), file=out)
-    print(f"wrote {args.out}" + (f" and {args.report}" if args.report else ""), file=out)
+    print(f"wrote {' and '.join(written)}", file=out)
+    if not ok:
+        reasons = "; ".join(getattr(getattr(result, "quality", None), "reasons", ())) or "see the warnings"
+        forced = (
+            " (exported anyway: --force)"
+            if effects is not None
+            else (f"; {args.export} was not written (pass --force to export it anyway)" if args.export else "")
+        )
+        print(f"sim2real sysid fit: the fit is not ok: {reasons}{forced}", file=sys.stderr)
+        return 0 if effects is not None else 3
     return 0
