@@ -11,7 +11,10 @@ inwards (never past the initial range, so the nominal start is always drawn from
 Here a *dimension* is one effect: its distribution (``Uniform`` or ``LogUniform``) gives the hard limits and the
 range replaces its bounds in every episode (a non-shared effect draws each target from the same range; a pinned
 one writes the boundary into every target). ``LogUniform`` dimensions move in log space (``delta`` is then a
-step of the natural log, i.e. a factor ``exp(delta)``).
+step of the natural log, i.e. a factor ``exp(delta)``). A :class:`~randomizers.Correlated` effect (a fit's
+posterior) is one dimension too: the scale ``s`` of its standard deviations, range ``[0, s]`` from 0 (the mean
+alone) up to the hard limit 1 (its own covariance); only ``s`` moves, an unpinned episode draws from
+``N(mean, s^2 cov)`` in its box and a pinned one at ``s`` standard deviations in a random direction.
 
 :class:`ADR` is the controller (ranges, buffers, history). It holds no generator: the boundary choice of an
 episode is drawn by the environment side (:class:`randomizers.adr_randomizer.ADRRandomizer`) from its own keyed
@@ -41,7 +44,8 @@ from typing import Any, Literal
 import numpy as np
 
 from randomizers.config import effect_to_config, load_effects
-from randomizers.distributions import LogUniform, Uniform
+from randomizers.correlated import Correlated
+from randomizers.distributions import Distribution, LogUniform, MultivariateNormal, Uniform
 from randomizers.effects import ArrayEffect, Effect
 
 __all__ = ["ADR", "METRICS", "ADRHistory", "Episode", "EpisodeResult", "Pin"]
@@ -168,8 +172,8 @@ class ADR:
         >>> ADR([Gravity(add=Normal(0.0, 0.1))], delta=0.1, t_low=0.2, t_high=0.8)
         Traceback (most recent call last):
         ...
-        ValueError: `effects[0]` of ADR must draw from Uniform or LogUniform (ADR moves their bounds). \
-Received Gravity(add=Normal(mean=0.0, std=0.1), axes='xyz').
+        ValueError: `effects[0]` of ADR must draw from Uniform or LogUniform (ADR moves their bounds), or be a \
+Correlated effect (ADR scales its covariance). Received Gravity(add=Normal(mean=0.0, std=0.1), axes='xyz').
     """
 
     def __init__(
@@ -191,11 +195,14 @@ Received Gravity(add=Normal(mean=0.0, std=0.1), axes='xyz').
             if not isinstance(effect, Effect):
                 raise TypeError(f"`effects[{i}]` of ADR must be a physics effect. Received {effect!r}.")
             dist = getattr(effect, "distribution", None)
-            # One distribution over one model array: the effects whose bounds a range can replace.
-            if type(dist) not in (Uniform, LogUniform) or not isinstance(effect, ArrayEffect):
+            # One distribution over one model array (whose bounds a range replaces), or a joint Gaussian (whose
+            # spread a range scales).
+            if not isinstance(effect, Correlated) and (
+                type(dist) not in (Uniform, LogUniform) or not isinstance(effect, ArrayEffect)
+            ):
                 raise ValueError(
-                    f"`effects[{i}]` of ADR must draw from Uniform or LogUniform (ADR moves their bounds). "
-                    f"Received {effect!r}."
+                    f"`effects[{i}]` of ADR must draw from Uniform or LogUniform (ADR moves their bounds), or be a "
+                    f"Correlated effect (ADR scales its covariance). Received {effect!r}."
                 )
             if effect.schedule == "startup":
                 raise ValueError(
@@ -222,9 +229,12 @@ Received Gravity(add=Normal(mean=0.0, std=0.1), axes='xyz').
         self.keys: tuple[str, ...] = tuple(keys)
         self.t_low, self.t_high, self.p_boundary, self.m = t_low, t_high, p, int(m)
         self.metric = metric
-        self._log = np.array([type(e.distribution) is LogUniform for e in effects])  # type: ignore[attr-defined]
-        self.limit_low = np.array([e.distribution.low for e in effects], dtype=np.float64)  # type: ignore[attr-defined]
-        self.limit_high = np.array([e.distribution.high for e in effects], dtype=np.float64)  # type: ignore[attr-defined]
+        self._cov = np.array([isinstance(e, Correlated) for e in effects])
+        self._log = np.array([type(getattr(e, "distribution", None)) is LogUniform for e in effects])
+        # A Correlated dimension is the scale s of its standard deviations: range [0, s], hard limit s = 1.
+        limits = [(0.0, 1.0) if c else e.distribution.support for c, e in zip(self._cov, effects, strict=True)]  # type: ignore[attr-defined]
+        self.limit_low = np.array([lo for lo, _ in limits], dtype=np.float64)
+        self.limit_high = np.array([hi for _, hi in limits], dtype=np.float64)
         self.delta = self._deltas(delta)
         self._initial = self._starts(initial)
         self.low = np.array([lo for lo, _ in self._initial])
@@ -233,7 +243,7 @@ Received Gravity(add=Normal(mean=0.0, std=0.1), axes='xyz').
         self.frames = 0
         self.stale = 0
         self._history: list[tuple[int, tuple[float, ...], tuple[float, ...], float]] = []
-        self._dists: list[Uniform | LogUniform] = []
+        self._dists: list[Distribution] = []
         #: None on a controller; the results collected so far on a worker copy (:meth:`worker_copy`).
         self.collected: list[EpisodeResult] | None = None
         self._changed()
@@ -274,6 +284,10 @@ Received Gravity(add=Normal(mean=0.0, std=0.1), axes='xyz').
                     lo, hi = _real(f"initial[{key!r}]", raw[0]), _real(f"initial[{key!r}]", raw[1])
                 else:
                     lo = hi = _real(f"initial[{key!r}]", raw)
+                if self._cov[i]:  # a scale s means the range [0, s]
+                    lo = 0.0 if lo == hi else lo
+            elif self._cov[i]:
+                lo = hi = 0.0  # the fitted mean alone
             else:
                 op = effect.operation  # type: ignore[attr-defined]
                 if op == "set":
@@ -302,20 +316,44 @@ Received Gravity(add=Normal(mean=0.0, std=0.1), axes='xyz').
         ``log(high - low)`` for a Uniform dimension; for a LogUniform one, the entropy of the log-uniform value.
         A dimension still at a point gives ``-inf`` (the start of every run that begins at the nominal point).
         """
-        return float(
-            np.mean([_entropy(bool(g), lo, hi) for g, lo, hi in zip(self._log, self.low, self.high, strict=True)])
-        )
+        return float(np.mean([self._entropy(i) for i in range(len(self.keys))]))
 
-    def distribution(self, index: int) -> Uniform | LogUniform:
-        """The distribution dimension ``index`` draws from in an unpinned episode (its current range)."""
+    def _entropy(self, i: int) -> float:
+        lo, hi = float(self.low[i]), float(self.high[i])
+        if not self._cov[i]:
+            return _entropy(bool(self._log[i]), lo, hi)
+        # Correlated: the untruncated Gaussian N(mean, s^2 cov) per component, 0.5 log(2 pi e) + log s + log det / 2P.
+        cov = np.array(self.effects[i].distribution.cov)  # type: ignore[attr-defined]
+        sign, logdet = np.linalg.slogdet(cov)
+        if hi <= 0 or sign <= 0:
+            return -math.inf
+        return 0.5 * math.log(2 * math.pi * math.e) + math.log(hi) + 0.5 * float(logdet) / len(cov)
+
+    def distribution(self, index: int) -> Distribution:
+        """The distribution dimension ``index`` draws from in an unpinned episode (its current range; for a
+        Correlated effect its Gaussian with the standard deviations scaled by the upper boundary)."""
         return self._dists[index]
+
+    def pinned(self, index: int, value: float, rng: np.random.Generator, count: int) -> np.ndarray:
+        """The draws of a pinned episode: ``value`` for every target; for a Correlated effect, one point at ``value``
+        standard deviations on a random direction (``mean + value * A u``, ``A A^T = cov``, ``u`` uniform on the unit
+        sphere, drawn from ``rng``), clipped to its box."""
+        if not self._cov[index]:
+            return np.full(count, value)
+        dist: MultivariateNormal = self.effects[index].distribution  # type: ignore[attr-defined]
+        vals, vecs = np.linalg.eigh(np.array(dist.cov))
+        u = rng.standard_normal(dist.size)
+        u /= np.linalg.norm(u) or 1.0
+        point = np.array(dist.mean) + value * (vecs * np.sqrt(np.clip(vals, 0.0, None))) @ u
+        lo, hi = dist._box()
+        return np.clip(point, lo, hi).reshape(1, dist.size)
 
     def choose(self, rng: np.random.Generator) -> Pin | None:
         """This episode's pin, from the episode's boundary stream ``rng`` (three draws, always)."""
         u, i, s = rng.random(), int(rng.integers(len(self.keys))), int(rng.integers(2))
         if u >= self.p_boundary:
             return None
-        side = _SIDES[s]
+        side = "high" if self._cov[i] else _SIDES[s]  # a Correlated range is [0, s]: only s moves
         return Pin(self.keys[i], side, float(self.low[i] if side == "low" else self.high[i]))
 
     def score(self, episode: Episode) -> float:
@@ -403,11 +441,15 @@ Received Gravity(add=Normal(mean=0.0, std=0.1), axes='xyz').
         return min(float(self.limit_high[i]), moved) if outward else max(self._initial[i][1], moved)
 
     def _changed(self) -> None:
-        self._dists = [
-            (LogUniform if g else Uniform)(float(lo), float(hi))
-            for g, lo, hi in zip(self._log, self.low, self.high, strict=True)
-        ]
+        self._dists = [self._range_distribution(i) for i in range(len(self.keys))]
         self._history.append((self.frames, tuple(self.low.tolist()), tuple(self.high.tolist()), self.entropy()))
+
+    def _range_distribution(self, i: int) -> Distribution:
+        lo, hi = float(self.low[i]), float(self.high[i])
+        if self._cov[i]:
+            d: MultivariateNormal = self.effects[i].distribution  # type: ignore[attr-defined]
+            return MultivariateNormal(d.mean, tuple(tuple(hi * hi * c for c in row) for row in d.cov), d.low, d.high)
+        return (LogUniform if self._log[i] else Uniform)(lo, hi)
 
     @property
     def history(self) -> ADRHistory:
@@ -495,11 +537,7 @@ Received Gravity(add=Normal(mean=0.0, std=0.1), axes='xyz').
         adr.buffers = {(k, s): list(data["buffers"][f"{k}|{s}"]) for k in adr.keys for s in _SIDES}
         adr.frames, adr.stale = int(data["frames"]), int(data["stale"])
         adr._history = [(int(f), tuple(lo), tuple(hi), float(e)) for f, lo, hi, e in data["history"]]
-        adr._dists = []
-        adr._dists = [
-            (LogUniform if g else Uniform)(float(lo), float(hi))
-            for g, lo, hi in zip(adr._log, adr.low, adr.high, strict=True)
-        ]
+        adr._dists = [adr._range_distribution(i) for i in range(len(adr.keys))]
         return adr
 
     def __repr__(self) -> str:

@@ -79,7 +79,7 @@ class ADRRandomizer(PhysicsRandomizer):
             return np.empty(count)  # replaced once the pin is known
         pin = self.pin
         if pin is not None and pin.key == self.adr.keys[index]:
-            return np.full(count, pin.value)
+            return self.adr.pinned(index, pin.value, slot.gen, count)
         return np.asarray(self.adr.distribution(index).sample(slot.gen, count), dtype=np.float64)
 
     def end_episode(self, episode: Episode) -> bool:

@@ -215,8 +215,8 @@ def test_distributions_adr_cannot_move_and_other_bad_effects() -> None:
     with pytest.raises(ValueError) as err:
         ADR([Mass(add=Normal(0.0, 0.1), bodies="cart")], delta=0.1, t_low=0.1, t_high=0.9)
     assert str(err.value) == (
-        "`effects[0]` of ADR must draw from Uniform or LogUniform (ADR moves their bounds). "
-        "Received Mass(add=Normal(mean=0.0, std=0.1), bodies='cart')."
+        "`effects[0]` of ADR must draw from Uniform or LogUniform (ADR moves their bounds), or be a Correlated "
+        "effect (ADR scales its covariance). Received Mass(add=Normal(mean=0.0, std=0.1), bodies='cart')."
     )
     with pytest.raises(ValueError, match="a `set` effect has no nominal point"):
         ADR([Damping(set=Uniform(0.0, 2.0))], delta=0.1, t_low=0.1, t_high=0.9)
@@ -445,17 +445,36 @@ def test_api_checkers_pass_with_adr() -> None:
     from torchrl.envs import DMControlEnv
     from torchrl.envs.utils import check_env_specs
 
-    from randomizers import Correlated, MultivariateNormal
-
     env = sim2real.wrap(Slider(goal=distance(THRESHOLD)), Mass(scale=Uniform(0.5, 1.5)), adr=slider_adr(), seed=0)
     check_env(env, skip_render_check=True)
     tenv = sim2real.wrap(DMControlEnv("reacher", "easy"), adr=slider_adr_reacher(), seed=0)
     check_env_specs(tenv)
     tenv.close()
-    joint = Correlated(["dof_damping[slide]"], MultivariateNormal((1.0,), ((0.01,),)))
-    with pytest.raises(ValueError, match=r"`effects\[0\]` of ADR must draw from Uniform or LogUniform"):
-        ADR([joint], delta=0.1, t_low=0.1, t_high=0.9)
 
 
 def slider_adr_reacher() -> ADR:
     return ADR([Damping(scale=Uniform(0.0, 4.0)), Mass(scale=LogUniform(0.5, 2.0))], delta=0.1, t_low=0.1, t_high=0.9)
+
+
+def test_correlated_scales_its_covariance() -> None:
+    from randomizers import Correlated, MultivariateNormal
+
+    cov = ((0.04, 0.03), (0.03, 0.09))
+    mean = (1.0, 1.0)
+    joint = Correlated(["dof_damping[slide]", "actuator_gain[push]"], MultivariateNormal(mean, cov, low=(0.0, 0.0)))
+    key = joint.key
+    adr = ADR([joint], delta=0.5, m=1, t_low=-1e9, t_high=-1e8, metric="return", p_boundary=1.0)
+    assert adr.ranges[key] == (0.0, 0.0) and adr.entropy() == -math.inf
+    env = sim2real.wrap(Slider(), adr=adr, seed=0)
+    _, info = env.reset()
+    assert info["sim2real"]["adr"]["pin"] == (key, "high", 0.0)  # only the scale's upper end moves
+    assert [info["sim2real"]["params"][a] for a in ("dof_damping[slide]", "actuator_gain[push]")] == [1.0, 1.0]
+    drive(env, 1)
+    assert adr.ranges[key] == (0.0, 0.5)
+    inverse = np.linalg.inv(np.array(cov))
+    _, info = env.reset()
+    x = np.array([info["sim2real"]["params"][a] for a in ("dof_damping[slide]", "actuator_gain[push]")]) - mean
+    assert float(x @ inverse @ x) == pytest.approx(0.25)  # pinned: on the 0.5-sigma ellipse
+    expected = 0.5 * math.log(2 * math.pi * math.e) + math.log(0.5) + 0.5 * math.log(np.linalg.det(cov)) / 2
+    assert adr.entropy() == pytest.approx(expected)
+    assert ADR.from_state(adr.to_json()).state() == adr.state()
