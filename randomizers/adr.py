@@ -101,7 +101,8 @@ class ADRHistory:
 
     Attributes:
         keys: the dimensions (effect keys), D of them.
-        frames: (N,) frames counted when each row was taken (the first row is the start, 0 frames or the resumed count).
+        frames: (N,) frames counted when each row was taken: the steps of the episodes reported so far (an episode
+            counts when it ends; the first row is the start, 0 or the count it resumed from).
         low: (N, D) lower boundaries.
         high: (N, D) upper boundaries.
         entropy: (N,) :meth:`ADR.entropy` of each row (nats per dimension).
@@ -284,8 +285,8 @@ Correlated effect (ADR scales its covariance). Received Gravity(add=Normal(mean=
                     lo, hi = _real(f"initial[{key!r}]", raw[0]), _real(f"initial[{key!r}]", raw[1])
                 else:
                     lo = hi = _real(f"initial[{key!r}]", raw)
-                if self._cov[i]:  # a scale s means the range [0, s]
-                    lo = 0.0 if lo == hi else lo
+                if self._cov[i]:  # a scale s (or a pair) means the range [0, s]: its lower end never moves
+                    lo = 0.0
             elif self._cov[i]:
                 lo = hi = 0.0  # the fitted mean alone
             else:
