@@ -478,3 +478,20 @@ def test_correlated_scales_its_covariance() -> None:
     expected = 0.5 * math.log(2 * math.pi * math.e) + math.log(0.5) + 0.5 * math.log(np.linalg.det(cov)) / 2
     assert adr.entropy() == pytest.approx(expected)
     assert ADR.from_state(adr.to_json()).state() == adr.state()
+
+
+def test_interval_resamples_draw_from_the_range_and_keep_the_pin() -> None:
+    from randomizers import Interval
+
+    damping = Damping(scale=Uniform(0.0, 4.0), joints="slide", schedule=Interval(steps=5))
+    free = ADR([damping], delta=0.1, t_low=0.1, t_high=0.9, p_boundary=0.0, initial={DAMPING: (0.5, 2.0)})
+    env = sim2real.wrap(Slider(), adr=free, seed=0)
+    env.reset()
+    seen = {env.step(np.ones(1, np.float32))[4]["sim2real"]["params"]["dof_damping[slide]"] for _ in range(20)}
+    assert len(seen) == 5 and all(0.5 <= v < 2.0 for v in seen)  # the reset draw + one every 5 steps, in the range
+    pinned = ADR([damping], delta=0.1, t_low=0.1, t_high=0.9, p_boundary=1.0, initial={DAMPING: (0.5, 2.0)})
+    env = sim2real.wrap(Slider(), adr=pinned, seed=0)
+    _, info = env.reset()
+    value = info["sim2real"]["adr"]["pin"][2]
+    seen = {env.step(np.ones(1, np.float32))[4]["sim2real"]["params"]["dof_damping[slide]"] for _ in range(20)}
+    assert seen == {value} and value in (0.5, 2.0)
