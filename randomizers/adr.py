@@ -314,8 +314,9 @@ Correlated effect (ADR scales its covariance). Received Gravity(add=Normal(mean=
     def entropy(self) -> float:
         """The paper's measure: the mean over dimensions of the differential entropy (nats) of each range.
 
-        ``log(high - low)`` for a Uniform dimension; for a LogUniform one, the entropy of the log-uniform value.
-        A dimension still at a point gives ``-inf`` (the start of every run that begins at the nominal point).
+        ``log(high - low)`` for a Uniform dimension; for a LogUniform one, the entropy of the log-uniform value; for a
+        Correlated one, the entropy per component of its untruncated Gaussian. A dimension still at a point gives
+        ``-inf`` (the start of every run that begins at the nominal point), and so does the mean.
         """
         return float(np.mean([self._entropy(i) for i in range(len(self.keys))]))
 
