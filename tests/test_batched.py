@@ -37,6 +37,12 @@ def _effects(kind: int) -> list:
             s2r.Armature(add=s2r.Uniform(0.0, 0.01)),
             s2r.Gravity(add=s2r.Normal(0.0, 0.5)),
         ],
+        [  # signal models: noise on both sides, a latency drawn per episode (physics steps), and a physics effect
+            s2r.Damping(scale=s2r.Uniform(0.5, 2.0)),
+            s2r.ObservationNoise(s2r.Gaussian(std=0.01), s2r.Bias(s2r.Uniform(-0.02, 0.02)), s2r.Scale(1.05)),
+            s2r.ActionNoise(s2r.Gaussian(std=0.05)),
+            s2r.ObservationLatency(steps=s2r.Choice([0, 10, 30])),
+        ],
     ]
     return sets[kind]
 
@@ -97,6 +103,10 @@ def _compare(task: str, seed: int, kind: int, episodes: int, num: int = 3) -> in
         ("dmc/manipulator-bring_ball", 2, 1),
         ("dmc/manipulator-bring_peg", 7, 2),
         ("dmc/manipulator-insert_ball", 8, 1),
+        ("dmc/reacher-easy", 12, 3),
+        ("dmc/reacher-hard", 13, 3),
+        ("sim2real/arm-reach", 14, 3),
+        ("dmc/manipulator-bring_ball", 15, 3),
     ],
 )
 def test_each_world_is_bitwise_its_single_env(task: str, seed: int, kind: int) -> None:
@@ -169,7 +179,10 @@ def test_errors_name_the_argument_and_what_is_allowed() -> None:
     with pytest.raises(ValueError, match=r"`task` and `effects` must be supported .*no batched kernel for task "
                        r"'dmc/jaco-reach_site'"):  # fmt: skip
         make_batched("dmc/jaco-reach_site", 2)
-    assert "signal models" in str(supports("dmc/reacher-easy", s2r.ObservationNoise(s2r.Gaussian(std=0.1))))
+    assert supports("dmc/reacher-easy", s2r.ObservationNoise(s2r.Quantize(0.1))) == (
+        "Quantize is not batched (only ['Gaussian', 'UniformNoise', 'Bias', 'Scale', 'Drift', 'Outlier'])"
+    )
+    assert supports("dmc/reacher-easy", s2r.ActionLatency(steps=1)) == "ActionLatency is not batched"
     assert "per-step" in str(supports("dmc/reacher-easy", s2r.Push(force=s2r.Uniform(0, 1), interval=10.0)))
     with pytest.raises(ValueError, match=r"`num_envs` must be an int >= 1. Received 0."):
         make_batched("dmc/reacher-easy", 0)
@@ -200,7 +213,8 @@ def test_evaluate_uses_the_engine_and_reports_byte_identical_results() -> None:
     conditions = [
         nominal(),
         randomized([s2r.Mass(scale=s2r.Uniform(0.7, 1.3)), s2r.Damping(scale=s2r.Uniform(0.5, 2.0))]),
-        randomized([s2r.ObservationNoise(s2r.Gaussian(std=0.01))], name="noisy"),
+        randomized([s2r.ObservationNoise(s2r.Gaussian(std=0.01)), s2r.ObservationLatency(steps=2)], name="noisy"),
+        randomized([s2r.ActionLatency(steps=2)], name="delayed"),
         *sweep({"type": "ActuatorGain", "scale": 1.0}, "scale", [0.5, 1.5]),
     ]
     kwargs = {"episodes": 5, "seed": 3, "max_steps": 60, "batch": 3, "task_options": {"time_limit": 1.0}}
@@ -210,7 +224,8 @@ def test_evaluate_uses_the_engine_and_reports_byte_identical_results() -> None:
     assert dict(auto.engines) == {
         "sim": "batched",
         "randomized": "batched",
-        "noisy": "per-env",  # signal models are not batched: the fallback
+        "noisy": "batched",
+        "delayed": "per-env",  # action latency is not batched: the fallback
         "ActuatorGain.scale=0.5": "batched",
         "ActuatorGain.scale=1": "batched",  # a sweep includes the nominal value
         "ActuatorGain.scale=1.5": "batched",
@@ -278,3 +293,38 @@ def test_evaluate_arm_reach_successes_and_early_ends_are_byte_identical() -> Non
     # Episodes that succeed end early (terminated): lengths differ between worlds of one batch.
     assert auto.successes["reach"]["sim"].any() and not auto.successes["zero"]["sim"].any()
     assert len(set(auto.lengths["reach"]["sim"].tolist())) > 1
+
+
+def test_noise_blocks_and_latency_rings_stay_per_world_when_worlds_step_unevenly() -> None:
+    # Worlds stepped on random masks (as evaluation steps only unfinished worlds) for more than one noise block
+    # (BLOCK = 256 rows), resetting when their episode ends: every world's noise rows, latency ring and lag
+    # must stay its own. The single envs are stepped only when their world is.
+    effects = _effects(3)
+    num = 3
+    batched = make_batched("dmc/reacher-easy", num, *effects, seed=21, time_limit=6.0)  # 300-step episodes
+    singles = [s2r.wrap(s2r.make("dmc/reacher-easy", time_limit=6.0), *effects, seed=(21, i)) for i in range(num)]
+    obs, params = batched.reset(seed=[1, 2, 3])
+    lags, steps, resets = set(params["obs_latency_steps"].tolist()), np.zeros(num, int), 0
+    for i, env in enumerate(singles):
+        assert np.array_equal(env.reset(seed=i + 1)[0], obs[i])
+    rng = np.random.default_rng(5)
+    for _ in range(450):
+        mask = rng.random(num) < 0.8
+        actions = rng.uniform(-1, 1, (num, 2)).astype(np.float32)
+        obs, reward, _, truncated, _ = batched.step(actions, mask=mask)
+        for i in np.flatnonzero(mask):
+            o, r, _, tr, _ = singles[i].step(actions[i])
+            assert np.array_equal(o, obs[i]) and r == reward[i] and tr == truncated[i]
+            steps[i] += 1
+        ended = np.flatnonzero(truncated)
+        if len(ended):
+            obs, params = batched.reset(indices=ended)
+            resets += len(ended)
+            lags.update(params["obs_latency_steps"].tolist())
+            for i in ended:
+                o, info = singles[i].reset()
+                assert np.array_equal(o, obs[i])
+                assert info["sim2real"]["params"]["obs_latency_steps"] == params["obs_latency_steps"][i]
+    # Past a block refill inside an episode, a world reset while the others ran on, different lags in play.
+    assert steps.min() > 256 and resets >= 1 and len(lags) > 1
+    batched.close()

@@ -37,6 +37,7 @@ import mujoco
 import numpy as np
 
 from sim2real.batched.kernels import KERNELS, Kernel, kernel_for
+from sim2real.batched.signals import BatchedSignals, signals_reason
 
 __all__ = ["BatchedEnv", "make_batched", "supports"]
 
@@ -62,9 +63,13 @@ def supports(task: Any, *effects: Any, options: Mapping[str, Any] | None = None)
     unknown = sorted(set(options or {}) - set(allowed))
     if unknown:
         return f"task options {unknown} are not batched (allowed: {list(allowed)})"
-    for effect in _flatten(effects):
+    flat = _flatten(effects)
+    reason = signals_reason([e for e in flat if not isinstance(e, Effect)])
+    if reason is not None:
+        return reason
+    for effect in flat:
         if not isinstance(effect, Effect):
-            return f"signal models ({type(effect).__name__}) are not batched yet"
+            continue
         if isinstance(effect, Push) or isinstance(effect.schedule, Interval):
             return f"{type(effect).__name__} acts during the episode (per-step effects are not batched)"
         if type(effect).__module__.startswith("randomizers.visual"):
@@ -163,7 +168,11 @@ class BatchedEnv:
         self._views = {f: [getattr(d, f) for d in self.datas] for f in kernel.fields}
         if self._site >= 0:
             self._gathered["jacobian"] = np.zeros((n, 3, m0.nv))
-        self._obs = np.zeros((n, self.kernel.obs_dim), np.float32)
+        self._obs = np.zeros((n, self.kernel.obs_dim), np.float32)  # the task's own (clean) observations
+        # Signal models: each env's outermost wrapper is CorruptSignals, its RandomizePhysics just inside.
+        self._signals = BatchedSignals(n, self.envs) if hasattr(self.envs[0], "corruptor") else None
+        self._physics = [env.env if self._signals is not None else env for env in self.envs]
+        self._out = np.zeros((n, self.kernel.obs_dim), np.float32)  # what the policy sees
         self._steps = np.zeros(n, np.int64)
         self._reset_diverged = np.zeros(n, bool)
         self._diverged = np.zeros(n, bool)
@@ -213,7 +222,10 @@ class BatchedEnv:
                 )
         for i, s in zip(idx.tolist(), seeds, strict=True):
             obs, info = self.envs[i].reset(seed=s)
-            self._obs[i] = obs
+            self._out[i] = obs
+            self._obs[i] = self._physics[i]._last_obs
+            if self._signals is not None:
+                self._signals.reset_world(i, self.envs[i], self._out[i])
             report = info["sim2real"]
             self._world_params[i] = report["params"]
             self._reset_diverged[i] = self._diverged[i] = bool(report["diverged"])
@@ -226,8 +238,8 @@ class BatchedEnv:
                 mujoco.mj_jacSite(m, d, self._gathered["jacobian"][i], None, self._site)
         self.kernel.bind(self.models, self.envs)
         keys = sorted({k for p in self._world_params for k in p})
-        self.params = {k: np.array([p.get(k, math.nan) for p in self._world_params]) for k in keys}
-        return self._obs.copy(), dict(self.params)
+        self.params = {k: np.array([p.get(k, math.nan) for p in self._world_params], np.float64) for k in keys}
+        return self._out.copy(), dict(self.params)
 
     def step(
         self, actions: np.ndarray, mask: np.ndarray | None = None
@@ -243,14 +255,17 @@ class BatchedEnv:
             three ``(N,)`` bool arrays (fresh arrays). A world whose physics diverged ends its episode with
             ``truncated=True``, ``diverged=True``, reward 0 and its last finite observation, as the single env.
         """
-        actions = np.asarray(actions, dtype=np.float64)
-        if actions.shape != (self.num_envs, self._action_dim):
-            raise ValueError(
-                f"`actions` must have shape ({self.num_envs}, {self._action_dim}). Received {actions.shape}."
-            )
+        shape = np.shape(actions)
+        if shape != (self.num_envs, self._action_dim):
+            raise ValueError(f"`actions` must have shape ({self.num_envs}, {self._action_dim}). Received {shape}.")
         n = self.num_envs
         active = np.ones(n, bool) if mask is None else np.asarray(mask, dtype=bool).copy()
+        signals = self._signals
+        if signals is not None:  # a world's noise advances on every step its env takes, stepped or not
+            actions = signals.act(actions, active)
+        actions = np.asarray(actions, dtype=np.float64)
         stuck = active & self._reset_diverged  # a reset that diverged: the next step ends the episode unstepped
+        signalled = active.copy()
         active &= ~self._reset_diverged
         before = self._state[:, 0].copy()
         models, datas, ctrl, state = self.models, self.datas, self._ctrl, self._state
@@ -299,7 +314,11 @@ class BatchedEnv:
         truncated = (keep & (self._steps >= self.step_limit)) | diverged | stuck
         self._diverged |= diverged
         self._reset_diverged &= ~stuck
-        return self._obs.copy(), reward, terminated, truncated, self._diverged & (diverged | stuck)
+        if signals is not None:
+            self._out = signals.observe(self._obs, signalled, self._out)
+        else:
+            self._out = self._obs.copy()
+        return self._out.copy(), reward, terminated, truncated, self._diverged & (diverged | stuck)
 
     def _check_open(self) -> None:
         if self._closed:

@@ -1,0 +1,170 @@
+"""Observation/action noise and observation latency for all batched worlds at once: :class:`BatchedSignals`.
+
+Each world keeps its own :class:`noise_models.SignalCorruptor` (inside its single env's ``CorruptSignals``), so
+its draws come from its own keyed streams, by the corruptor's own code: the episode's draws at reset, and every
+block of ``BLOCK`` pre-drawn noise rows when a world's block runs out. Per step, one numpy operation per
+pipeline serves all worlds: ``x * G + F[world, row]`` over preallocated ``(N, BLOCK, size)`` blocks (a world
+without gain multiplies by 1.0, which is exact), then the pipeline's clip; observation latency reads a
+preallocated ``(N, R, size)`` ring at each world's own lag. What is supported (:func:`signals_reason`): noise
+pipelines of additive and multiplicative processes (fused by ``noise_models`` into one affine stage) and
+``ObservationLatency`` with a fixed per-episode lag; sample-and-hold, jitter, action latency and the
+element-wise processes (quantise, dropout, ...) keep the per-env path.
+
+Example:
+    >>> import sim2real as s2r
+    >>> from sim2real.batched import make_batched
+    >>> envs = make_batched("dmc/reacher-easy", 2, s2r.ObservationNoise(s2r.Gaussian(std=0.01)),
+    ...                     s2r.ObservationLatency(steps=2), seed=0)
+    >>> obs, params = envs.reset(seed=0)
+    >>> params["obs_latency_steps"].tolist()
+    [2.0, 2.0]
+    >>> envs.close()
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from noise_models.corruptor import ActionNoise, ObservationNoise, _Affine, _clip
+from noise_models.processes import BLOCK, Bias, Drift, Gaussian, Outlier, Scale, UniformNoise
+from noise_models.timing import ObservationLatency
+
+__all__ = ["BatchedSignals", "signals_reason"]
+
+#: Processes ``noise_models`` fuses into one affine stage (``x * G + F``): the ones batched here.
+AFFINE_PROCESSES = (Gaussian, UniformNoise, Bias, Scale, Drift, Outlier)
+
+
+def signals_reason(models: Sequence[Any]) -> str | None:
+    """Why the batched engine cannot run the signal ``models`` (None when it can)."""
+    for model in models:
+        if isinstance(model, (ObservationNoise, ActionNoise)):
+            for process in model.processes:
+                if not isinstance(process, AFFINE_PROCESSES):
+                    return f"{type(process).__name__} is not batched (only {[c.__name__ for c in AFFINE_PROCESSES]})"
+        elif isinstance(model, ObservationLatency):
+            if model.jitter is not None:
+                return "ObservationLatency with jitter is not batched"
+        else:
+            return f"{type(model).__name__} is not batched"
+    return None
+
+
+class _Pipes:
+    """One pipeline position (the k-th observation or action pipeline) across all worlds."""
+
+    def __init__(self, n: int, size: int, dtype: np.dtype) -> None:
+        self.pipes: list[Any] = [None] * n
+        self.F = np.zeros((n, BLOCK, size), dtype=dtype)
+        self.G = np.ones((n, size), dtype=dtype)
+        self.r = np.zeros(n, np.int64)
+        self.low: np.ndarray | None = None
+        self.high: np.ndarray | None = None
+        self.guard = False
+
+    def take(self, i: int, pipe: Any) -> None:
+        """World ``i``'s pipeline after its reset (or after a refill): its current block and position."""
+        if len(pipe.stages) != 1 or not isinstance(pipe.stages[0], _Affine):
+            raise ValueError("`effects`: a noise pipeline the batched engine cannot fuse (see signals_reason).")
+        stage = pipe.stages[0]
+        self.pipes[i] = pipe
+        self.F[i] = stage.F
+        self.G[i] = 1.0 if stage.G is None else stage.G
+        self.r[i] = pipe.r
+        self.low, self.high, self.guard = pipe.low, pipe.high, pipe.guard
+
+    def __call__(self, x: np.ndarray, active: np.ndarray) -> np.ndarray:
+        """The noisy signal of every world; only the ``active`` worlds' noise advances."""
+        idx = np.flatnonzero(active & (self.r == BLOCK))
+        for i in idx.tolist():
+            pipe = self.pipes[i]
+            pipe._refill()  # the world's own next block, from its own stream
+            self.take(i, pipe)
+        rows = np.minimum(self.r, BLOCK - 1)
+        w = x * self.G
+        w += self.F[np.arange(len(x)), rows]
+        self.r += active
+        if self.low is not None:
+            if self.guard:
+                np.copyto(w, _clip(w, self.low, self.high), where=(x >= self.low) & (x <= self.high))
+            else:
+                _clip(w, self.low, self.high, out=w)
+        return np.where(active[:, None], w, x)
+
+
+class BatchedSignals:
+    """The worlds' noise pipelines and observation latency, vectorised (see the module docstring).
+
+    Args:
+        num_envs: worlds N.
+        envs: each world's single env (its outermost wrapper is ``CorruptSignals``).
+    """
+
+    def __init__(self, num_envs: int, envs: Sequence[Any]) -> None:
+        self.num_envs = num_envs
+        first = envs[0].corruptor
+        self._obs = [_Pipes(num_envs, p.layout.size, p.dtype) for p in first._obs_pipes]
+        self._act = [_Pipes(num_envs, p.layout.size, p.dtype) for p in first._action_pipes]
+        self.action_dtype = first.action_dtype
+        self._latency = ObservationLatency in first.timing
+        self._lag = np.zeros(num_envs, np.int64)
+        self._k = np.zeros(num_envs, np.int64)
+        self._ring = np.zeros((num_envs, 1, 0), dtype=first.obs_dtype or np.float32)
+
+    def reset_world(self, i: int, env: Any, first_obs: np.ndarray) -> None:
+        """Takes world ``i``'s state after its single env's reset (draws made, reset observation delivered)."""
+        c = env.corruptor
+        for pipes, pipe in zip(self._obs, c._obs_pipes, strict=True):
+            pipes.take(i, pipe)
+        for pipes, pipe in zip(self._act, c._action_pipes, strict=True):
+            pipes.take(i, pipe)
+        if self._latency:
+            lag = c._obs_lag
+            if lag is None:
+                raise ValueError("`effects`: an observation latency without a fixed lag is not batched.")
+            if lag + 1 > self._ring.shape[1] or self._ring.shape[2] != first_obs.size:
+                self._grow(lag + 1, first_obs)
+            self._ring[i] = first_obs  # every slot holds the reset sample, as the single env's ring does
+            self._lag[i] = lag
+            self._k[i] = 0
+
+    def _grow(self, size: int, first_obs: np.ndarray) -> None:
+        """A ring of ``size`` slots; every world's last samples move to the slots their step counts map to."""
+        old = self._ring
+        ring = np.zeros((self.num_envs, size, first_obs.size), dtype=first_obs.dtype)
+        if old.shape[2] == first_obs.size:
+            rows = np.arange(self.num_envs)
+            for d in range(old.shape[1]):  # at a reset only; the ring grows at most to the largest lag drawn
+                ring[rows, (self._k - d) % size] = old[rows, (self._k - d) % old.shape[1]]
+        self._ring = ring
+
+    def act(self, actions: np.ndarray, active: np.ndarray) -> np.ndarray:
+        """The actions the worlds' envs get (the policy's, through each world's action noise)."""
+        if not self._act:
+            return actions
+        if type(actions) is not np.ndarray:
+            actions = np.asarray(actions, dtype=self.action_dtype)
+        for pipes in self._act:
+            actions = pipes(actions, active)
+        return actions
+
+    def observe(self, obs: np.ndarray, active: np.ndarray, previous: np.ndarray) -> np.ndarray:
+        """What the policy sees: each world's fresh observation through its noise and latency (the
+        ``previous`` output stays for worlds not stepped)."""
+        sample = obs
+        for pipes in self._obs:
+            sample = pipes(sample, active)
+        if not self._latency:
+            return np.where(active[:, None], sample, previous)
+        size = self._ring.shape[1]
+        k = self._k + active
+        self._k = k
+        rows = np.arange(self.num_envs)
+        current = self._ring[rows, k % size]
+        self._ring[rows, k % size] = np.where(active[:, None], sample, current)
+        # The sample of ``lag`` control steps ago; before that, the reset sample (still in its slot).
+        delayed = self._ring[rows, (k - self._lag) % size]
+        return np.where(active[:, None], delayed, previous)
