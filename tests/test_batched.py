@@ -328,3 +328,22 @@ def test_noise_blocks_and_latency_rings_stay_per_world_when_worlds_step_unevenly
     # Past a block refill inside an episode, a world reset while the others ran on, different lags in play.
     assert steps.min() > 256 and resets >= 1 and len(lags) > 1
     batched.close()
+
+
+def test_torchrl_env_with_signal_models_reports_their_draws() -> None:
+    pytest.importorskip("torch")
+    from torchrl.envs.utils import check_env_specs
+
+    from sim2real.batched.torchrl_env import BatchedTorchRLEnv
+
+    env = BatchedTorchRLEnv("dmc/reacher-easy", 2, *_effects(3), seed=2, **SHORT)
+    check_env_specs(env, seed=0)
+    assert "obs_latency_steps" in env.param_names and "dof_damping[shoulder]" in env.param_names
+    single = s2r.wrap(s2r.make("dmc/reacher-easy", **SHORT), *_effects(3), seed=(2, 1))
+    env.set_seed(30)
+    td = env.reset()
+    obs, info = single.reset(seed=31)
+    assert np.array_equal(td["observation"][1].numpy(), obs)
+    column = env.param_names.index("obs_latency_steps")
+    assert float(td["sim2real_params"][1, column]) == info["sim2real"]["params"]["obs_latency_steps"]
+    env.close()

@@ -19,6 +19,7 @@ Example:
 
 from __future__ import annotations
 
+import copy
 from typing import Any
 
 import numpy as np
@@ -55,7 +56,7 @@ class BatchedTorchRLEnv(EnvBase):
         super().__init__(device=device, batch_size=torch.Size([n]))
         single = self.engine.envs[0]
         space = single.action_space
-        self.param_names: tuple[str, ...] = tuple(single.randomizer.nominal_params())
+        self.param_names: tuple[str, ...] = self._param_names(single)
         self.observation_spec = Composite(
             observation=Unbounded(shape=(n, self.engine.observation_dim), dtype=torch.float32, device=self.device),
             **{
@@ -82,6 +83,20 @@ class BatchedTorchRLEnv(EnvBase):
         )
         self._reset_seed: int | None = None
         self._diverged = np.zeros(n, bool)
+
+    @staticmethod
+    def _param_names(single: Any) -> tuple[str, ...]:
+        """Every address and signal parameter a world reports, known before the first reset: the physics ones from
+        the nominal model, the signal ones from a throwaway draw of a copy of world 0's corruptor (the worlds'
+        own streams are not touched)."""
+        corruptor = getattr(single, "corruptor", None)
+        physics = single if corruptor is None else single.env
+        names = list(physics.randomizer.nominal_params())
+        if corruptor is not None:
+            probe = copy.deepcopy(corruptor)
+            probe.begin_episode(seed=0)
+            names += [name for name in probe.current_params if name not in names]
+        return tuple(names)
 
     def _params(self, params: dict[str, np.ndarray]) -> torch.Tensor:
         n = self.engine.num_envs
