@@ -110,6 +110,8 @@ class _ConfigBase:
         out: dict[str, Any] = {"algo": self.algo}
         for f in fields(self):
             value = getattr(self, f.name)
+            if f.name == "adr" and value is None:
+                continue  # configs without ADR keep the form checkpoints and manifests stored before ADR existed
             out[f.name] = list(value) if isinstance(value, tuple) else value
         return out
 
