@@ -288,6 +288,15 @@ class Problem:
             parts.append(self.n_state_ch + np.tile(np.arange(self.n_sens_ch), self.y_row.size))
         return np.concatenate(parts)
 
+    def residual_keys(self) -> tuple[np.ndarray, np.ndarray]:
+        """(N,) shooting segment and (N,) log row of every entry of the weighted residual vector."""
+        seg = [np.repeat(self.s_seg, self.n_state_ch)]
+        row = [np.repeat(self.s_row, self.n_state_ch)]
+        if self.use_sensors:
+            seg.append(np.repeat(self.y_seg, self.n_sens_ch))
+            row.append(np.repeat(self.y_row, self.n_sens_ch))
+        return np.concatenate(seg), np.concatenate(row)
+
     def channel_errors(self, r_state: np.ndarray, r_sens: np.ndarray) -> list[np.ndarray]:
         """Per channel, the unweighted errors of one parameter set, in row order."""
         out = [r_state[0, :, c] for c in range(self.n_state_ch)]

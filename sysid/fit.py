@@ -52,16 +52,22 @@ from scipy.stats import qmc
 
 from noise_models.timing import convert_time
 from sysid._problem import Problem, make_segments
+from sysid.covariance import combine, hac_covariance, identifiability
 from sysid.logs import LogError, TrajectoryLog, load_log, validate_log
 from sysid.params import ModelPool, ParameterSpace
+from sysid.quality import assess, ljung_box
 from sysid.result import FitResult
+from sysid.shooting import divergence_curve, divergence_horizon
 
 __all__ = ["DEFAULT_LATENCY_RANGE", "fit"]
 
 #: Delays (control steps) searched when ``latency=True``.
 DEFAULT_LATENCY_RANGE: tuple[int, int] = (0, 5)
 _SIGNALS = ("qpos", "qvel", "sensordata")
-_MAX_NUISANCE = 240  # initial-state unknowns above which anchor="auto" re-anchors to logged states instead
+_COST_ATOL = 1e-2  # ½χ² decrease below which Levenberg–Marquardt stops (see _lm)
+_SETTLED = 0.02  # Gauss–Newton parameter step (in standard errors) below which the parameters have settled
+_REWEIGHT_CHANGE = 0.25  # log change of a channel weight below which the re-weighted problem is not re-solved
+_MAX_NUISANCE = 1200  # initial-state unknowns above which anchor="auto" re-anchors to logged states instead
 
 
 def _load_model(model: mujoco.MjModel | str | os.PathLike[str]) -> mujoco.MjModel:
@@ -135,19 +141,23 @@ def _split(
 
 
 def _difference_sigma(problem: Problem) -> np.ndarray:
-    """Model-free noise level per channel: the second difference of white noise has variance 6σ²."""
+    """Model-free noise level per channel: the k-th difference of white noise has variance C(2k, k)·σ².
+
+    A smooth signal adds to every order but less to higher ones (a sampled velocity with fast content inflates
+    the second difference several-fold), so the smallest estimate over orders 2–6 is taken.
+    """
     out = []
-    for c, (y, seg) in enumerate(zip(problem.channel_measurements(), problem.channel_segments(), strict=True)):
-        d2 = []
-        for s in np.unique(seg):
-            ys = y[seg == s]
-            if ys.size >= 3:
-                d2.append(np.diff(ys, 2))
-        flat = np.concatenate(d2) if d2 else np.zeros(1)
-        sigma = math.sqrt(float(np.mean(flat**2)) / 6.0)
+    for y, seg in zip(problem.channel_measurements(), problem.channel_segments(), strict=True):
+        pieces = [y[seg == s] for s in np.unique(seg)]
+        estimates = []
+        for k in range(2, 7):
+            dk = [np.diff(ys, k) for ys in pieces if ys.size >= k + 1]
+            flat = np.concatenate(dk) if dk else np.zeros(0)
+            if flat.size >= 8 or (k == 2 and flat.size):
+                estimates.append(math.sqrt(float(np.mean(flat**2)) / math.comb(2 * k, k)))
+        sigma = min(estimates) if estimates else 0.0
         floor = 1e-9 * (float(np.std(y)) + 1e-9)
         out.append(max(sigma, floor, 1e-12))
-        del c
     return np.asarray(out)
 
 
@@ -212,6 +222,7 @@ def _lm(
     stage: str,
     ftol: float = 1e-10,
     xtol: float = 1e-9,
+    atol: float = _COST_ATOL,
 ) -> _State:
     """Box-projected Levenberg–Marquardt with Marquardt scaling; returns the improved state."""
     theta, x0 = st.theta.copy(), st.x0.copy()
@@ -223,10 +234,13 @@ def _lm(
     r, jac = problem.jacobian(theta, st.delay, st.obs, x0, _fd_steps(theta, lower, upper, fd_step), fit_x0, fit_params)
     cost = 0.5 * float(r @ r)
     while iterations < max_iter:
-        iterations += 1
         g = jac.T @ r
         h = jac.T @ jac
         diag = np.maximum(np.diag(h), 1e-12 * max(float(np.max(np.diag(h))), 1e-300))
+        if p and iterations and _settled(h, g, diag, p):
+            converged = True
+            break
+        iterations += 1
         accepted = False
         while lam < 1e12:
             try:
@@ -250,13 +264,30 @@ def _lm(
         theta, x0, cost = theta_new, x0_new, cost_new
         lam = max(lam / 4.0, 1e-10)
         progress.step(stage, cost)
-        if decrease <= ftol * max(cost, 1e-300) or step_small:
+        # An absolute floor too: a step that lowers ½χ² by 1e-2 moves the estimate by under a tenth of its
+        # standard error (and the next step far less), below what the data can tell apart.
+        if decrease <= max(ftol * max(cost, 1e-300), atol) or step_small:
             converged = True
             break
         r, jac = problem.jacobian(
             theta, st.delay, st.obs, x0, _fd_steps(theta, lower, upper, fd_step), fit_x0, fit_params
         )
     return _State(theta, x0, st.delay, st.obs, cost, iterations, converged)
+
+
+def _settled(h: np.ndarray, g: np.ndarray, diag: np.ndarray, p: int) -> bool:
+    """Whether the full Gauss–Newton step moves every parameter by under ``_SETTLED`` of its standard error.
+
+    Initial-state nuisance directions (contacts, marginally stable modes) can crawl for many iterations after the
+    parameters have settled; they do not change the estimates, so they are not chased.
+    """
+    try:
+        inv = np.linalg.inv(h + 1e-12 * np.diag(diag))
+    except np.linalg.LinAlgError:
+        return False
+    se = np.sqrt(np.maximum(np.diag(inv)[:p], 1e-300))
+    step = -(inv @ g)[:p]
+    return bool(np.all(np.abs(step) <= _SETTLED * se))
 
 
 def _starts(space: ParameterSpace, theta0: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
@@ -273,47 +304,6 @@ def _starts(space: ParameterSpace, theta0: np.ndarray, count: int, rng: np.rando
     return np.vstack([theta0, np.where(log_scale, geo, lin)])
 
 
-def _ljung_box(e: np.ndarray, lags: int) -> float:
-    e = e - e.mean()
-    n = e.size
-    denom = float(e @ e)
-    if n < 3 * lags or denom <= 0:
-        return math.nan
-    acf = np.array([float(e[k:] @ e[:-k]) / denom for k in range(1, lags + 1)])
-    q = n * (n + 2) * float(np.sum(acf**2 / (n - np.arange(1, lags + 1))))
-    return float(stats.chi2.sf(q, lags))
-
-
-def _identifiability(
-    addresses: tuple[str, ...], fisher: np.ndarray, theta: np.ndarray, lower: np.ndarray, upper: np.ndarray
-) -> tuple[np.ndarray, float, list[str]]:
-    """Covariance (unscaled) from the profiled Fisher matrix, its relative condition number and warnings."""
-    scale = np.maximum(np.abs(theta), 1e-6 * (upper - lower))
-    rel = fisher * np.outer(scale, scale)
-    eigval, eigvec = np.linalg.eigh(0.5 * (rel + rel.T))
-    top = max(float(eigval[-1]), 1e-300)
-    floor = top * 1e-16
-    safe = np.maximum(eigval, floor)
-    cov = (eigvec / safe) @ eigvec.T * np.outer(scale, scale)
-    cond = top / max(float(eigval[0]), floor)
-    warnings: list[str] = []
-    for k in range(len(eigval)):
-        lam = float(eigval[k])
-        rel_sd = 1.0 / math.sqrt(max(lam, floor))
-        if lam > top * 1e-10 and rel_sd < 0.5:
-            continue
-        v = eigvec[:, k] / np.max(np.abs(eigvec[:, k]))
-        terms = [(float(c), addresses[i]) for i, c in enumerate(v) if abs(c) >= 0.1]
-        terms.sort(key=lambda t: -abs(t[0]))
-        combo = " ".join(f"{'-' if c < 0 else '+'} {abs(c):.2g}·Δ{a}/{a}" for c, a in terms).lstrip("+ ")
-        what = ", ".join(a for _, a in terms)
-        warnings.append(
-            f"not identifiable: the data cannot separate {what}; the relative combination {combo} is only "
-            f"determined to ±{100 * rel_sd:.3g}% (condition number {cond:.3g})."
-        )
-    return cov, cond, warnings
-
-
 def fit(
     log: TrajectoryLog | str | os.PathLike[str],
     model: mujoco.MjModel | str | os.PathLike[str],
@@ -324,7 +314,7 @@ def fit(
     latency: bool | Mapping[str, int | tuple[int, int]] | None = None,
     substep_latency: bool = True,
     signals: Sequence[str] | None = None,
-    horizon: int | None = None,
+    horizon: int | Literal["auto"] | None = "auto",
     anchor: Literal["auto", "fit", "logged"] = "auto",
     noise_std: Mapping[str, float] | None = None,
     validation: float = 0.2,
@@ -351,9 +341,12 @@ def fit(
         substep_latency: refine the action delay to physics-step resolution when a control step has several.
         signals: measured signals in the residual, from ``"qpos"``, ``"qvel"``, ``"sensordata"`` (default all
             present in the log).
-        horizon: shooting-segment length in control steps (None: whole episodes).
+        horizon: shooting-segment length in control steps; ``"auto"`` (default) chooses it from the data: the
+            number of steps the model (after the global stage) stays within a few noise levels of the log when
+            simulated open loop from logged states (:func:`sysid.shooting.divergence_horizon`), whole episodes
+            when it never drifts away; None: whole episodes.
         anchor: ``"fit"`` estimates each segment's initial state, ``"logged"`` starts from the logged state,
-            ``"auto"`` fits them when there are at most 240 such unknowns.
+            ``"auto"`` fits them when there are at most 1200 such unknowns.
         noise_std: known noise sigma per channel name (others are estimated).
         validation: share of the log held out for validation (last episodes, or the tail of a single one).
         global_search: run the multi-start global stage before the local refinement.
@@ -402,7 +395,9 @@ def fit(
         (
             "horizon",
             horizon,
-            horizon is None or (isinstance(horizon, int) and not isinstance(horizon, bool) and horizon >= 1),
+            horizon is None
+            or horizon == "auto"
+            or (isinstance(horizon, int) and not isinstance(horizon, bool) and horizon >= 1),
         ),
         ("anchor", anchor, anchor in ("auto", "fit", "logged")),
         ("n_starts", n_starts, isinstance(n_starts, int) and n_starts >= 0),
@@ -412,7 +407,7 @@ def fit(
         if not ok:
             allowed = {
                 "validation": "a number in [0, 1)",
-                "horizon": "None or an int >= 1",
+                "horizon": "'auto', None or an int >= 1",
                 "anchor": "'auto', 'fit' or 'logged'",
                 "n_starts": "an int >= 0",
                 "max_iter": "an int >= 0",
@@ -431,14 +426,19 @@ def fit(
         raise LogError("the log has no rows left to fit after the validation split. Received too short a log.")
     pool = ModelPool(model, space)
     nx = model.nq + model.nv
-    if anchor == "auto":
-        fitted = make_segments(fit_ranges, horizon, True).count * nx <= _MAX_NUISANCE
-    else:
-        fitted = anchor == "fit"
-    seg_final = make_segments(fit_ranges, horizon, fitted)
-    if seg_final.count == 0:
-        raise LogError("`log` must have at least 2 rows per episode to fit. Received episodes too short to simulate.")
-    final = Problem(log, model, space, seg_final, signals, fitted, obs_margin, nthread, pool)
+    auto_horizon = horizon == "auto"
+    fixed_horizon: int | None = None if isinstance(horizon, str) else horizon
+
+    def build(h: int | None) -> tuple[Problem, bool]:
+        fit_x0 = make_segments(fit_ranges, h, True).count * nx <= _MAX_NUISANCE if anchor == "auto" else anchor == "fit"
+        seg = make_segments(fit_ranges, h, fit_x0)
+        if seg.count == 0:
+            raise LogError(
+                "`log` must have at least 2 rows per episode to fit. Received episodes too short to simulate."
+            )
+        return Problem(log, model, space, seg, signals, fit_x0, obs_margin, nthread, pool), fit_x0
+
+    final, fitted = build(fixed_horizon)
     sigma = _difference_sigma(final)
     known = dict(noise_std or {})
     unknown_names = sorted(set(known) - set(final.channels))
@@ -457,7 +457,7 @@ def fit(
     need_global = global_search or len(combos) > 1
     if need_global and max_iter > 0:
         short = max(5, 2 * max(ranges["action"]) + 5, obs_margin + 5)
-        g_horizon = short if horizon is None else min(horizon, short)
+        g_horizon = short if fixed_horizon is None else min(fixed_horizon, short)
         seg_g = make_segments(fit_ranges, g_horizon, False)
         gprob = Problem(log, model, space, seg_g, signals, False, obs_margin, nthread, pool)
         gprob.weights = final.weights
@@ -496,12 +496,26 @@ def fit(
                 best = cand
         assert best is not None
         st = _State(best.theta, final.anchors(), best.delay, best.obs)
+    if auto_horizon:
+        curve = divergence_curve(
+            log, model, space, fit_ranges, signals, final.weights, st.theta, st.delay, st.obs, nthread, pool
+        )
+        fixed_horizon = divergence_horizon(curve)
+        if fixed_horizon is not None:
+            final, fitted = build(fixed_horizon)
+            final.weights = 1.0 / sigma
+            st = _State(st.theta, final.anchors(), st.delay, st.obs)
+    seg_final = final.seg
 
     # ---- local stage with noise re-estimation, then latency refinement
     unknowns = space.size + (seg_final.count * nx if fitted else 0)
     lm_kwargs: dict[str, Any] = {"fit_x0": fitted, "fd_step": fd_step, "progress": bar}
     if max_iter > 0:
-        st = _lm(final, st, lower, upper, max_iter=max_iter, stage="local", **lm_kwargs)
+        # The noise levels are re-estimated from the residuals below, so this first solve only needs to get close.
+        loose = len(known) < len(final.channels)
+        st = _lm(
+            final, st, lower, upper, max_iter=max_iter, stage="local", atol=1.0 if loose else _COST_ATOL, **lm_kwargs
+        )
         for _ in range(2):
             if len(known) == len(final.channels):
                 break
@@ -511,9 +525,14 @@ def fit(
                     sigma[c] = new_sigma[c]
             change = float(np.max(np.abs(np.log(final.weights * sigma))))
             final.weights = 1.0 / sigma
-            st = _lm(final, st, lower, upper, max_iter=max_iter, stage="reweight", **lm_kwargs)
-            if change < 0.05:
+            if change < _REWEIGHT_CHANGE:
+                # Weights a little off cost a sliver of efficiency, not consistency (the sandwich covariance
+                # below is computed with the new weights), so the problem is only polished, not solved again.
+                if loose:
+                    st = _lm(final, st, lower, upper, max_iter=max_iter, stage="polish", **lm_kwargs)
                 break
+            st = _lm(final, st, lower, upper, max_iter=max_iter, stage="reweight", **lm_kwargs)
+            loose = False
         candidates: list[int] = []
         if len(ranges["action"]) > 1:
             lo_d, hi_d = min(delays), max(delays)
@@ -549,12 +568,14 @@ def fit(
         q, _ = np.linalg.qr(jac[:, p:])
         jp = jp - q @ (q.T @ jp)
     fisher = jp.T @ jp
-    cov_unit, cond, warns = _identifiability(space.addresses, fisher, st.theta, lower, upper)
+    cov_unit, cond, warns = identifiability(space.addresses, fisher, st.theta, lower, upper)
     n_res = int(r.size)
     dof = max(1, n_res - unknowns)
     s2 = 2.0 * cost / dof
     crlb = np.sqrt(np.maximum(np.diag(cov_unit), 0.0))
-    covariance = cov_unit * s2
+    # Coloured residuals (unmodelled dynamics) make s²(JᵀJ)⁻¹ too small: widen to the sandwich where larger.
+    hac = hac_covariance(jp, r, *final.residual_keys(), unknowns)
+    covariance, inflation = combine(cov_unit * s2, hac)
     stderr = np.sqrt(np.maximum(np.diag(covariance), 0.0))
     tq = float(stats.t.ppf(0.975, dof))
     ci95 = np.stack([st.theta - tq * stderr, st.theta + tq * stderr], axis=1)
@@ -570,7 +591,8 @@ def fit(
                     f"{corr[i, j]:+.3f}); the data mostly fix a combination of the two."
                 )
     span = upper - lower
-    for i in map(int, np.flatnonzero((st.theta - lower <= 1e-6 * span) | (upper - st.theta <= 1e-6 * span))):
+    at_bounds = np.flatnonzero((st.theta - lower <= 1e-6 * span) | (upper - st.theta <= 1e-6 * span))
+    for i in map(int, at_bounds):
         warns.append(
             f"{space.addresses[i]} = {st.theta[i]:.6g} sits at its bound [{lower[i]:.6g}, {upper[i]:.6g}]; widen "
             "`bounds` or check the model."
@@ -581,10 +603,11 @@ def fit(
     # ---- held-out validation
     noise = {name: float(sigma[c]) for c, name in enumerate(final.channels)}
     trace_problem, trace_x0, source = final, st.x0, "fit"
+    val_unknowns = 0
     if val_ranges:
-        vfit = anchor != "logged" and make_segments(val_ranges, horizon, True).count * nx <= _MAX_NUISANCE
+        vfit = anchor != "logged" and make_segments(val_ranges, fixed_horizon, True).count * nx <= _MAX_NUISANCE
         vprob = Problem(
-            log, model, space, make_segments(val_ranges, horizon, vfit), signals, vfit, obs_margin, nthread, pool
+            log, model, space, make_segments(val_ranges, fixed_horizon, vfit), signals, vfit, obs_margin, nthread, pool
         )
         vprob.weights = final.weights
         vst = _State(st.theta, vprob.anchors(), st.delay, st.obs)
@@ -596,12 +619,13 @@ def fit(
                 upper,
                 fit_x0=True,
                 fit_params=False,
-                max_iter=20,
+                max_iter=5,
                 fd_step=fd_step,
                 progress=bar,
                 stage="validate",
             )
         trace_problem, trace_x0, source = vprob, vst.x0, "validation"
+        val_unknowns = vprob.seg.count * nx if vfit else 0
     pred, sens = trace_problem.simulate(st.theta, st.delay, trace_x0)
     errors = trace_problem.channel_errors(*trace_problem.raw_residuals(pred, sens, st.obs))
     measured = trace_problem.channel_measurements()
@@ -613,7 +637,8 @@ def fit(
         e, y = errors[c], measured[c]
         spread = float(np.linalg.norm(y - y.mean()))
         fit_percent[name] = 100.0 * (1.0 - float(np.linalg.norm(e)) / spread) if spread > 0 else math.nan
-        pvals = [_ljung_box(e[segs[c] == s], 10) for s in np.unique(segs[c])]
+        pieces = [e[segs[c] == s] for s in np.unique(segs[c])]
+        pvals = [ljung_box(piece, min(10, piece.size // 4)) for piece in pieces if piece.size >= 12]
         pvals = [v for v in pvals if math.isfinite(v)]
         # Bonferroni-combined p over segments keeps the test's size near nominal.
         whiteness[name] = min(1.0, min(pvals) * len(pvals)) if pvals else math.nan
@@ -622,6 +647,22 @@ def fit(
                 f"residuals of {name} are not white (Ljung–Box p={whiteness[name]:.2g}): unmodelled dynamics, a "
                 "wrong latency or coloured noise."
             )
+    validation_ratio = math.nan
+    if source == "validation":
+        chi2 = sum(float(np.sum((e * w) ** 2)) for e, w in zip(errors, final.weights, strict=True))
+        count = sum(e.size for e in errors)
+        validation_ratio = math.sqrt(chi2 / max(1, count - val_unknowns)) / math.sqrt(max(s2, 1e-300))
+    quality = assess(
+        fit_percent,
+        whiteness,
+        tuple(space.addresses[int(i)] for i in at_bounds),
+        cond,
+        not any(w.startswith("not identifiable") for w in warns),
+        validation_ratio,
+        dict(zip(space.addresses, inflation.tolist(), strict=True)),
+        0 if fixed_horizon is None else int(fixed_horizon),
+        seg_final.count,
+    )
     all_rows = np.unique(np.concatenate(rows))
     index = {int(r_): k for k, r_ in enumerate(all_rows)}
     trace_measured = np.full((all_rows.size, len(trace_problem.channels)), np.nan)
@@ -668,4 +709,5 @@ def fit(
         trace_predicted=trace_predicted,
         trace_source=source,
         true_params=dict(truth) if isinstance(truth, Mapping) else None,
+        quality=quality,
     )

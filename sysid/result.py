@@ -34,6 +34,7 @@ from randomizers.distributions import MultivariateNormal, Uniform
 from randomizers.effects import Effect
 from randomizers.files import atomic_write
 from randomizers.parameters import EFFECT_FIELDS, Address, effect_for
+from sysid.quality import FitQuality, NotOkError
 
 __all__ = ["FitResult"]
 
@@ -130,6 +131,8 @@ class FitResult:
         trace_predicted: (N, C) simulated values with the estimates.
         trace_source: ``"validation"`` or ``"fit"``.
         true_params: ground truth from the log's meta, when it had any.
+        quality: the :class:`~sysid.quality.FitQuality` verdict (fit percent, whiteness, bounds, shooting
+            horizon, reasons); :attr:`ok` is its summary.
     """
 
     addresses: tuple[str, ...]  # Address objects (each is also its text)
@@ -160,8 +163,11 @@ class FitResult:
     trace_predicted: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     trace_source: str = "fit"
     true_params: Mapping[str, float] | None = None
+    quality: FitQuality = field(default_factory=FitQuality)
 
     def __post_init__(self) -> None:
+        if not isinstance(self.quality, FitQuality):
+            raise TypeError(f"`quality` must be a FitQuality. Received {type(self.quality).__name__}.")
         for name in (*_ARRAYS, *_TRACES):
             object.__setattr__(self, name, _readonly(getattr(self, name)))
         for name in _MAPPINGS:
@@ -277,7 +283,20 @@ class FitResult:
         kwargs["trace_source"] = str(trace.get("source", "fit"))
         truth = data.get("true_params")
         kwargs["true_params"] = None if truth is None else {k: _from_num(v) for k, v in truth.items()}
+        kwargs["quality"] = FitQuality.from_dict(data.get("quality", {}))
         return cls(**kwargs)
+
+    @property
+    def ok(self) -> bool:
+        """Whether the fitted model reproduces the log (no :attr:`quality` reasons); exports refuse otherwise."""
+        return self.quality.ok
+
+    def _require_ok(self, force: bool) -> None:
+        if not force and not self.quality.ok:
+            raise NotOkError(
+                "the fit is not ok, so it is not exported: " + "; ".join(self.quality.reasons) + ". Fix the model "
+                "or the log, or pass `force=True` to export it anyway."
+            )
 
     @property
     def params(self) -> dict[str, float]:
@@ -345,6 +364,7 @@ class FitResult:
                 "predicted": _nested(self.trace_predicted),
             },
             "true_params": None if self.true_params is None else {k: _num(v) for k, v in self.true_params.items()},
+            "quality": self.quality.to_dict(),
         }
 
     def to_json(self, path: str | os.PathLike[str] | None = None, indent: int = 2) -> str:
@@ -366,6 +386,7 @@ class FitResult:
         digits: int | None = None,
         latency: bool = True,
         noise: bool = True,
+        force: bool = False,
     ) -> list[Any]:
         """The randomised simulator this fit calls for: effects for the fitted parameters, then the fitted
         latencies and sensor noise (ready for ``sim2real.wrap``).
@@ -392,9 +413,13 @@ class FitResult:
         Parameters without a single-element effect (multi-dof components, raw fields such as
         ``actuator_biasprm``) are left out of ``kind="uniform"``; :meth:`to_randomizers` lists them.
 
+        A fit that is not :attr:`ok` (the model cannot reproduce the log) is refused unless ``force=True``.
+
         Raises:
             ValueError: a width that is not a finite number >= 0 (``width`` > 0), or an unknown ``kind``.
+            NotOkError: (a ValueError) the fit is not ok and ``force`` is False; the message lists the reasons.
         """
+        self._require_ok(force)
         for name, value, low in (("width", width, 0.0), ("min_relative_width", min_relative_width, 0.0)):
             if (
                 isinstance(value, bool)
@@ -473,14 +498,15 @@ class FitResult:
         *,
         min_relative_width: float = 0.1,
         kind: Literal["uniform", "posterior"] = "uniform",
+        force: bool = False,
     ) -> str:
         """A randomiser YAML config (``randomizers.load_config`` reads it) of :meth:`to_effects`.
 
         Args:
-            width, min_relative_width, kind: as for :meth:`to_effects`.
+            width, min_relative_width, kind, force: as for :meth:`to_effects` (a fit that is not ok is refused).
             path: when given, the YAML is also written there atomically.
         """
-        effects = self.to_effects(width, min_relative_width, kind)
+        effects = self.to_effects(width, min_relative_width, kind, force=force)
         text = dump_config(effects)
         covered = {a for e in effects if isinstance(e, Correlated) for a in e.addresses}
         notes = [
@@ -546,6 +572,7 @@ class FitResult:
         if self.latency:
             lines.append("latency (s): " + ", ".join(f"{k}={v:g}" for k, v in self.latency.items()))
         lines += [f"warning: {w}" for w in self.warnings]
+        lines += [f"NOT OK: {reason}" for reason in self.quality.reasons]
         return "\n".join(lines)
 
     def __repr__(self) -> str:

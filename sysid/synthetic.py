@@ -323,7 +323,7 @@ def excitation_log(
         "joint_names": [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or f"#{j}" for j in range(model.njnt)],
         "actuator_names": [n[5:-1] for n in names["ctrl"]],
         "sensor_names": names["sensordata"],
-        "true_latency_steps": {"action": 0, "obs": 0},
+        "true_latency_seconds": {"action": 0.0, "obs": 0.0},
         "noise_std": {"qpos": float(sigma["qpos"]), "qvel": float(sigma["qvel"]), "sensordata": 0.0},
     }
     if true_params is not None:

@@ -1,0 +1,252 @@
+"""`FitQuality`: can the fitted model reproduce the log? The verdict behind ``FitResult.ok``.
+
+A fit always returns numbers; whether they mean anything depends on whether the model can reproduce the log.
+:func:`assess` collects the evidence — fit percent per channel on held-out data, residual whiteness, parameters
+stuck at their bounds, the held-out error against the in-fit error, how much the coloured-residual (sandwich)
+covariance had to widen the intervals, identifiability — and writes a reason for every test that fails. A fit with
+reasons is not ``ok``; :meth:`sysid.FitResult.to_effects` then refuses to export it unless forced.
+
+Example:
+    >>> q = FitQuality(fit_percent={"qpos[a]": 99.0}, whiteness_pvalue={"qpos[a]": 0.4})
+    >>> q.ok, q.reasons
+    (True, ())
+    >>> bad = FitQuality(reasons=("fit percent 12.0% on qpos[a] (< 50%)",))
+    >>> bad.ok
+    False
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+__all__ = [
+    "INFLATION_LIMIT",
+    "MIN_FIT_PERCENT",
+    "NOT_WHITE_P",
+    "NOT_WHITE_SHARE",
+    "VALIDATION_RATIO_LIMIT",
+    "FitQuality",
+    "NotOkError",
+    "assess",
+    "ljung_box",
+]
+
+#: Median fit percent over channels below which the model does not reproduce the log.
+MIN_FIT_PERCENT = 50.0
+#: Ljung–Box p below which a channel's residuals count as not white ...
+NOT_WHITE_P = 1e-3
+#: ... and the share of channels that may be so before the residuals count as far from white.
+NOT_WHITE_SHARE = 0.5
+#: Held-out RMS error over in-fit RMS error (both in noise SDs) above which the model does not generalise.
+VALIDATION_RATIO_LIMIT = 1.5
+#: Standard-error widening by the sandwich covariance above which the residuals are too coloured to trust.
+INFLATION_LIMIT = 3.0
+
+
+class NotOkError(ValueError):
+    """An export of a fit whose :class:`FitQuality` is not ok (pass ``force=True`` to export anyway)."""
+
+
+def _floats(mapping: Mapping[str, Any]) -> dict[str, float]:
+    return {str(k): float(v) for k, v in mapping.items()}
+
+
+def _same(a: Any, b: Any) -> bool:
+    if isinstance(a, float) and isinstance(b, float):
+        return a == b or (math.isnan(a) and math.isnan(b))
+    if isinstance(a, Mapping) and isinstance(b, Mapping):
+        return list(a) == list(b) and all(_same(a[k], b[k]) for k in a)
+    return bool(a == b)
+
+
+@dataclass(frozen=True, eq=False)
+class FitQuality:
+    """How well a fitted model reproduces its log, and why it is (not) fit for export.
+
+    Attributes:
+        fit_percent: ``{channel: percent}`` NRMSE fit ``100 (1 - ‖y-ŷ‖/‖y-ȳ‖)`` on held-out data.
+        whiteness_pvalue: ``{channel: p}`` Ljung–Box p-value of the held-out residuals (small = not white).
+        at_bounds: addresses whose estimate sits at a search bound.
+        condition_number: condition number of the relative Fisher information.
+        identifiable: False when some parameter combination is determined to worse than ±50%.
+        validation_ratio: held-out RMS error over in-fit RMS error, both in noise SDs (≈ 1 for a right model;
+            NaN without held-out data).
+        se_inflation: ``{address: factor}`` by which the sandwich (coloured-residual) covariance widened the
+            standard error (1 = the Gauss–Newton error stood).
+        horizon: control steps per shooting segment (0 = whole episodes).
+        segments: shooting segments in the fit.
+        reasons: one sentence per failed check; empty when the fit is ok.
+    """
+
+    fit_percent: Mapping[str, float] = field(default_factory=dict)
+    whiteness_pvalue: Mapping[str, float] = field(default_factory=dict)
+    at_bounds: tuple[str, ...] = ()
+    condition_number: float = math.nan
+    identifiable: bool = True
+    validation_ratio: float = math.nan
+    se_inflation: Mapping[str, float] = field(default_factory=dict)
+    horizon: int = 0
+    segments: int = 0
+    reasons: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        for name in ("fit_percent", "whiteness_pvalue", "se_inflation"):
+            object.__setattr__(self, name, _floats(getattr(self, name)))
+        for name in ("condition_number", "validation_ratio"):
+            object.__setattr__(self, name, float(getattr(self, name)))
+        for name in ("horizon", "segments"):
+            object.__setattr__(self, name, int(getattr(self, name)))
+        object.__setattr__(self, "identifiable", bool(self.identifiable))
+        object.__setattr__(self, "at_bounds", tuple(str(a) for a in self.at_bounds))
+        object.__setattr__(self, "reasons", tuple(str(r) for r in self.reasons))
+
+    @property
+    def ok(self) -> bool:
+        """True when no check failed (:attr:`reasons` is empty)."""
+        return not self.reasons
+
+    def __eq__(self, other: object) -> bool:
+        """Field by field, NaN equal to NaN (what a JSON round trip must preserve)."""
+        if not isinstance(other, FitQuality):
+            return NotImplemented
+        return all(_same(getattr(self, f.name), getattr(other, f.name)) for f in fields(self))
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict (NaN is ``None``); :meth:`from_dict` inverts it.
+
+        Example:
+            >>> q = FitQuality(fit_percent={"qpos[a]": float("nan")}, horizon=20, reasons=("x",))
+            >>> FitQuality.from_dict(q.to_dict()) == q
+            True
+        """
+
+        def num(v: float) -> float | str | None:
+            if math.isnan(v):
+                return None
+            return v if math.isfinite(v) else ("inf" if v > 0 else "-inf")
+
+        return {
+            "ok": self.ok,
+            "fit_percent": {k: num(v) for k, v in self.fit_percent.items()},
+            "whiteness_pvalue": {k: num(v) for k, v in self.whiteness_pvalue.items()},
+            "at_bounds": list(self.at_bounds),
+            "condition_number": num(self.condition_number),
+            "identifiable": self.identifiable,
+            "validation_ratio": num(self.validation_ratio),
+            "se_inflation": {k: num(v) for k, v in self.se_inflation.items()},
+            "horizon": self.horizon,
+            "segments": self.segments,
+            "reasons": list(self.reasons),
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> FitQuality:
+        """The inverse of :meth:`to_dict` (``ok`` is derived, not read)."""
+
+        def val(v: Any) -> float:
+            return math.nan if v is None else float(v)
+
+        return cls(
+            fit_percent={k: val(v) for k, v in data.get("fit_percent", {}).items()},
+            whiteness_pvalue={k: val(v) for k, v in data.get("whiteness_pvalue", {}).items()},
+            at_bounds=tuple(data.get("at_bounds", ())),
+            condition_number=val(data.get("condition_number")),
+            identifiable=bool(data.get("identifiable", True)),
+            validation_ratio=val(data.get("validation_ratio")),
+            se_inflation={k: val(v) for k, v in data.get("se_inflation", {}).items()},
+            horizon=int(data.get("horizon", 0)),
+            segments=int(data.get("segments", 0)),
+            reasons=tuple(data.get("reasons", ())),
+        )
+
+
+def ljung_box(e: np.ndarray, lags: int) -> float:
+    """Ljung–Box p-value of the residual series ``e`` over ``lags`` lags (NaN when too short or constant).
+
+    Example:
+        >>> p = ljung_box(np.random.default_rng(0).normal(size=400), 10)
+        >>> bool(0.01 < p <= 1.0)
+        True
+        >>> ljung_box(np.sin(np.linspace(0, 20, 400)), 10) < 1e-6
+        True
+    """
+    e = e - e.mean()
+    n = e.size
+    denom = float(e @ e)
+    if n < 3 * lags or denom <= 0:
+        return math.nan
+    acf = np.array([float(e[k:] @ e[:-k]) / denom for k in range(1, lags + 1)])
+    q = n * (n + 2) * float(np.sum(acf**2 / (n - np.arange(1, lags + 1))))
+    return float(stats.chi2.sf(q, lags))
+
+
+def assess(
+    fit_percent: Mapping[str, float],
+    whiteness_pvalue: Mapping[str, float],
+    at_bounds: tuple[str, ...],
+    condition_number: float,
+    identifiable: bool,
+    validation_ratio: float,
+    se_inflation: Mapping[str, float],
+    horizon: int,
+    segments: int,
+) -> FitQuality:
+    """Runs every check and returns the :class:`FitQuality` with a reason per failure.
+
+    Example:
+        >>> q = assess({"qpos[a]": 20.0, "qpos[b]": 30.0}, {"qpos[a]": 1e-9, "qpos[b]": 1e-6}, ("dof_damping[a]",),
+        ...            10.0, True, 4.0, {"dof_damping[a]": 5.0}, 0, 1)
+        >>> len(q.reasons), q.ok
+        (5, False)
+        >>> print(q.reasons[0])
+        the model does not reproduce the log: median held-out fit 25.0% (< 50%; worst qpos[a] 20.0%)
+    """
+    reasons: list[str] = []
+    fits = [v for v in fit_percent.values() if math.isfinite(v)]
+    if fits and float(np.median(fits)) < MIN_FIT_PERCENT:
+        worst = min((k for k in fit_percent if math.isfinite(fit_percent[k])), key=lambda k: fit_percent[k])
+        reasons.append(
+            f"the model does not reproduce the log: median held-out fit {float(np.median(fits)):.1f}% "
+            f"(< {MIN_FIT_PERCENT:g}%; worst {worst} {fit_percent[worst]:.1f}%)"
+        )
+    pvals = {k: v for k, v in whiteness_pvalue.items() if math.isfinite(v)}
+    coloured = sorted((k for k, v in pvals.items() if v < NOT_WHITE_P), key=lambda k: pvals[k])
+    if pvals and len(coloured) / len(pvals) >= NOT_WHITE_SHARE:
+        reasons.append(
+            f"residuals far from white in {len(coloured)} of {len(pvals)} channels (Ljung–Box p < {NOT_WHITE_P:g}, "
+            f"e.g. {coloured[0]} p={pvals[coloured[0]]:.2g}): unmodelled dynamics or a wrong latency"
+        )
+    if at_bounds:
+        reasons.append(f"estimates at their search bounds: {', '.join(at_bounds)} (widen `bounds` or check the model)")
+    if math.isfinite(validation_ratio) and validation_ratio > VALIDATION_RATIO_LIMIT:
+        reasons.append(
+            f"held-out error is {validation_ratio:.2f}x the in-fit error (> {VALIDATION_RATIO_LIMIT:g}): the fitted "
+            "model does not generalise beyond the data it was fitted on"
+        )
+    inflated = {k: v for k, v in se_inflation.items() if v > INFLATION_LIMIT}
+    if inflated:
+        worst = max(inflated, key=lambda k: inflated[k])
+        reasons.append(
+            f"residuals are strongly coloured: the sandwich covariance widens the standard error of {worst} "
+            f"{inflated[worst]:.1f}x (> {INFLATION_LIMIT:g}x)"
+        )
+    return FitQuality(
+        fit_percent=fit_percent,
+        whiteness_pvalue=whiteness_pvalue,
+        at_bounds=at_bounds,
+        condition_number=condition_number,
+        identifiable=identifiable,
+        validation_ratio=validation_ratio,
+        se_inflation=se_inflation,
+        horizon=horizon,
+        segments=segments,
+        reasons=tuple(reasons),
+    )
