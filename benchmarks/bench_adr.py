@@ -4,7 +4,8 @@ Measures in one run, side by side, PPO training (:func:`sim2real.agents.train`) 
 
 - *dr*: plain domain randomisation with hand-picked ranges, the effects below with their full ranges;
 - *adr*: the same effects driven by an :class:`~randomizers.ADR` controller whose hard limits are those ranges,
-  starting at the nominal point (``p_boundary`` 0.5, ``m`` 3, ``delta`` 0.1, metric = episode return).
+  starting at the nominal point (``p_boundary`` 0.5, ``m`` 2, ``delta`` 0.1, metric = episode return with
+  ``t_low`` -130 and ``t_high`` -105: about a random policy's return, so ranges grow early in training).
 
 Both arms draw the same effects through the same physics transform; what ADR adds is the boundary stream at reset,
 the reward sum per step and the controller's bookkeeping at each episode end. The arms alternate (dr, adr, dr,
@@ -12,8 +13,13 @@ adr, ...) after one untimed warm-up run of each; repeat ``k`` of both uses seed 
 (frames over ``time.process_time`` in :func:`train`, torch on one thread), the steadier figure on a shared box;
 wall frames/s are printed too. The ratio is the median of the per-repeat adr/dr ratios; the goal is >= 0.97.
 
-The entropy curve is the ADR history of the timed runs (frames, mean nats per dimension; ``-inf`` while every
-dimension is still a point) next to the entropy of the hand-picked ranges.
+Training runs are short and PPO's own cost varies from run to run, so the env-step arm isolates what ADR changes:
+rollouts of the TorchRL training env (``GymWrapper`` + the physics transform, DR or ADR) under a fixed random
+policy, ``--env-blocks`` alternating blocks of ``--env-steps`` steps each, CPU time per step.
+
+The entropy curve comes from one more ADR run of ``--curve-frames`` (untimed, seed 0): its ADR history (frames,
+mean nats per dimension; ``-inf`` while a dimension is still a point) next to the entropy of the hand-picked ranges,
+with the training returns per batch (what the thresholds act on).
 
 Usage:
     MUJOCO_GL=egl .venv/bin/python benchmarks/bench_adr.py                  # arm-reach, 3 repeats of 3000 frames
@@ -50,8 +56,8 @@ def effects() -> list[Any]:
     ]
 
 
-def controller(t_low: float, t_high: float) -> ADR:
-    return ADR(effects(), delta=0.1, t_low=t_low, t_high=t_high, p_boundary=0.5, m=3, metric="return")
+def controller(t_low: float, t_high: float, m: int) -> ADR:
+    return ADR(effects(), delta=0.1, t_low=t_low, t_high=t_high, p_boundary=0.5, m=m, metric="return")
 
 
 def run(task: str, frames: int, seed: int, adr: ADR | None) -> tuple[float, float, Any]:
@@ -63,40 +69,77 @@ def run(task: str, frames: int, seed: int, adr: ADR | None) -> tuple[float, floa
     return result.frames / cpu, result.frames / result.wall_time, result
 
 
+def env_steps(task: str, steps: int, blocks: int, t_low: float, t_high: float, m: int) -> tuple[float, float]:
+    """Median CPU microseconds per TorchRL env step under DR and under ADR (blocks alternating)."""
+    from torchrl.envs import GymWrapper
+
+    import sim2real
+
+    arms = {
+        "dr": sim2real.wrap(GymWrapper(sim2real.make(task)), *effects(), seed=0),
+        "adr": sim2real.wrap(GymWrapper(sim2real.make(task)), controller(t_low, t_high, m), seed=0),
+    }
+    times: dict[str, list[float]] = {"dr": [], "adr": []}
+    for env in arms.values():
+        env.rollout(200, break_when_any_done=False)  # warm-up
+    for _ in range(blocks):
+        for name, env in arms.items():
+            start = time.process_time()
+            env.rollout(steps, break_when_any_done=False)
+            times[name].append((time.process_time() - start) / steps * 1e6)
+    for env in arms.values():
+        env.close()
+    return statistics.median(times["dr"]), statistics.median(times["adr"])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", default="sim2real/arm-reach")
     parser.add_argument("--frames", type=int, default=3000)
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--t-low", type=float, default=-115.0, help="ADR t_low (episode return)")
-    parser.add_argument("--t-high", type=float, default=-100.0, help="ADR t_high (episode return)")
+    parser.add_argument("--t-low", type=float, default=-130.0, help="ADR t_low (episode return)")
+    parser.add_argument("--t-high", type=float, default=-105.0, help="ADR t_high (episode return)")
+    parser.add_argument("--m", type=int, default=2, help="ADR buffer size")
+    parser.add_argument("--curve-frames", type=int, default=10000, help="frames of the entropy-curve run (0: none)")
+    parser.add_argument("--env-steps", type=int, default=2000, help="steps per block of the env-step arm")
+    parser.add_argument("--env-blocks", type=int, default=7, help="blocks per arm of the env-step arm (0: none)")
     args = parser.parse_args()
     torch.set_num_threads(1)
     print(f"# bench_adr: {args.task}, {args.frames} PPO frames x {args.repeats} repeats per arm, 1 torch thread")
     print(f"# python {platform.python_version()}, mujoco {mujoco.__version__}, torch {torch.__version__}")
     run(args.task, min(args.frames, 1000), 99, None)  # warm-up, untimed
-    run(args.task, min(args.frames, 1000), 99, controller(args.t_low, args.t_high))
+    run(args.task, min(args.frames, 1000), 99, controller(args.t_low, args.t_high, args.m))
     ratios, wall_ratios, rows = [], [], []
-    curves = []
     for k in range(args.repeats):
         dr_cpu, dr_wall, _ = run(args.task, args.frames, k, None)
-        adr = controller(args.t_low, args.t_high)
+        adr = controller(args.t_low, args.t_high, args.m)
         adr_cpu, adr_wall, result = run(args.task, args.frames, k, adr)
         ratios.append(adr_cpu / dr_cpu)
         wall_ratios.append(adr_wall / dr_wall)
         rows.append((dr_cpu, adr_cpu, dr_wall, adr_wall))
-        curves.append(ADR.from_state(result.adr).history)
         print(
             f"repeat {k}: dr {dr_cpu:7.1f} cpu-f/s {dr_wall:7.1f} wall-f/s | adr {adr_cpu:7.1f} cpu-f/s "
             f"{adr_wall:7.1f} wall-f/s | adr/dr cpu {ratios[-1]:.3f} wall {wall_ratios[-1]:.3f}"
         )
     hand = float(np.mean([math.log(e.distribution.high - e.distribution.low) for e in effects()]))
     print(f"# entropy of the hand-picked ranges: {hand:.3f} nats/dim")
-    for k, hist in enumerate(curves):
+    if args.curve_frames > 0:
+        _, _, result = run(args.task, args.curve_frames, 0, controller(args.t_low, args.t_high, args.m))
+        hist = ADR.from_state(result.adr).history
         points = ", ".join(f"{f}:{e:.3f}" for f, e in zip(hist.frames, hist.entropy, strict=True))
         final = dict(zip(hist.keys, zip(hist.low[-1], hist.high[-1], strict=True), strict=True))
-        print(f"# adr entropy curve, seed {k} (frames:nats/dim): {points}")
+        returns = ", ".join(
+            f"{int(f)}:{r:.1f}" for f, r in zip(result.metrics["frames"], result.metrics["episode_return"], strict=True)
+        )
+        print(f"# adr entropy curve, {args.curve_frames} frames, seed 0 (frames:nats/dim): {points}")
         print(f"#   final ranges: { {key: (round(lo, 3), round(hi, 3)) for key, (lo, hi) in final.items()} }")
+        print(f"#   training return per batch (frames:return): {returns}")
+    if args.env_blocks > 0:
+        dr_us, adr_us = env_steps(args.task, args.env_steps, args.env_blocks, args.t_low, args.t_high, args.m)
+        print(
+            f"# env steps: dr {dr_us:.1f} us/step, adr {adr_us:.1f} us/step (median of {args.env_blocks} blocks of "
+            f"{args.env_steps}); adr/dr steps/s {dr_us / adr_us:.3f}"
+        )
     median = statistics.median(ratios)
     med = [statistics.median(col) for col in zip(*rows, strict=True)]
     print(f"# medians: dr {med[0]:.1f} cpu-f/s, adr {med[1]:.1f} cpu-f/s; dr {med[2]:.1f} wall-f/s, adr {med[3]:.1f}")
