@@ -258,7 +258,7 @@ def _segments(
             f"is {dt:.6g} s (the log must hold one row per control step).{hint}"
         )
     gap_rows = np.flatnonzero(same & (steps > _GAP * dt)) + 1
-    gaps = [{"row": int(i) + 2, "dt_s": float(steps[i - 1])} for i in gap_rows]
+    gaps = [{"row": int(i) + 2, "dt_s": round(float(steps[i - 1]), 12)} for i in gap_rows]
     edges = sorted(set(edges) | set(gap_rows.tolist()))
     return [(a, b) for a, b in itertools.pairwise(edges) if b > a], gaps
 
