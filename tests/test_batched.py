@@ -347,3 +347,19 @@ def test_torchrl_env_with_signal_models_reports_their_draws() -> None:
     column = env.param_names.index("obs_latency_steps")
     assert float(td["sim2real_params"][1, column]) == info["sim2real"]["params"]["obs_latency_steps"]
     env.close()
+
+
+def test_threads_do_not_change_results() -> None:
+    effects = _effects(1)
+    one = make_batched("dmc/manipulator-bring_ball", 5, *effects, seed=3, time_limit=0.1)
+    two = make_batched("dmc/manipulator-bring_ball", 5, *effects, seed=3, time_limit=0.1, threads=2)
+    assert np.array_equal(one.reset(seed=0)[0], two.reset(seed=0)[0])
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        actions = rng.uniform(-1, 1, (5, one.action_dim))
+        for x, y in zip(one.step(actions), two.step(actions), strict=True):
+            assert np.array_equal(x, y)
+    one.close()
+    two.close()
+    with pytest.raises(ValueError, match=r"`threads` must be an int >= 1. Received 0."):
+        make_batched("dmc/reacher-easy", 2, threads=0)
