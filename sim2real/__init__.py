@@ -69,6 +69,7 @@ from randomizers import (  # noqa: E402 - the GL backend must be chosen before m
 )
 from sim2real import metrics  # noqa: E402
 from sim2real.adapters import DmEnvToGym  # noqa: E402
+from sim2real.batched import make_batched  # noqa: E402
 from sim2real.metrics import Estimate, FewSamplesWarning, Gap, RobustnessRadius  # noqa: E402
 from sim2real.physics import PhysicsHandle, find_physics  # noqa: E402
 from sim2real.pixels import PixelObservation, track_render_contexts  # noqa: E402
@@ -137,6 +138,7 @@ __all__ = [
     "load_config",
     "load_effects",
     "make",
+    "make_batched",
     "make_vec",
     "metrics",
     "task_ids",
