@@ -3,10 +3,12 @@
 World ``i`` *is* ``sim2real.wrap(sim2real.make(task), *effects, seed=(seed, i))``: it is built and reset through
 that single env (so its draws, its reported parameters and the task's own episode randomness are those of the
 single env by construction: no address handling or drawing is repeated here). Only ``step`` bypasses the
-Python env stack: the engine writes all controls, advances every world's MuJoCo data with the same C calls in
-the same order as dm-control's legacy step (``mj_step2``, ``mj_step`` for further substeps, ``mj_step1``), copies
-the state each task needs into preallocated ``(N, ...)`` arrays, and computes every world's observation and
-reward with one numpy operation each (:mod:`sim2real.batched.kernels`).
+Python env stack: the engine computes all controls at once, advances every world's MuJoCo data with the same C
+calls in the same order as the single env (dm-control's legacy step: ``mj_step2``, ``mj_step`` for further
+substeps, ``mj_step1``; arm-reach: ``mj_step`` over its substeps, ``mj_forward``), copies the state each task
+needs into preallocated ``(N, ...)`` arrays, and computes every world's observation and reward with one numpy
+operation each (:mod:`sim2real.batched.kernels`); noise and observation latency run the same way
+(:mod:`sim2real.batched.signals`). ``threads=k`` splits the worlds' C calls over k threads.
 
 Why not ``mujoco.rollout`` for the stepping: a rollout restarts each world from ``mjSTATE_FULLPHYSICS``, which
 leaves out the constraint solver's warm start (``qacc_warmstart``, reset to zero), and its outputs are the state
