@@ -88,6 +88,8 @@ def test_cli_record_and_fit(tmp_path, capsys) -> None:  # type: ignore[no-untype
             "100",
             "--policy",
             "multisine",
+            "--obs-noise",
+            "1e-3",
             "--out",
             str(out),
         ]
@@ -124,3 +126,31 @@ def test_cli_fit_bad_log_exits_2(tmp_path, capsys) -> None:  # type: ignore[no-u
     code = main(["sysid", "fit", str(bad), "--task", "dmc/reacher-easy", "--params", "dof_damping[*]"])
     assert code == 2
     assert capsys.readouterr().err.startswith("sim2real sysid: error: ")
+
+
+def test_cli_fit_that_is_not_ok_exits_3_and_is_not_exported(tmp_path, capsys, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    quality = pytest.importorskip("sysid.quality")  # FitResult.ok comes with issue 17 part A's quality checks
+    import dataclasses
+
+    import sysid
+
+    log = tmp_path / "log.npz"
+    assert main(["record", "--task", "dmc/reacher-easy", "--episodes", "1", "--steps", "50", "--out", str(log)]) == 0
+    reason = "held-out error is 86x the in-fit error (> 1.5)"
+    refused = dataclasses.replace(
+        sysid.FitResult.from_estimates({"dof_damping[shoulder]": (0.02, 0.001)}),
+        quality=quality.FitQuality(reasons=(reason,)),
+    )
+    monkeypatch.setattr(sysid, "fit", lambda *args, **kwargs: refused)  # what the CLI does with a fit that is not ok
+    fit = ["sysid", "fit", str(log), "--task", "dmc/reacher-easy", "--params", "dof_damping[*]", "--quiet"]
+    out, effects = tmp_path / "fit.json", tmp_path / "effects.yaml"
+    capsys.readouterr()
+    assert main([*fit, "--out", str(out), "--export", str(effects)]) == 3
+    assert capsys.readouterr().err == (
+        f"sim2real sysid fit: the fit is not ok: {reason}; {effects} was not written (pass --force to export it "
+        "anyway)\n"
+    )
+    assert sysid.FitResult.from_json(out) == refused and not effects.exists()  # the fit is kept, not exported
+    assert main([*fit, "--out", str(out), "--export", str(effects), "--force"]) == 0
+    assert capsys.readouterr().err.endswith(f"{reason} (exported anyway: --force)\n")
+    assert "type: Damping" in effects.read_text()
