@@ -55,7 +55,7 @@ from sysid._problem import Problem, make_segments
 from sysid.covariance import combine, hac_covariance, identifiability
 from sysid.logs import LogError, TrajectoryLog, load_log, validate_log
 from sysid.params import ModelPool, ParameterSpace
-from sysid.quality import assess, ljung_box
+from sysid.quality import assess, pooled_ljung_box
 from sysid.result import FitResult
 from sysid.shooting import divergence_curve, divergence_horizon
 
@@ -637,11 +637,7 @@ def fit(
         e, y = errors[c], measured[c]
         spread = float(np.linalg.norm(y - y.mean()))
         fit_percent[name] = 100.0 * (1.0 - float(np.linalg.norm(e)) / spread) if spread > 0 else math.nan
-        pieces = [e[segs[c] == s] for s in np.unique(segs[c])]
-        pvals = [ljung_box(piece, min(10, piece.size // 4)) for piece in pieces if piece.size >= 12]
-        pvals = [v for v in pvals if math.isfinite(v)]
-        # Bonferroni-combined p over segments keeps the test's size near nominal.
-        whiteness[name] = min(1.0, min(pvals) * len(pvals)) if pvals else math.nan
+        whiteness[name] = pooled_ljung_box([e[segs[c] == s] for s in np.unique(segs[c])])
         if whiteness[name] < 0.01 and fit_percent[name] < 99.9:
             warns.append(
                 f"residuals of {name} are not white (Ljung–Box p={whiteness[name]:.2g}): unmodelled dynamics, a "
