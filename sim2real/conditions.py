@@ -140,6 +140,41 @@ class Condition:
         """True when the condition is run in simulation (everything but measured returns)."""
         return self.kind != "measured"
 
+    def wrap(self, env: Any, *, seed: Any = 0) -> Any:
+        """``env`` with this condition's effects (:func:`sim2real.wrap`; ``env`` itself when there are none).
+        ``env`` must hold the condition's ``params`` already (see :meth:`make_env`)."""
+        self._require_simulated()
+        if not self.effects:
+            return env
+        from sim2real.wrapping import wrap
+
+        return wrap(env, *self.effects, seed=seed)
+
+    def make_env(self, task: str, *, seed: Any = 0, **options: Any) -> Any:
+        """The environment this condition evaluates on: ``sim2real.make(task, params=self.params, **options)``
+        wrapped with the effects. The evaluation, the study's twin recording and users build it this one way.
+
+        Example:
+            >>> twin = real([], params={"dof_damping[shoulder]": 0.03})
+            >>> env = twin.make_env("dmc/reacher-easy")
+            >>> from sim2real.physics import find_physics
+            >>> float(find_physics(env).model.dof_damping[0])
+            0.03
+        """
+        return self.wrap(self.base_env(task, **options), seed=seed)
+
+    def base_env(self, task: str, **options: Any) -> Any:
+        """``sim2real.make(task, params=self.params, **options)``: the env before the effects (conditions with the
+        same ``params`` can share it, one :meth:`wrap` after another)."""
+        self._require_simulated()
+        from sim2real.tasks import make
+
+        return make(task, params=dict(self.params) if self.params is not None else None, **options)
+
+    def _require_simulated(self) -> None:
+        if not self.simulated:
+            raise ValueError(f"condition {self.name!r} holds measured returns; it has no environment.")
+
     def config(self) -> dict[str, Any]:
         """The condition as plain data (effects as their YAML config), for reports and JSON."""
         from randomizers import Effect

@@ -12,6 +12,8 @@ Format (paths are relative to the YAML file; every key but ``task`` and ``polici
       scripted: baseline    # the task's scripted baseline
       ppo: {checkpoint: ppo.pt}
     randomized: randomized.yaml              # a randomisation config (file or inline effects/signals)
+    simulators:                              # more simulators by name, e.g. the calibrated one of a fit
+      calibrated: calibrated.yaml            #   (sysid fit --export ...): file or inline effects/signals
     real:                                    # the "real" target: a twin ...
       config: twin.yaml                      #   held-out effects/signals (file or inline)
       params: {"dof_damping[shoulder_pitch]": 2.0}   # held-out values written into the model
@@ -53,7 +55,7 @@ __all__ = ["EvaluationSpec", "SpecError", "load_spec"]
 
 _TOP_KEYS = (
     "task", "model", "env", "seed", "episodes", "max_steps", "batch", "task_options", "policies", "randomized",
-    "real", "sweeps", "grids", "report",
+    "simulators", "real", "sweeps", "grids", "report",
 )  # fmt: skip
 _REPORT_KEYS = ("title", "confidence", "alpha", "fraction", "statistic", "num_resamples", "fit", "notes")
 
@@ -212,6 +214,18 @@ def load_spec(source: str | os.PathLike[str] | Mapping[str, Any]) -> EvaluationS
     if "randomized" in config:
         key = f"{where}: randomized"
         conditions.append(_wrap_errors(key, randomized, _effects_source(config["randomized"], base, key)))
+    simulators = config.get("simulators", {}) or {}
+    if not isinstance(simulators, Mapping):
+        raise SpecError(
+            f"{where}: `simulators` must be a mapping name -> effects file or mapping. Received {simulators!r}."
+        )
+    for name, value in simulators.items():
+        key = f"{where}: simulators.{name}"
+        if not isinstance(name, str) or name in ("sim", "randomized", "real"):
+            raise SpecError(f"{key}: a simulator name must be a string other than 'sim', 'randomized' and 'real'.")
+        conditions.append(
+            _wrap_errors(key, randomized, _effects_source(value, base, key), name=name, description=f"{name} sim")
+        )
     if "real" in config:
         key = f"{where}: real"
         value = config["real"]

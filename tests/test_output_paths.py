@@ -224,6 +224,7 @@ def fake_study(monkeypatch: pytest.MonkeyPatch) -> list[Path]:
     """``run_study`` with its work replaced by two files written into the staging folder (the folder handling is
     what is tested; the real study runs in tests/test_study.py). Returns the staging folders it was given."""
     import sim2real.study as study
+    import sim2real.study.run as study_run
 
     seen: list[Path] = []
 
@@ -234,7 +235,7 @@ def fake_study(monkeypatch: pytest.MonkeyPatch) -> list[Path]:
         (staging / "report.html").write_text("<html></html>")
         return study.StudyResult(staging, staging / "report.html", "summary", {}, {}, None, None)
 
-    monkeypatch.setattr(study, "_run", run)
+    monkeypatch.setattr(study_run, "_run", run)
     return seen
 
 
@@ -314,6 +315,7 @@ def test_study_never_overwrites_what_appeared_during_the_run(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     import sim2real.study as study
+    import sim2real.study.run as study_run
 
     out = tmp_path / "study"
 
@@ -323,7 +325,7 @@ def test_study_never_overwrites_what_appeared_during_the_run(
         (out / "notes.txt").write_text("written by the user meanwhile")
         return study.StudyResult(staging, staging / "report.html", "summary", {}, {}, None, None)
 
-    monkeypatch.setattr(study, "_run", run)
+    monkeypatch.setattr(study_run, "_run", run)
     result = study.run_study(out=out, budget="quick", backend="serial", progress=False, log=None)
     assert result.out == tmp_path / "study-2" and result.report == tmp_path / "study-2" / "report.html"
     assert _tree(tmp_path) == ["study", "study-2", "study-2/report.html", "study/notes.txt"]

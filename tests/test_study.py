@@ -65,7 +65,18 @@ def test_interrupt_leaves_nothing_half_written(tmp_path: Path, monkeypatch: pyte
 def test_profile_and_errors() -> None:
     assert "dmc/reacher-easy" in study_tasks()
     profile = load_profile()
-    assert profile.recording == (0.005, 2)
+    from noise_models import ActionLatency
+    from sim2real.twin import sensor_noise_std
+
+    # The twin is one Condition: the evaluation scores it and the recorder records through its env.
+    assert profile.twin.kind == "real" and profile.twin.hidden
+    assert sensor_noise_std(profile.twin) == 0.005
+    assert ActionLatency(steps=2) in profile.twin.effects
+    # The shipped checkpoints match the profile as it is (a new agent option must not orphan them).
+    from sim2real.study.policies import effects_yaml, shipped
+
+    assert shipped(profile, "nominal", None) is not None
+    assert shipped(profile, "randomized", effects_yaml(profile.randomized)) is not None
     with pytest.raises(
         ValueError,
         match=r"`task` must be one of \[.*'dmc/reacher-easy'.*\] \(tasks with a bundled study\). Received 'dmc/cheetah-run'.",
