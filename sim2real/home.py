@@ -127,16 +127,21 @@ class GravityCompensation:
             mujoco.mj_forward(model, data)
             columns.append(data.qfrc_actuator - base)
         self._pinv = np.linalg.pinv(np.stack(columns, axis=1))
+        self._bias = np.zeros(model.nv)
+        self._out = np.zeros(model.nu)
 
     def __call__(self, qpos: np.ndarray) -> np.ndarray:
         """Controls ``(nu,)``: the gravity-holding command on the torque actuators, 0 on the servos."""
         data = self._data
         data.qpos[:] = qpos
         data.qvel[:] = 0.0
-        mujoco.mj_forward(self.model, data)
-        out = np.zeros(self.model.nu)
-        out[self.motors] = self._pinv @ data.qfrc_bias
-        return out
+        # Gravity alone needs kinematics and the recursive Newton-Euler pass, not a full mj_forward (no
+        # collision or constraint solve): at zero velocity the bias force is the gravity torque.
+        mujoco.mj_kinematics(self.model, data)
+        mujoco.mj_comPos(self.model, data)
+        mujoco.mj_rne(self.model, data, 0, self._bias)
+        self._out[self.motors] = self._pinv @ self._bias
+        return self._out.copy()
 
 
 @dataclass(frozen=True)
@@ -178,8 +183,10 @@ def _simulate(
     substeps: int,
     latency: int,
     gravity: GravityCompensation | None,
+    stop_early: bool = False,
 ) -> tuple[np.ndarray, str | None]:
-    """Runs the episodes; returns the commands sent and the first joint that left its range (or None)."""
+    """Runs the episodes; returns the commands sent and the first joint that left its range (or None). With
+    ``stop_early`` a trial ends at the first joint out of range (its commands are then incomplete)."""
     adr, low, high, names = _limited_joints(model)
     data = mujoco.MjData(model)
     episodes, steps, nu = deviation.shape
@@ -198,6 +205,8 @@ def _simulate(
             bad = np.flatnonzero((q < low) | (q > high))
             if outside is None and bad.size:
                 outside = names[int(bad[0])]
+                if stop_early:
+                    return ctrl, outside
     return ctrl, outside
 
 
@@ -255,7 +264,7 @@ def plan_excitation(
     full = np.stack([unit.signal(steps, dt, t0=e * steps * dt) for e in range(episodes)]) - center
     bounds = (limits.low, limits.high)
     notes: list[str] = []
-    _, still = _simulate(model, home, 0.0 * full, center, bounds, substeps, latency, gravity)
+    _, still = _simulate(model, home, 0.0 * full, center, bounds, substeps, latency, gravity, True)
     if still is not None:
         hint = "" if gravity_comp or servo.all() else "; try --gravity-comp"
         notes.append(
@@ -266,13 +275,14 @@ def plan_excitation(
         return ExcitationPlan(ctrl, home.copy(), float(amplitude), float(amplitude), tuple(notes))
     used = float(amplitude)
     for _ in range(_HALVINGS + 1):
-        ctrl, outside = _simulate(model, home, used * full, center, bounds, substeps, latency, gravity)
+        ctrl, outside = _simulate(model, home, used * full, center, bounds, substeps, latency, gravity, True)
         if outside is None:
             break
         first = outside
         used /= 2
     else:
         used *= 2
+        ctrl, _ = _simulate(model, home, used * full, center, bounds, substeps, latency, gravity)
         notes.append(f"joint {first!r} reaches its limit even at amplitude {used:g}; the log touches the limit.")
         return ExcitationPlan(ctrl, home.copy(), used, float(amplitude), tuple(notes))
     if used < amplitude:

@@ -38,6 +38,7 @@ Example:
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import difflib
 import fnmatch
@@ -186,14 +187,29 @@ def _number(value: Any, name: str, column: str) -> float:
     return float(value)
 
 
-def _table(rows: list[list[str]], header: list[str], used: list[int], where: str) -> np.ndarray:
-    table = np.full((len(rows), len(header)), np.nan)
+def _table(header: list[str], used: list[int], where: str, path: str | os.PathLike[str], delimiter: str) -> np.ndarray:
+    """The numbers below the header (unused columns NaN): numpy parses the file in C; when it cannot, the rows are
+    read one by one to name the first bad row and column."""
+    with contextlib.suppress(ValueError):
+        block = np.loadtxt(path, delimiter=delimiter, skiprows=1, usecols=used, ndmin=2, quotechar='"')
+        if block.shape[0] >= 2 and np.all(np.isfinite(block)):
+            table = np.full((block.shape[0], len(header)), np.nan)
+            table[:, used] = block
+            return table
+    with open(path, newline="") as handle:
+        rows = list(csv.reader(handle, delimiter=delimiter))[1:]
+    if len(rows) < 2:
+        raise LogError(
+            f"`path` {where} must hold a header row and at least 2 data rows. Received {len(rows) + 1} row(s)."
+        )
     for r, row in enumerate(rows):
         if len(row) != len(header):
             raise LogError(
                 f"`path` {where} row {r + 2} must have {len(header)} fields like the header. Received {len(row)} "
                 "(truncated file?)."
             )
+    table = np.full((len(rows), len(header)), np.nan)
+    for r, row in enumerate(rows):
         for c in used:
             cell = row[c].strip()
             try:
@@ -356,13 +372,10 @@ def load_csv(
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
             raise LogError(f"`meta['{key}']` must be a positive number of seconds. Received {value!r}.")
     with open(path, newline="") as handle:
-        rows = list(csv.reader(handle, delimiter=delimiter))
-    if len(rows) < 3:
-        raise LogError(f"`path` {where} must hold a header row and at least 2 data rows. Received {len(rows)} row(s).")
-    header = [h.strip() for h in rows[0]]
+        header = [h.strip() for h in next(csv.reader(handle, delimiter=delimiter), [])]
     index = {key: _resolve_columns(spec, header, key, f"CSV file {where}") for key, spec in columns.items()}
     mapped = {i: key for key, idx in index.items() for i in idx}
-    table = _table(rows[1:], header, sorted(mapped), where)
+    table = _table(header, sorted(mapped), where, path, delimiter)
     unit_of = _per_column(units, "units", header, mapped, f"CSV file {where}")
     factors = np.ones(len(header))
     for i, unit in unit_of.items():
