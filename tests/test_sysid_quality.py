@@ -1,0 +1,165 @@
+"""FitQuality and FitResult.ok: a model that cannot reproduce its log is reported and not exported (issue 17).
+
+The mismatches are the ones users meet: a link heavier than the model says, friction the model leaves out.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+
+import mujoco
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from sysid import FitResult, ParameterSpace, fit
+from sysid.quality import FitQuality, NotOkError, assess, pooled_ljung_box
+from sysid.synthetic import excitation_log, generate_arm
+
+ARM = generate_arm(dof=6, seed=21, actuators="position")
+
+
+@pytest.fixture(scope="module")
+def log_and_truth():
+    truth = mujoco.MjModel.from_xml_string(ARM)
+    space = ParameterSpace(truth, ["dof_damping[*]"])
+    values = space.nominal * np.random.default_rng(21).uniform(0.8, 1.3, space.size)
+    space.writer(truth)(values)
+    return excitation_log(truth, duration=5.0, seed=28), values
+
+
+def _fit(log, mutate=None) -> FitResult:
+    model = mujoco.MjModel.from_xml_string(ARM)
+    if mutate is not None:
+        mutate(model)
+    return fit(log, model, ["dof_damping[*]"], progress=False)
+
+
+def test_missing_frictionloss_is_not_ok_and_export_refused(log_and_truth, tmp_path) -> None:
+    log, truth = log_and_truth
+
+    def no_friction(model: mujoco.MjModel) -> None:
+        model.dof_frictionloss[:] = 0.0
+
+    result = _fit(log, no_friction)
+    lo, hi = result.ci95.T
+    assert np.sum((lo <= truth) & (truth <= hi)) <= 2  # damping soaks up the friction: biased, confident intervals
+    assert not result.ok and not result.quality.ok
+    assert any(r.startswith("residuals far from white in ") for r in result.quality.reasons), result.quality.reasons
+    assert "NOT OK: residuals far from white" in result.summary()
+    with pytest.raises(NotOkError, match=re.escape("the fit is not ok, so it is not exported: residuals far")) as err:
+        result.to_effects()
+    assert str(err.value).endswith("Fix the model or the log, or pass `force=True` to export it anyway.")
+    with pytest.raises(NotOkError):
+        result.to_randomizers(path=tmp_path / "effects.yaml")
+    assert not (tmp_path / "effects.yaml").exists()
+    effects = result.to_effects(force=True)
+    assert [type(e).__name__ for e in effects[:6]] == ["Damping"] * 6
+    assert "type: Damping" in result.to_randomizers(force=True)
+    back = FitResult.from_json(result.to_json())
+    assert back == result and back.quality == result.quality and not back.ok
+    assert back.quality.reasons == result.quality.reasons
+
+
+def test_heavier_link_is_not_ok(log_and_truth) -> None:
+    log, _ = log_and_truth
+
+    def heavy(model: mujoco.MjModel) -> None:
+        model.body_mass[3] *= 1.5
+        mujoco.mj_setConst(model, mujoco.MjData(model))
+
+    result = _fit(log, heavy)
+    assert not result.ok
+    assert any("far from white" in r for r in result.quality.reasons), result.quality.reasons
+
+
+def test_right_model_is_ok_and_exports(log_and_truth) -> None:
+    log, truth = log_and_truth
+    result = _fit(log)
+    assert result.ok, result.quality.reasons
+    q = result.quality
+    assert q.horizon == 0 and q.segments == 1  # servos track: the open-loop replay never drifts, whole episodes
+    assert q.at_bounds == () and q.identifiable
+    assert 0.8 < q.validation_ratio < 1.25
+    assert min(q.fit_percent.values()) > 90.0
+    assert set(q.se_inflation) == set(result.addresses) and min(q.se_inflation.values()) >= 1.0
+    lo, hi = result.ci95.T
+    assert np.sum((lo <= truth) & (truth <= hi)) >= 5
+    assert len(result.to_effects()) >= 6
+
+
+def test_assess_reasons_name_the_failure() -> None:
+    ok = assess({"qpos[a]": 99.0}, {"qpos[a]": 0.3}, (), 10.0, True, 1.0, {"p": 1.1}, 20, 5)
+    assert ok.ok and ok.reasons == () and ok.horizon == 20 and ok.segments == 5
+    low = assess({"qpos[a]": 20.0, "qvel[a]": 40.0}, {}, (), 10.0, True, math.nan, {}, 0, 1)
+    assert low.reasons == (
+        "the model does not reproduce the log: median held-out fit 30.0% (< 50%; worst qpos[a] 20.0%)",
+    )
+    bound = assess({}, {}, ("dof_damping[elbow]",), 1.0, True, math.nan, {}, 0, 1)
+    assert bound.reasons == (
+        "estimates at their search bounds: dof_damping[elbow] (widen `bounds` or check the model)",
+    )
+    # one channel at p = 1e-4 among 12 is not enough (family-wise 1.2e-3); 1e-5 is
+    assert assess({}, {f"c{i}": 1e-4 if i == 0 else 0.5 for i in range(12)}, (), 1, True, 1, {}, 0, 1).ok
+    assert not assess({}, {f"c{i}": 1e-5 if i == 0 else 0.5 for i in range(12)}, (), 1, True, 1, {}, 0, 1).ok
+    # a channel reproduced to 99.95% (noise-free log) is exempt
+    assert assess({"c": 99.95}, {"c": 1e-30}, (), 1, True, 1, {}, 0, 1).ok
+    gen = assess({}, {}, (), 1.0, True, 2.0, {}, 0, 1)
+    assert gen.reasons[0].startswith("held-out error is 2.00x the in-fit error (> 1.5)")
+    wide = assess({}, {}, (), 1.0, True, 1.0, {"dof_damping[a]": 4.0}, 0, 1)
+    assert "widens the standard error of dof_damping[a] 4.0x (> 3x)" in wide.reasons[0]
+
+
+def test_pooled_whiteness_has_power_on_short_segments() -> None:
+    rng = np.random.default_rng(3)
+    white = [rng.normal(size=10) for _ in range(40)]
+    drift = [np.cumsum(rng.normal(size=10)) * 0.5 + rng.normal(size=10) for _ in range(40)]
+    assert pooled_ljung_box(white) > 0.01
+    assert pooled_ljung_box(drift) < 1e-4
+    assert math.isnan(pooled_ljung_box([np.zeros(3)]))
+
+
+def test_quality_type_is_checked() -> None:
+    base = FitResult.from_estimates({"dof_damping[a]": (1.0, 0.1)})
+    with pytest.raises(TypeError, match=re.escape("`quality` must be a FitQuality. Received dict.")):
+        dataclasses.replace(base, quality={"reasons": []})
+
+
+_floats = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.just(math.nan))
+_names = st.text(alphabet="abcdefgh[]_", min_size=1, max_size=8)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    fit_percent=st.dictionaries(_names, _floats, max_size=4),
+    whiteness=st.dictionaries(_names, _floats, max_size=4),
+    condition=_floats,
+    ratio=_floats,
+    horizon=st.integers(0, 500),
+    segments=st.integers(0, 50),
+    identifiable=st.booleans(),
+    reasons=st.lists(st.text(max_size=30), max_size=3),
+    inflation=_floats,
+)
+def test_quality_round_trips_through_json(
+    fit_percent, whiteness, condition, ratio, horizon, segments, identifiable, reasons, inflation
+) -> None:
+    quality = FitQuality(
+        fit_percent=fit_percent,
+        whiteness_pvalue=whiteness,
+        at_bounds=("dof_damping[a]",) if reasons else (),
+        condition_number=condition,
+        identifiable=identifiable,
+        validation_ratio=ratio,
+        se_inflation={"dof_damping[a]": inflation},
+        horizon=horizon,
+        segments=segments,
+        reasons=tuple(reasons),
+    )
+    result = dataclasses.replace(FitResult.from_estimates({"dof_damping[a]": (1.0, 0.1)}), quality=quality)
+    back = FitResult.from_json(result.to_json())
+    assert back == result
+    assert back.quality == quality and back.ok == (not reasons)
