@@ -38,7 +38,9 @@ from noise_models import (  # noqa: E402
     UniformNoise,
 )
 from randomizers import (  # noqa: E402 - the GL backend must be chosen before mujoco loads
+    ADR,
     ActuatorGain,
+    ADRHistory,
     Armature,
     BodyComOffset,
     CameraFovy,
@@ -80,7 +82,9 @@ from sim2real.wrapping import make_vec, wrap  # noqa: E402
 __version__ = "0.1.0"
 
 __all__ = [
+    "ADR",
     "TASKS",
+    "ADRHistory",
     "ActionLatency",
     "ActionNoise",
     "ActuatorGain",
