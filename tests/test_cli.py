@@ -164,6 +164,10 @@ def test_train_evaluate_and_visualize_take_your_own_model(
         "sim2real evaluate: error: both.yaml: give one of task, model and env. Received task and model.\n"
     )
 
+    (tmp_path / "task.yaml").write_text("task: dmc/reacher-easy\n" + spec)  # --model overrides the spec's task
+    assert main(["evaluate", "--config", "task.yaml", "--model", "arm.xml", "--out", "r3", "--backend", "serial"]) == 0
+    assert f"1 policy evaluated on model:{tmp_path / 'arm.xml'}" in capsys.readouterr().out
+
     assert main(["visualize", "--model", "arm.xml", "--n", "2", "--size", "24", "--out", "sheet.png"]) == 0
     assert "wrote sheet.png (2 frames of arm.xml, 0 effect(s)" in capsys.readouterr().out
     assert main(["visualize", "sim2real/arm-reach", "--model", "arm.xml", "--out", "s.png"]) == 2
