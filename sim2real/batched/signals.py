@@ -60,6 +60,8 @@ class _Pipes:
         self.pipes: list[Any] = [None] * n
         self.F = np.zeros((n, BLOCK, size), dtype=dtype)
         self.G = np.ones((n, size), dtype=dtype)
+        self.unit = np.ones(n, bool)  # worlds without gain: x + F (x * 1.0 is x, so skipping it is exact)
+        self.rows = np.arange(n)
         self.r = np.zeros(n, np.int64)
         self.low: np.ndarray | None = None
         self.high: np.ndarray | None = None
@@ -73,6 +75,7 @@ class _Pipes:
         self.pipes[i] = pipe
         self.F[i] = stage.F
         self.G[i] = 1.0 if stage.G is None else stage.G
+        self.unit[i] = stage.G is None
         self.r[i] = pipe.r
         self.low, self.high, self.guard = pipe.low, pipe.high, pipe.guard
 
@@ -83,16 +86,16 @@ class _Pipes:
             pipe = self.pipes[i]
             pipe._refill()  # the world's own next block, from its own stream
             self.take(i, pipe)
-        rows = np.minimum(self.r, BLOCK - 1)
-        w = x * self.G
-        w += self.F[np.arange(len(x)), rows]
+        everyone = bool(active.all())
+        noise = self.F[self.rows, self.r if everyone else np.minimum(self.r, BLOCK - 1)]
+        w = x + noise if self.unit.all() else x * self.G + noise
         self.r += active
         if self.low is not None:
             if self.guard:
                 np.copyto(w, _clip(w, self.low, self.high), where=(x >= self.low) & (x <= self.high))
             else:
                 _clip(w, self.low, self.high, out=w)
-        return np.where(active[:, None], w, x)
+        return w if everyone else np.where(active[:, None], w, x)
 
 
 class BatchedSignals:
