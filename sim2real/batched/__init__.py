@@ -3,7 +3,12 @@ below Python, with observations and rewards computed for all worlds in one numpy
 
 * :func:`make_batched` / :class:`BatchedEnv`: the engine (:mod:`sim2real.batched.engine`);
 * :mod:`sim2real.batched.kernels`: per-task observation and reward kernels (which tasks are supported);
-* :class:`BatchedVectorEnv`: the engine as a gymnasium ``VectorEnv`` (next-step autoreset).
+* :mod:`sim2real.batched.signals`: observation/action noise and observation latency for all worlds at once;
+* :class:`BatchedVectorEnv`: the engine as a gymnasium ``VectorEnv`` (next-step autoreset);
+* :class:`sim2real.batched.torchrl_env.BatchedTorchRLEnv`: the engine as one TorchRL ``EnvBase`` with
+  ``batch_size=[N]`` (imported from its module, so that ``import sim2real`` never imports torch).
+
+:func:`sim2real.evaluation.evaluate` uses the engine for every condition it supports (``Evaluation.engines``).
 
 Example:
     >>> import sim2real as s2r
