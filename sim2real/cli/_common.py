@@ -1,4 +1,16 @@
-"""What every ``sim2real`` command shares: the usage error, output checks, argument types and env sources."""
+"""What every ``sim2real`` command shares: the usage error, output checks, argument types and env sources.
+
+Example:
+    >>> import argparse
+    >>> parser = argparse.ArgumentParser()
+    >>> add_source_arguments(parser, default_task="sim2real/arm-reach")
+    >>> source_of(parser.parse_args([])).id
+    'sim2real/arm-reach'
+    >>> source_of(parser.parse_args(["--env", "nowhere:make"]))
+    Traceback (most recent call last):
+    ...
+    sim2real.cli._common.UsageError: `--env` 'nowhere:make': cannot import module 'nowhere': No module named 'nowhere'.
+"""
 
 from __future__ import annotations
 

@@ -1,4 +1,15 @@
-"""``sim2real tasks``, ``demo`` and ``visualize``."""
+"""``sim2real tasks``, ``demo`` and ``visualize``.
+
+Example:
+    >>> import contextlib, io
+    >>> from sim2real.cli import main
+    >>> err = io.StringIO()
+    >>> with contextlib.redirect_stderr(err):
+    ...     main(["visualize", "--n", "2"])
+    2
+    >>> err.getvalue()
+    'sim2real visualize: error: give a task id (positional or --task), --model ROBOT.xml or --env MODULE:FACTORY.\\n'
+"""
 
 from __future__ import annotations
 

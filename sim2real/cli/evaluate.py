@@ -1,4 +1,18 @@
-"""``sim2real evaluate`` and ``sim2real study``."""
+"""``sim2real evaluate`` and ``sim2real study``.
+
+``evaluate`` reads a spec (:func:`sim2real.spec.load_spec`; its env is ``task:``, ``model:`` or ``env:``), and
+``--task``/``--model``/``--env`` on the command line override it.
+
+Example:
+    >>> import contextlib, io
+    >>> from sim2real.cli import main
+    >>> err = io.StringIO()
+    >>> with contextlib.redirect_stderr(err):
+    ...     main(["evaluate", "--config", "missing.yaml", "--out", "report"])
+    2
+    >>> "missing.yaml" in err.getvalue()
+    True
+"""
 
 from __future__ import annotations
 

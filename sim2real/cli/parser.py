@@ -1,4 +1,10 @@
-"""The ``sim2real`` argument parser (``train`` parses its own arguments in :mod:`sim2real.agents.cli`)."""
+"""The ``sim2real`` argument parser (``train`` parses its own arguments in :mod:`sim2real.agents.cli`).
+
+Example:
+    >>> args = build_parser().parse_args(["record", "--model", "robot.xml", "--home", "keyframe", "--out", "a.npz"])
+    >>> args.task, args.model, args.env, args.home, args.gravity_comp
+    (None, 'robot.xml', None, 'keyframe', False)
+"""
 
 from __future__ import annotations
 

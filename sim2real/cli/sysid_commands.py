@@ -3,6 +3,18 @@
 ``sysid fit`` reads a ``.npz`` log or a driver's CSV: the format is found from the file's first bytes (a ``.npz``
 is a zip archive), never guessed from a failed load, and a CSV needs ``--columns MAP.yaml`` (the column mapping,
 units, scale and offset of :func:`sysid.load_csv`; ``timestep``/``control_timestep`` default to the model's).
+
+Example:
+    >>> import contextlib, io, os, tempfile
+    >>> from sim2real.cli import main
+    >>> path = os.path.join(tempfile.mkdtemp(), "robot.csv")
+    >>> _ = open(path, "w").write("t,q,dq,u\\n0,0,0,0\\n0.01,0,0,0\\n")
+    >>> err = io.StringIO()
+    >>> with contextlib.redirect_stderr(err):
+    ...     main(["sysid", "fit", path, "--task", "dmc/reacher-easy", "--params", "dof_damping[*]"])
+    2
+    >>> "is a CSV file; give --columns MAP.yaml" in err.getvalue()
+    True
 """
 
 from __future__ import annotations
