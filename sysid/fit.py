@@ -41,7 +41,6 @@ import os
 import sys
 import time as _time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
@@ -52,6 +51,7 @@ from scipy.stats import qmc
 
 from noise_models.timing import convert_time
 from sysid._problem import Problem, make_segments
+from sysid._solver import COST_ATOL, Progress, State, fd_steps, lm
 from sysid.covariance import combine, hac_covariance, identifiability
 from sysid.logs import LogError, TrajectoryLog, load_log, validate_log
 from sysid.params import ModelPool, ParameterSpace
@@ -64,8 +64,6 @@ __all__ = ["DEFAULT_LATENCY_RANGE", "fit"]
 #: Delays (control steps) searched when ``latency=True``.
 DEFAULT_LATENCY_RANGE: tuple[int, int] = (0, 5)
 _SIGNALS = ("qpos", "qvel", "sensordata")
-_COST_ATOL = 1e-2  # ½χ² decrease below which Levenberg–Marquardt stops (see _lm)
-_SETTLED = 0.02  # Gauss–Newton parameter step (in standard errors) below which the parameters have settled
 _REWEIGHT_CHANGE = 0.25  # log change of a channel weight below which the re-weighted problem is not re-solved
 _MAX_NUISANCE = 1200  # initial-state unknowns above which anchor="auto" re-anchors to logged states instead
 
@@ -173,121 +171,6 @@ def _residual_sigma(
         sigma = math.sqrt(float(np.sum(e**2)) / dof)
         out.append(max(sigma, 1e-9 * (float(np.std(y)) + 1e-9), 1e-12))
     return np.asarray(out)
-
-
-@dataclass
-class _State:
-    theta: np.ndarray
-    x0: np.ndarray
-    delay: int
-    obs: int
-    cost: float = math.inf
-    iterations: int = 0
-    converged: bool = False
-
-
-class _Progress:
-    def __init__(self, enabled: bool) -> None:
-        self.bar = None
-        if enabled:
-            from tqdm.auto import tqdm
-
-            self.bar = tqdm(desc="sysid.fit", unit="it", leave=False)
-
-    def step(self, stage: str, cost: float) -> None:
-        if self.bar is not None:
-            self.bar.set_postfix_str(f"{stage} cost={cost:.6g}", refresh=False)
-            self.bar.update(1)
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
-
-
-def _fd_steps(theta: np.ndarray, lower: np.ndarray, upper: np.ndarray, rel: float) -> np.ndarray:
-    return rel * np.maximum(np.abs(theta), 1e-3 * (upper - lower))
-
-
-def _lm(
-    problem: Problem,
-    st: _State,
-    lower: np.ndarray,
-    upper: np.ndarray,
-    *,
-    fit_x0: bool,
-    fit_params: bool = True,
-    max_iter: int,
-    fd_step: float,
-    progress: _Progress,
-    stage: str,
-    ftol: float = 1e-10,
-    xtol: float = 1e-9,
-    atol: float = _COST_ATOL,
-) -> _State:
-    """Box-projected Levenberg–Marquardt with Marquardt scaling; returns the improved state."""
-    theta, x0 = st.theta.copy(), st.x0.copy()
-    p = problem.space.size if fit_params else 0
-    nx = problem.nx
-    lam = 1e-3
-    converged = False
-    iterations = 0
-    r, jac = problem.jacobian(theta, st.delay, st.obs, x0, _fd_steps(theta, lower, upper, fd_step), fit_x0, fit_params)
-    cost = 0.5 * float(r @ r)
-    while iterations < max_iter:
-        g = jac.T @ r
-        h = jac.T @ jac
-        diag = np.maximum(np.diag(h), 1e-12 * max(float(np.max(np.diag(h))), 1e-300))
-        if p and iterations and _settled(h, g, diag, p):
-            converged = True
-            break
-        iterations += 1
-        accepted = False
-        while lam < 1e12:
-            try:
-                delta = -np.linalg.solve(h + lam * np.diag(diag), g)
-            except np.linalg.LinAlgError:
-                lam *= 10.0
-                continue
-            theta_new = np.clip(theta + delta[:p], lower, upper) if p else theta
-            x0_new = x0 + delta[p:].reshape(-1, nx) if fit_x0 else x0
-            r_new = problem.residuals(theta_new, st.delay, st.obs, x0_new)[0]
-            cost_new = 0.5 * float(r_new @ r_new)
-            if np.isfinite(cost_new) and cost_new < cost:
-                accepted = True
-                break
-            lam *= 6.0
-        if not accepted:
-            converged = True  # no descent direction left at machine precision
-            break
-        step_small = not p or np.all(np.abs(theta_new - theta) <= xtol * (np.abs(theta) + 1e-3 * (upper - lower)))
-        decrease = cost - cost_new
-        theta, x0, cost = theta_new, x0_new, cost_new
-        lam = max(lam / 4.0, 1e-10)
-        progress.step(stage, cost)
-        # An absolute floor too: a step that lowers ½χ² by 1e-2 moves the estimate by under a tenth of its
-        # standard error (and the next step far less), below what the data can tell apart.
-        if decrease <= max(ftol * max(cost, 1e-300), atol) or step_small:
-            converged = True
-            break
-        r, jac = problem.jacobian(
-            theta, st.delay, st.obs, x0, _fd_steps(theta, lower, upper, fd_step), fit_x0, fit_params
-        )
-    return _State(theta, x0, st.delay, st.obs, cost, iterations, converged)
-
-
-def _settled(h: np.ndarray, g: np.ndarray, diag: np.ndarray, p: int) -> bool:
-    """Whether the full Gauss–Newton step moves every parameter by under ``_SETTLED`` of its standard error.
-
-    Initial-state nuisance directions (contacts, marginally stable modes) can crawl for many iterations after the
-    parameters have settled; they do not change the estimates, so they are not chased.
-    """
-    try:
-        inv = np.linalg.inv(h + 1e-12 * np.diag(diag))
-    except np.linalg.LinAlgError:
-        return False
-    se = np.sqrt(np.maximum(np.diag(inv)[:p], 1e-300))
-    step = -(inv @ g)[:p]
-    return bool(np.all(np.abs(step) <= _SETTLED * se))
 
 
 def _starts(space: ParameterSpace, theta0: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
@@ -418,10 +301,20 @@ def fit(
     ranges = _latency_ranges(latency, has_sensors)
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
     show = sys.stderr.isatty() if progress is None else bool(progress)
-    bar = _Progress(show)
+    bar = Progress(show)
     n_sub = log.n_substeps
     obs_margin = max(ranges["obs"])
     fit_ranges, val_ranges = _split(log, float(validation))
+    # The commands in effect before an episode's first logged one are unknown (a real actuator holds whatever it
+    # had; sim2real's latency wrapper holds the reset command), so no row is predicted from them: an episode's
+    # first segment starts after the longest candidate action latency.
+    lead = max(ranges["action"])
+    fit_ranges = [
+        (first + lead if first == start else first, stop, start, end) for first, stop, start, end in fit_ranges
+    ]
+    val_ranges = [
+        (first + lead if first == start else first, stop, start, end) for first, stop, start, end in val_ranges
+    ]
     if not fit_ranges:
         raise LogError("the log has no rows left to fit after the validation split. Received too short a log.")
     pool = ModelPool(model, space)
@@ -453,7 +346,7 @@ def fit(
     # ---- global stage: short-horizon multiple shooting, every candidate latency, Sobol starts
     delays = [k * n_sub for k in ranges["action"]]
     combos = [(d, o) for d in delays for o in ranges["obs"]]
-    st = _State(theta0.copy(), final.anchors(), delays[0], ranges["obs"][0])
+    st = State(theta0.copy(), final.anchors(), delays[0], ranges["obs"][0])
     need_global = global_search or len(combos) > 1
     if need_global and max_iter > 0:
         short = max(5, 2 * max(ranges["action"]) + 5, obs_margin + 5)
@@ -477,11 +370,11 @@ def fit(
                 scored.append((float(costs[i]), d, o, starts[i]))
             bar.step("global", float(costs[order[0]]))
         scored.sort(key=lambda t: t[0])
-        best: _State | None = None
+        best: State | None = None
         for _, d, o, theta in scored[: 2 if global_search else 1]:
-            cand = _lm(
+            cand = lm(
                 gprob,
-                _State(theta.copy(), gprob.anchors(), d, o),
+                State(theta.copy(), gprob.anchors(), d, o),
                 lower,
                 upper,
                 fit_x0=False,
@@ -495,7 +388,7 @@ def fit(
             if best is None or cand.cost < best.cost:
                 best = cand
         assert best is not None
-        st = _State(best.theta, final.anchors(), best.delay, best.obs)
+        st = State(best.theta, final.anchors(), best.delay, best.obs)
     if auto_horizon:
         curve = divergence_curve(
             log, model, space, fit_ranges, signals, final.weights, st.theta, st.delay, st.obs, nthread, pool
@@ -504,7 +397,7 @@ def fit(
         if fixed_horizon is not None:
             final, fitted = build(fixed_horizon)
             final.weights = 1.0 / sigma
-            st = _State(st.theta, final.anchors(), st.delay, st.obs)
+            st = State(st.theta, final.anchors(), st.delay, st.obs)
     seg_final = final.seg
 
     # ---- local stage with noise re-estimation, then latency refinement
@@ -513,8 +406,8 @@ def fit(
     if max_iter > 0:
         # The noise levels are re-estimated from the residuals below, so this first solve only needs to get close.
         loose = len(known) < len(final.channels)
-        st = _lm(
-            final, st, lower, upper, max_iter=max_iter, stage="local", atol=1.0 if loose else _COST_ATOL, **lm_kwargs
+        st = lm(
+            final, st, lower, upper, max_iter=max_iter, stage="local", atol=1.0 if loose else COST_ATOL, **lm_kwargs
         )
         for _ in range(2):
             if len(known) == len(final.channels):
@@ -525,13 +418,14 @@ def fit(
                     sigma[c] = new_sigma[c]
             change = float(np.max(np.abs(np.log(final.weights * sigma))))
             final.weights = 1.0 / sigma
+            st.r = st.jac = None  # computed under the old weights
             if change < _REWEIGHT_CHANGE:
                 # Weights a little off cost a sliver of efficiency, not consistency (the sandwich covariance
                 # below is computed with the new weights), so the problem is only polished, not solved again.
                 if loose:
-                    st = _lm(final, st, lower, upper, max_iter=max_iter, stage="polish", **lm_kwargs)
+                    st = lm(final, st, lower, upper, max_iter=max_iter, stage="polish", **lm_kwargs)
                 break
-            st = _lm(final, st, lower, upper, max_iter=max_iter, stage="reweight", **lm_kwargs)
+            st = lm(final, st, lower, upper, max_iter=max_iter, stage="reweight", **lm_kwargs)
             loose = False
         candidates: list[int] = []
         if len(ranges["action"]) > 1:
@@ -554,13 +448,16 @@ def fit(
         # Refit only a close alternative: a latency whose cost at the current estimate is more than twice as
         # high cannot overtake after refitting the parameters (the refit removes far less than that).
         for _, d, o in [t for t in trial_costs[:1] if t[0] < 2.0 * st.cost]:
-            cand = _lm(final, _State(st.theta, st.x0, d, o), lower, upper, max_iter=10, stage="latency", **lm_kwargs)
+            cand = lm(final, State(st.theta, st.x0, d, o), lower, upper, max_iter=10, stage="latency", **lm_kwargs)
             if cand.cost < st.cost:
                 st = cand
     iterations, converged = st.iterations, st.converged
 
     # ---- statistics at the estimate
-    r, jac = final.jacobian(st.theta, st.delay, st.obs, st.x0, _fd_steps(st.theta, lower, upper, fd_step), fitted)
+    if st.r is not None and st.jac is not None:
+        r, jac = st.r, st.jac  # the last solve ended on a Jacobian at the estimate
+    else:
+        r, jac = final.jacobian(st.theta, st.delay, st.obs, st.x0, fd_steps(st.theta, lower, upper, fd_step), fitted)
     cost = 0.5 * float(r @ r)
     p = space.size
     jp = jac[:, :p]
@@ -610,9 +507,9 @@ def fit(
             log, model, space, make_segments(val_ranges, fixed_horizon, vfit), signals, vfit, obs_margin, nthread, pool
         )
         vprob.weights = final.weights
-        vst = _State(st.theta, vprob.anchors(), st.delay, st.obs)
+        vst = State(st.theta, vprob.anchors(), st.delay, st.obs)
         if vfit:
-            vst = _lm(
+            vst = lm(
                 vprob,
                 vst,
                 lower,

@@ -77,3 +77,35 @@ def test_twin_models_a_state_log_cannot_carry_are_refused(tmp_path: Path) -> Non
         record_condition("sim2real/arm-reach", real([]), episodes=1, steps=5)
     with pytest.raises(ValueError, match=re.escape("`steps` must be an int >= 2. Received 1.")):
         record_condition("dmc/manipulator-bring_ball", real([]), episodes=1, steps=1)
+
+
+def test_twin_fit_export_and_record_again_keep_the_delay() -> None:
+    # The study's loop: twin -> log through its env -> fit -> exported effects -> a calibrated condition -> a log
+    # through *its* env. The fit is ok (the episodes' first rows, driven by commands sent before the log began, are
+    # not predicted), its intervals hold the truth, and the exported delay is the twin's, in physics steps.
+    truth = {"dof_damping[shoulder]": 0.03, "dof_damping[wrist]": 0.025, "actuator_gain[wrist]": 0.8}
+    twin = real([ActionLatency(seconds=0.04), ObservationNoise(Gaussian(0.005))], params=truth)
+    log = record_condition("dmc/reacher-easy", twin, episodes=3, steps=200, seed=1)
+    env = real([]).base_env("dmc/reacher-easy")
+    handle = find_physics(env)
+    assert handle is not None
+    fit = sysid.fit(log, handle.model, list(truth), latency=True, seed=0, progress=False)
+    env.close()
+    assert fit.ok, fit.quality
+    assert fit.latency == {"action": 0.04} and fit.latency_physics_steps == {"action": 2}
+    for address, (low, high) in zip(fit.addresses, fit.ci95, strict=True):
+        assert low <= truth[address] <= high, (address, low, truth[address], high)
+    exported = fit.to_effects()
+    assert ActionLatency(seconds=0.04) in exported
+    calibrated = real([e for e in exported if not isinstance(e, ObservationNoise)], name="calibrated")
+    again = record_condition("dmc/reacher-easy", calibrated, episodes=1, steps=30, seed=1)
+    assert again.meta["true_latency_seconds"]["action"] == 0.04
+    env = calibrated.base_env("dmc/reacher-easy")
+    handle = find_physics(env)
+    assert handle is not None
+    # The drawn calibrated parameters as the env held them, then a replay with exactly 2 physics steps of delay.
+    for address, value in again.meta["true_params"].items():
+        if address in truth:
+            sysid.ParameterSpace(handle.model, [address]).write(handle.model, {address: value})
+    np.testing.assert_allclose(_replay(handle.model, again, 1, 2, 0), again.qpos, rtol=0, atol=1e-9)
+    env.close()
