@@ -495,3 +495,21 @@ def test_interval_resamples_draw_from_the_range_and_keep_the_pin() -> None:
     value = info["sim2real"]["adr"]["pin"][2]
     seen = {env.step(np.ones(1, np.float32))[4]["sim2real"]["params"]["dof_damping[slide]"] for _ in range(20)}
     assert seen == {value} and value in (0.5, 2.0)
+
+
+def _dm_env_tests() -> type:
+    import unittest
+
+    from dm_control import suite
+    from dm_env import test_utils
+
+    class ADRReacherTest(test_utils.EnvironmentTestMixin, unittest.TestCase):
+        def make_object_under_test(self) -> Any:
+            adr = ADR([Damping(scale=Uniform(0.0, 4.0))], delta=0.5, m=1, t_low=-1e9, t_high=-1e8, p_boundary=1.0)
+            env = suite.load("reacher", "easy", task_kwargs={"time_limit": 0.2})
+            return sim2real.wrap(env, Mass(scale=Uniform(0.8, 1.2)), adr=adr, seed=0)
+
+    return ADRReacherTest
+
+
+TestDmEnvADRContract = _dm_env_tests()
