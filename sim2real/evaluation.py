@@ -37,7 +37,7 @@ import os
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -89,6 +89,7 @@ class _Job:
     seed: int
     max_steps: int | None
     engine: str = "auto"
+    safety: Any = None  # a sim2real.safety.SafetyLimits: measure the envelope quantities of every episode
 
 
 @dataclass(frozen=True)
@@ -101,6 +102,7 @@ class _JobResult:
     draws: dict[str, np.ndarray]
     steps: int
     engine: str = "per-env"
+    safety: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)  # policy -> quantity -> (count,)
 
 
 #: Conditions per job: a job builds its envs once and reuses them for each of its conditions.
@@ -131,6 +133,7 @@ def _run_job(job: _Job) -> list[_JobResult]:
     base = [job.conditions[0].base_env(job.task, **job.options) for _ in range(n)]
     seeds = [episode_seed(job.seed, job.first + i) for i in range(n)]
     policies = [(name, as_policy(source, task=job.task)) for name, source in job.policies]
+    meter = None if job.safety is None else job.safety.meter(_physics(base[0]).model, n)
     out = []
     restore_threads = _single_torch_thread()
     try:
@@ -139,15 +142,17 @@ def _run_job(job: _Job) -> list[_JobResult]:
                 from sim2real.batched import BatchedEnv
 
                 # The same single envs, reset seeds and streams, stepped together (bitwise the per-env results).
-                worlds = BatchedEnv(job.task, n, cond.effects, envs=base, stream_seeds=[job.seed] * n)
+                worlds = BatchedEnv(
+                    job.task, n, cond.effects, envs=base, stream_seeds=[job.seed] * n, end_diverged=bool(cond.effects)
+                )
                 try:
-                    out.append(_batched_episodes(job, cond, worlds, seeds, policies))
+                    out.append(_batched_episodes(job, cond, worlds, seeds, policies, meter))
                 finally:
                     worlds.close()
                 continue
             envs = [cond.wrap(b, seed=job.seed) for b in base]
             try:
-                out.append(_episodes(job, cond, envs, seeds, policies))
+                out.append(_episodes(job, cond, envs, seeds, policies, meter))
             finally:
                 for env, b in zip(envs, base, strict=True):
                     _release(env, b)
@@ -156,6 +161,20 @@ def _run_job(job: _Job) -> list[_JobResult]:
         for env in base:
             env.close()
     return out
+
+
+def _physics(env: Any) -> Any:
+    """The MuJoCo handle inside ``env`` (safety measurements need one)."""
+    from sim2real.physics import find_physics
+
+    handle = find_physics(env)
+    if handle is None:
+        raise ValueError(f"`safety` needs a MuJoCo model inside the env; found none in {type(env).__name__}.")
+    return handle
+
+
+def _diverged(info: Mapping[str, Any]) -> bool:
+    return bool(info.get("diverged", False) or info.get("sim2real", {}).get("diverged", False))
 
 
 def _batched_reason(job: _Job, cond: Condition) -> str | None:
@@ -168,14 +187,21 @@ def _batched_reason(job: _Job, cond: Condition) -> str | None:
 
 
 def _batched_episodes(
-    job: _Job, cond: Condition, worlds: Any, seeds: list[int], policies: list[tuple[str, Any]]
+    job: _Job,
+    cond: Condition,
+    worlds: Any,
+    seeds: list[int],
+    policies: list[tuple[str, Any]],
+    meter: Any = None,
 ) -> _JobResult:
-    """:func:`_episodes` on the batched engine: the same resets, the same sums in the same order."""
+    """:func:`_episodes` on the batched engine: the same resets, the same sums in the same order. With a safety
+    ``meter``, each stepped world's ``MjData`` (the same state the single env leaves) is read after every step."""
     n = worlds.num_envs
     returns: dict[str, np.ndarray] = {}
     lengths: dict[str, np.ndarray] = {}
     successes: dict[str, np.ndarray] = {}
     draws: dict[str, np.ndarray] = {}
+    safety: dict[str, dict[str, np.ndarray]] = {}
     steps = 0
     for p, (name, policy) in enumerate(policies):
         obs, params = worlds.reset(seed=seeds)
@@ -185,10 +211,17 @@ def _batched_episodes(
         length = np.zeros(n, dtype=np.int64)
         done = np.zeros(n, dtype=bool)
         success = np.zeros(n, dtype=bool)
+        diverged = np.zeros(n, dtype=bool)
+        if meter is not None:
+            meter.reset()
         t = 0
         while not done.all() and (job.max_steps is None or t < job.max_steps):
             active = ~done
-            obs, reward, terminated, truncated, _ = worlds.step(policy(obs), mask=active)
+            obs, reward, terminated, truncated, bad = worlds.step(policy(obs), mask=active)
+            if meter is not None:
+                diverged |= bad
+                for i in np.flatnonzero(active).tolist():
+                    meter.observe(i, worlds.models[i], worlds.datas[i])
             total += reward  # 0.0 where a world is done, as the per-env loop leaves those sums untouched
             length += active
             success = np.where(active, terminated, success)  # a task's is_success is its termination
@@ -199,7 +232,9 @@ def _batched_episodes(
         lengths[name] = length
         if worlds.kernel.reports_success:
             successes[name] = success
-    return _JobResult(cond.name, job.first, returns, lengths, successes, draws, steps, engine="batched")
+        if meter is not None:
+            safety[name] = meter.episodes(diverged)
+    return _JobResult(cond.name, job.first, returns, lengths, successes, draws, steps, "batched", safety)
 
 
 def _single_torch_thread() -> Callable[[], None]:
@@ -217,13 +252,19 @@ def _single_torch_thread() -> Callable[[], None]:
 
 
 def _episodes(
-    job: _Job, cond: Condition, envs: list[Any], seeds: list[int], policies: list[tuple[str, Any]]
+    job: _Job,
+    cond: Condition,
+    envs: list[Any],
+    seeds: list[int],
+    policies: list[tuple[str, Any]],
+    meter: Any = None,
 ) -> _JobResult:
     n = len(envs)
     returns: dict[str, np.ndarray] = {}
     lengths: dict[str, np.ndarray] = {}
     successes: dict[str, np.ndarray] = {}
     draws: dict[str, np.ndarray] = {}
+    safety: dict[str, dict[str, np.ndarray]] = {}
     steps = 0
     for p, (name, policy) in enumerate(policies):
         first = [env.reset(seed=s) for env, s in zip(envs, seeds, strict=True)]
@@ -237,11 +278,18 @@ def _episodes(
         done = np.zeros(n, dtype=bool)
         success = np.zeros(n, dtype=bool)
         reports_success = False
+        if meter is not None:  # found after the reset: a composer env's physics is a new one every episode
+            meter.reset()
+            handles = [_physics(env) for env in envs]
+            diverged = np.array([_diverged(info) for _, info in first])
         t = 0
         while not done.all() and (job.max_steps is None or t < job.max_steps):
             actions = policy(obs)
             for i in np.flatnonzero(~done):
                 o, r, terminated, truncated, info = envs[i].step(actions[i])
+                if meter is not None:
+                    meter.observe(i, handles[i].model, handles[i].data)
+                    diverged[i] |= _diverged(info)
                 obs[i] = o
                 total[i] += float(r)
                 length[i] += 1
@@ -256,7 +304,9 @@ def _episodes(
         lengths[name] = length
         if reports_success:
             successes[name] = success
-    return _JobResult(cond.name, job.first, returns, lengths, successes, draws, steps)
+        if meter is not None:
+            safety[name] = meter.episodes(diverged)
+    return _JobResult(cond.name, job.first, returns, lengths, successes, draws, steps, safety=safety)
 
 
 def _policies(policies: Any) -> tuple[tuple[str, Any], ...]:
@@ -290,6 +340,7 @@ def evaluate(
     workers: int | None = None,
     progress: bool = False,
     engine: str = "auto",
+    safety: Any = None,
 ) -> Evaluation:
     """Scores every policy on every condition with batched closed-loop episodes.
 
@@ -310,6 +361,10 @@ def evaluate(
         engine: ``"auto"`` steps a condition's envs on the batched engine (:mod:`sim2real.batched`) when the
             task and its effects are supported and one by one otherwise; ``"per-env"`` always steps them one by
             one. Both give bitwise the same results; ``Evaluation.engines`` says which ran each condition.
+        safety: a :class:`sim2real.safety.SafetyLimits`: also measure every episode's safety quantities (joint
+            limit hits, effort ratio, contact force, end-effector speed, divergence; :mod:`sim2real.safety_probe`)
+            into ``Evaluation.safety``, on either engine. Its names are resolved against the task's model before
+            any episode runs. None (the default) measures nothing and costs nothing.
 
     Raises:
         ValueError: bad counts, duplicate names, an unknown backend.
@@ -326,6 +381,8 @@ def evaluate(
     if engine not in ("auto", "per-env"):
         raise ValueError(f"`engine` must be one of ['auto', 'per-env']. Received {engine!r}.")
     conditions = tuple(conditions)
+    if safety is not None:
+        _check_safety(safety, task, conditions, dict(task_options or {}))
     if not conditions or not all(isinstance(c, Condition) for c in conditions):
         raise TypeError(
             "`conditions` must be a non-empty list of Condition (from nominal(), randomized(), real(), measured(), "
@@ -359,6 +416,7 @@ def evaluate(
             int(seed),
             max_steps,
             engine,
+            safety,
         )
         for group in groups.values()
         for first in range(0, episodes, batch)
@@ -368,6 +426,24 @@ def evaluate(
     results = _dispatch(jobs, backend, workers, progress)
     seconds = time.perf_counter() - start
     return _collect(task, int(seed), episodes, max_steps, policy_names, conditions, results, seconds)
+
+
+def _check_safety(safety: Any, task: str, conditions: tuple[Condition, ...], options: dict[str, Any]) -> None:
+    """A bad ``safety`` (its geom, site or body names) fails here, before any worker starts."""
+    from sim2real.safety import SafetyLimits
+
+    if not isinstance(safety, SafetyLimits):
+        raise TypeError(
+            f"`safety` must be None or a sim2real.safety.SafetyLimits (load_limits). Received {type(safety).__name__}."
+        )
+    simulated = [c for c in conditions if isinstance(c, Condition) and c.simulated]
+    if not simulated:
+        return
+    env = simulated[0].base_env(task, **options)
+    try:
+        safety.meter(_physics(env).model, 1)
+    finally:
+        env.close()
 
 
 def _dispatch(jobs: list[_Job], backend: str, workers: int | None, progress: bool) -> list[_JobResult]:
@@ -396,6 +472,7 @@ def _collect(
     lengths: dict[str, dict[str, np.ndarray]] = {p: {} for p in policies}
     successes: dict[str, dict[str, np.ndarray]] = {p: {} for p in policies}
     draws: dict[str, dict[str, np.ndarray]] = {}
+    safety: dict[str, dict[str, dict[str, np.ndarray]]] = {}
     by_condition: dict[str, list[_JobResult]] = {}
     for res in results:
         by_condition.setdefault(res.condition, []).append(res)
@@ -418,6 +495,9 @@ def _collect(
             lengths[p][cond.name] = np.concatenate([r.lengths[p] for r in parts])
             if all(p in r.successes for r in parts):
                 successes[p][cond.name] = np.concatenate([r.successes[p] for r in parts])
+            if all(p in r.safety for r in parts):
+                measured = {q: np.concatenate([r.safety[p][q] for r in parts]) for q in parts[0].safety[p]}
+                safety.setdefault(p, {})[cond.name] = measured
         keys = sorted({k for r in parts for k in r.draws})
         if keys:
             draws[cond.name] = {
@@ -438,4 +518,12 @@ def _collect(
         env_steps=steps,
         seconds=seconds,
         engines=engines,
+        safety=_safety_view(safety),
     )
+
+
+def _safety_view(safety: dict[str, dict[str, dict[str, np.ndarray]]]) -> Mapping[str, Any]:
+    from sim2real.evaluation_results import _readonly
+
+    return _freeze({p: _freeze({c: _freeze({q: _readonly(v) for q, v in m.items()}) for c, m in d.items()})
+                    for p, d in safety.items()})  # fmt: skip

@@ -61,6 +61,9 @@ class Evaluation:
         engines: simulated condition -> ``"batched"`` (stepped on :mod:`sim2real.batched`) or ``"per-env"``; how
             it ran, not what it computed (both engines give bitwise the same results), so not part of
             :meth:`to_dict` either.
+        safety: ``safety[policy][condition][quantity]``, a read-only ``(episodes,)`` float64 array per quantity of
+            :data:`sim2real.safety.QUANTITIES`, when ``evaluate`` was given ``safety=`` limits (empty otherwise;
+            :meth:`to_dict` has a ``"safety"`` key only when it is not empty).
     """
 
     task: str
@@ -76,6 +79,7 @@ class Evaluation:
     env_steps: int = 0
     seconds: float = field(default=0.0, compare=False)
     engines: Mapping[str, str] = field(default_factory=dict, compare=False)
+    safety: Mapping[str, Mapping[str, Mapping[str, np.ndarray]]] = field(default_factory=dict)
 
     def condition(self, name: str) -> Condition:
         """The condition called ``name``."""
@@ -133,6 +137,7 @@ class Evaluation:
             "lengths": nested(self.lengths),
             "draws": nested(self.draws),
             "env_steps": self.env_steps,
+            **({"safety": {k: nested(d) for k, d in self.safety.items()}} if self.safety else {}),
         }
 
     def to_json(self, indent: int | None = 1) -> str:

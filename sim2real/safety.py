@@ -1,0 +1,455 @@
+"""A safety envelope under perturbation: test the extremes in simulation before the hardware sees them.
+
+:func:`sim2real.evaluation.evaluate` with ``safety=`` a :class:`SafetyLimits` measures, for every episode of every
+policy on every simulated condition (the sweeps included), the quantities of :mod:`sim2real.safety_probe`: joint
+limit hits, peak actuator effort over its limit, peak contact force on declared geoms, divergence, peak
+end-effector speed. :meth:`SafetyTable.build` aggregates them per policy x condition (worst case over the episodes
+and CVaR, the mean of the worst ``alpha`` fraction) and per sweep (worst over every point's episodes) and checks the
+declared limits; ``sim2real evaluate --safety limits.yaml`` exits 3 when one is violated, so a CI can gate on it.
+
+The limits file (every key optional; a quantity without a limit is still measured and reported)::
+
+    joint_limit_hits: 0                          # control steps per episode with a limited joint at/over its range
+    max_effort_ratio: 1.0                        # peak |actuator_force| / the actuator's declared limit
+    max_contact_force: {geoms: "finger*", newtons: 50}   # net contact force on each matching geom (a list works)
+    max_ee_speed: {site: grip, m_per_s: 1.5}     # or {body: hand, m_per_s: 1.5}; the limit may be left out
+    divergences: 0                               # diverged episodes per policy x condition
+    statistic: worst                             # what a limit gates: worst (default) or cvar
+    alpha: 0.1                                   # CVaR tail fraction
+
+A value is a violation when it is *above* its limit (a clamped actuator reaches a ratio of exactly 1.0: set
+``max_effort_ratio: 0.95`` to flag saturation). ``divergences`` always gates on the count of diverged episodes.
+
+Example:
+    >>> import numpy as np
+    >>> from sim2real.conditions import nominal
+    >>> from sim2real.evaluation_results import Evaluation
+    >>> limits = load_limits({"joint_limit_hits": 0, "divergences": 0})
+    >>> hits = np.array([0.0, 0.0, 4.0, 0.0])
+    >>> quantities = {"joint_limit_hits": hits, "effort_ratio": np.full(4, 0.5), "contact_force": np.full(4, np.nan),
+    ...               "ee_speed": np.full(4, np.nan), "diverged": np.zeros(4)}
+    >>> evaluation = Evaluation(task="demo", seed=0, episodes=4, max_steps=None, policies=("slam",),
+    ...     conditions=(nominal(),), returns={"slam": {"sim": np.zeros(4)}}, successes={}, lengths={}, draws={},
+    ...     safety={"slam": {"sim": quantities}})
+    >>> table = SafetyTable.build(evaluation, limits)
+    >>> table.passed, [v.message for v in table.violations]
+    (False, ["policy 'slam' on 'sim': joint_limit_hits worst 4 > limit 0 (episode 2)"])
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from sim2real.safety_probe import QUANTITIES, SafetyMeter
+
+__all__ = [
+    "QUANTITIES",
+    "ConstantAction",
+    "SafetyLimits",
+    "SafetyMeter",
+    "SafetyRow",
+    "SafetyTable",
+    "SafetyViolation",
+    "load_limits",
+]
+
+#: Unit of each quantity, as the report prints it.
+UNITS = {"joint_limit_hits": "steps", "effort_ratio": "", "contact_force": "N", "ee_speed": "m/s", "diverged": ""}
+#: The limits file's keys.
+LIMIT_KEYS = (
+    "joint_limit_hits", "max_effort_ratio", "max_contact_force", "max_ee_speed", "divergences", "statistic", "alpha",
+)  # fmt: skip
+STATISTICS = ("worst", "cvar")
+
+
+class LimitsError(ValueError):
+    """A limits file that cannot be used; the message names the file and the key."""
+
+
+@dataclass(frozen=True)
+class SafetyLimits:
+    """A declared safety envelope (see the module docstring for the YAML form, :func:`load_limits` to read it).
+
+    Attributes:
+        joint_limit_hits: allowed control steps per episode with a joint at/over its range, or None (no limit).
+        max_effort_ratio: allowed peak ``|actuator_force| / limit``, or None.
+        contact_geoms: fnmatch patterns of the geoms whose contact force is measured (empty: not measured).
+        max_contact_force: allowed peak net contact force on one of them, newtons, or None.
+        ee_site: the site whose speed is measured, or None.
+        ee_body: the body whose speed is measured (when no site is given), or None.
+        max_ee_speed: allowed peak speed, m/s, or None.
+        divergences: allowed diverged episodes per policy x condition, or None.
+        statistic: ``"worst"`` or ``"cvar"``, what the limits gate.
+        alpha: CVaR tail fraction in (0, 1].
+        source: where the limits came from (a file name), for messages.
+    """
+
+    joint_limit_hits: int | None = None
+    max_effort_ratio: float | None = None
+    contact_geoms: tuple[str, ...] = ()
+    max_contact_force: float | None = None
+    ee_site: str | None = None
+    ee_body: str | None = None
+    max_ee_speed: float | None = None
+    divergences: int | None = None
+    statistic: str = "worst"
+    alpha: float = 0.1
+    source: str = field(default="<limits>", compare=False)
+
+    def __post_init__(self) -> None:
+        for name, value in (("joint_limit_hits", self.joint_limit_hits), ("divergences", self.divergences)):
+            if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
+                raise LimitsError(f"{self.source}: `{name}` must be an int >= 0. Received {value!r}.")
+        for name, number in (
+            ("max_effort_ratio", self.max_effort_ratio),
+            ("max_contact_force.newtons", self.max_contact_force),
+            ("max_ee_speed.m_per_s", self.max_ee_speed),
+        ):
+            if number is not None and not _positive(number):
+                raise LimitsError(f"{self.source}: `{name}` must be a number > 0. Received {number!r}.")
+        if self.statistic not in STATISTICS:
+            raise LimitsError(
+                f"{self.source}: `statistic` must be one of {list(STATISTICS)}. Received {self.statistic!r}."
+            )
+        if isinstance(self.alpha, bool) or not isinstance(self.alpha, (int, float)) or not 0 < self.alpha <= 1:
+            raise LimitsError(f"{self.source}: `alpha` must be a number in (0, 1]. Received {self.alpha!r}.")
+        if self.max_contact_force is not None and not self.contact_geoms:
+            raise LimitsError(f"{self.source}: `max_contact_force.geoms` must name the geoms the limit is on.")
+        if self.max_ee_speed is not None and self.ee_site is None and self.ee_body is None:
+            raise LimitsError(f"{self.source}: `max_ee_speed` must name a `site` or a `body`.")
+
+    def limit(self, quantity: str) -> float | None:
+        """The declared limit of ``quantity`` (one of :data:`QUANTITIES`), or None."""
+        value = {
+            "joint_limit_hits": self.joint_limit_hits,
+            "effort_ratio": self.max_effort_ratio,
+            "contact_force": self.max_contact_force,
+            "ee_speed": self.max_ee_speed,
+            "diverged": self.divergences,
+        }[quantity]
+        return None if value is None else float(value)
+
+    def meter(self, model: Any, num_envs: int) -> SafetyMeter:
+        """A :class:`SafetyMeter` of ``num_envs`` envs of ``model`` (names resolved, limits read)."""
+        return SafetyMeter(model, self, num_envs)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The limits in the file's form (keys left out when not declared)."""
+        out: dict[str, Any] = {}
+        if self.joint_limit_hits is not None:
+            out["joint_limit_hits"] = self.joint_limit_hits
+        if self.max_effort_ratio is not None:
+            out["max_effort_ratio"] = self.max_effort_ratio
+        if self.contact_geoms:
+            out["max_contact_force"] = {"geoms": list(self.contact_geoms), "newtons": self.max_contact_force}
+        if self.ee_site is not None or self.ee_body is not None:
+            where = {"site": self.ee_site} if self.ee_site is not None else {"body": self.ee_body}
+            out["max_ee_speed"] = {**where, "m_per_s": self.max_ee_speed}
+        if self.divergences is not None:
+            out["divergences"] = self.divergences
+        out["statistic"], out["alpha"] = self.statistic, self.alpha
+        return out
+
+
+def _positive(value: Any) -> bool:
+    return not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value) and value > 0
+
+
+def _sub(value: Any, key: str, allowed: tuple[str, ...], where: str) -> dict[str, Any]:
+    if not isinstance(value, Mapping):
+        raise LimitsError(f"{where}: `{key}` must be a mapping with keys among {list(allowed)}. Received {value!r}.")
+    unknown = sorted(set(map(str, value)) - set(allowed))
+    if unknown:
+        raise LimitsError(f"{where}: `{key}` keys must be among {list(allowed)}. Received unknown {unknown}.")
+    return dict(value)
+
+
+def load_limits(source: str | os.PathLike[str] | Mapping[str, Any]) -> SafetyLimits:
+    """Reads a limits file (a YAML path, YAML text or a mapping; format in the module docstring).
+
+    Raises:
+        LimitsError: (a ``ValueError``) naming the file, the key, what is allowed and what was received.
+        FileNotFoundError: the file does not exist.
+
+    Example:
+        >>> load_limits("max_ee_speed: {site: ee, m_per_s: 1.5}").max_ee_speed
+        1.5
+        >>> load_limits("max_contact_force: {geoms: 'finger*', newtons: -1}")
+        Traceback (most recent call last):
+        ...
+        sim2real.safety.LimitsError: <config>: `max_contact_force.newtons` must be a number > 0. Received -1.
+    """
+    from randomizers.config import _read  # the one YAML reader of configs: file path, text or mapping
+
+    try:
+        config, where = _read(source)
+    except ValueError as err:
+        raise LimitsError(str(err)) from err
+    if not isinstance(config, Mapping):
+        raise LimitsError(f"{where}: the top level must be a mapping with keys among {list(LIMIT_KEYS)}. "
+                          f"Received {config!r}.")  # fmt: skip
+    unknown = sorted(set(map(str, config)) - set(LIMIT_KEYS))
+    if unknown:
+        raise LimitsError(f"{where}: keys must be among {list(LIMIT_KEYS)}. Received unknown {unknown}.")
+    kwargs: dict[str, Any] = {
+        k: config[k]
+        for k in ("joint_limit_hits", "max_effort_ratio", "divergences", "statistic", "alpha")
+        if k in config
+    }
+    if "max_contact_force" in config:
+        item = _sub(config["max_contact_force"], "max_contact_force", ("geoms", "newtons"), where)
+        geoms = item.get("geoms")
+        patterns = [geoms] if isinstance(geoms, str) else geoms
+        if not isinstance(patterns, list) or not patterns or not all(isinstance(g, str) and g for g in patterns):
+            raise LimitsError(
+                f"{where}: `max_contact_force.geoms` must be a geom name pattern or a list of them. Received {geoms!r}."
+            )
+        kwargs["contact_geoms"] = tuple(patterns)
+        kwargs["max_contact_force"] = item.get("newtons")
+    if "max_ee_speed" in config:
+        item = _sub(config["max_ee_speed"], "max_ee_speed", ("site", "body", "m_per_s"), where)
+        named = [k for k in ("site", "body") if k in item]
+        if len(named) != 1 or not isinstance(item[named[0]], str) or not item[named[0]]:
+            raise LimitsError(
+                f"{where}: `max_ee_speed` must name exactly one `site` or `body` (a name). "
+                f"Received {dict((k, item[k]) for k in named) or 'neither'}."
+            )
+        kwargs[f"ee_{named[0]}"] = item[named[0]]
+        kwargs["max_ee_speed"] = item.get("m_per_s")
+    return SafetyLimits(**kwargs, source=where)
+
+
+# ------------------------------------------------------------------------------------------------ aggregation
+
+
+def cvar_upper(values: np.ndarray, alpha: float) -> float:
+    """Mean of the worst (largest) ``ceil(alpha * n)`` values: CVaR of a quantity where larger is worse.
+
+    Example:
+        >>> cvar_upper(np.arange(20.0), 0.1)
+        18.5
+    """
+    values = np.sort(np.asarray(values, dtype=np.float64))
+    k = max(1, math.ceil(alpha * len(values) - 1e-12))
+    return float(values[-k:].mean())
+
+
+@dataclass(frozen=True)
+class SafetyRow:
+    """One quantity of one policy on one condition (or over one sweep's points).
+
+    Attributes:
+        policy: the policy.
+        condition: the condition's name, or the sweep's name when ``kind == "sweep"``.
+        kind: ``"condition"`` or ``"sweep"`` (the worst over every point of a sweep or grid).
+        quantity: one of :data:`QUANTITIES`.
+        worst: the largest per-episode value (for ``diverged``: the number of diverged episodes).
+        cvar: the mean of the worst ``alpha`` fraction of episodes (for ``diverged``: the fraction diverged).
+        where: the episode of the worst value: ``"episode 3"``, or ``"<point> episode 3"`` for a sweep.
+        episodes: episodes aggregated.
+        limit: the declared limit, or None.
+        violated: whether the gated statistic is above the limit.
+    """
+
+    policy: str
+    condition: str
+    kind: str
+    quantity: str
+    worst: float
+    cvar: float
+    where: str
+    episodes: int
+    limit: float | None
+    violated: bool
+
+
+@dataclass(frozen=True)
+class SafetyViolation:
+    """A declared limit exceeded by one policy on one condition; :attr:`message` is the one line the CLI prints."""
+
+    policy: str
+    condition: str
+    quantity: str
+    statistic: str
+    value: float
+    limit: float
+    where: str
+
+    @property
+    def message(self) -> str:
+        """E.g. ``policy 'slam' on 'sim': joint_limit_hits worst 4 > limit 0 (episode 2)``."""
+        unit = UNITS[self.quantity]
+        suffix = f" {unit}" if unit and unit != "steps" else ""
+        name = "divergences" if self.quantity == "diverged" else self.quantity
+        return (
+            f"policy {self.policy!r} on {self.condition!r}: {name} {self.statistic} {_fmt(self.value)}{suffix} "
+            f"> limit {_fmt(self.limit)}{suffix} ({self.where})"
+        )
+
+
+def _fmt(value: float) -> str:
+    return f"{value:.4g}"
+
+
+@dataclass(frozen=True)
+class SafetyTable:
+    """The safety section: every measured quantity per policy x condition and per sweep, and the violations.
+
+    Attributes:
+        limits: the envelope checked.
+        rows: one :class:`SafetyRow` per (policy, condition or sweep, measured quantity), in evaluation order.
+        violations: the limits exceeded (on conditions; a sweep row is marked when one of its points is).
+    """
+
+    limits: SafetyLimits
+    rows: tuple[SafetyRow, ...]
+    violations: tuple[SafetyViolation, ...]
+
+    @property
+    def passed(self) -> bool:
+        """True when no declared limit is exceeded."""
+        return not self.violations
+
+    @classmethod
+    def build(cls, evaluation: Any, limits: SafetyLimits) -> SafetyTable:
+        """Aggregates ``evaluation.safety`` (from :func:`~sim2real.evaluation.evaluate` with ``safety=limits``).
+
+        Raises:
+            ValueError: the evaluation carries no safety measurements.
+        """
+        safety: Mapping[str, Mapping[str, Mapping[str, np.ndarray]]] = evaluation.safety
+        if not safety:
+            raise ValueError("`evaluation` has no safety measurements: run evaluate(..., safety=limits).")
+        rows: list[SafetyRow] = []
+        violations: list[SafetyViolation] = []
+        sweeps = evaluation.sweeps()
+        for policy in evaluation.policies:
+            measured = safety.get(policy, {})
+            done: set[str] = set()
+            for cond in evaluation.conditions:
+                if cond.name not in measured:
+                    continue
+                if cond.sweep is None:
+                    parts = [(cond.name, measured[cond.name])]
+                    name, kind = cond.name, "condition"
+                elif cond.sweep in done:
+                    continue
+                else:
+                    done.add(cond.sweep)
+                    parts = [(c.name, measured[c.name]) for c in sweeps[cond.sweep] if c.name in measured]
+                    name, kind = cond.sweep, "sweep"
+                for quantity in QUANTITIES:
+                    row, found = _row(policy, name, kind, quantity, parts, limits)
+                    if row is not None:
+                        rows.append(row)
+                        violations.extend(found)
+        return cls(limits, tuple(rows), tuple(violations))
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: the limits, every row (non-finite numbers as None) and the violation lines."""
+
+        def num(value: float | None) -> float | None:
+            return None if value is None or not math.isfinite(value) else float(value)
+
+        return {
+            "limits": self.limits.to_dict(),
+            "passed": self.passed,
+            "rows": [
+                {
+                    "policy": r.policy,
+                    "condition": r.condition,
+                    "kind": r.kind,
+                    "quantity": r.quantity,
+                    "unit": UNITS[r.quantity],
+                    "worst": num(r.worst),
+                    "cvar": num(r.cvar),
+                    "where": r.where,
+                    "episodes": r.episodes,
+                    "limit": num(r.limit),
+                    "violated": r.violated,
+                }
+                for r in self.rows
+            ],
+            "violations": [v.message for v in self.violations],
+        }
+
+
+def _row(
+    policy: str,
+    name: str,
+    kind: str,
+    quantity: str,
+    parts: Sequence[tuple[str, Mapping[str, np.ndarray]]],
+    limits: SafetyLimits,
+) -> tuple[SafetyRow | None, list[SafetyViolation]]:
+    """The row of ``quantity`` over ``parts`` (one condition, or a sweep's points) and its violations."""
+    arrays = [np.asarray(m[quantity], dtype=np.float64) for _, m in parts]
+    if not arrays or not all(np.isfinite(a).all() for a in arrays):
+        return None, []  # not measured (no actuator limit, no geoms or no end-effector declared)
+    pooled = np.concatenate(arrays)
+    limit = limits.limit(quantity)
+    found: list[SafetyViolation] = []
+    for point, values in zip((p for p, _ in parts), arrays, strict=True):
+        value, statistic, episode = _gated(values, quantity, limits)
+        if limit is not None and value > limit:
+            where = f"{int(values.sum())} of {len(values)} episodes" if quantity == "diverged" else f"episode {episode}"
+            found.append(SafetyViolation(policy, point, quantity, statistic, value, limit, where))
+    if quantity == "diverged":
+        worst, cvar, where = float(pooled.sum()), float(pooled.mean()), f"{int(pooled.sum())} of {len(pooled)} episodes"
+    else:
+        worst, cvar = float(pooled.max()), cvar_upper(pooled, limits.alpha)
+        index = int(np.argmax(pooled))
+        offsets = np.cumsum([0, *(len(a) for a in arrays)])
+        part = int(np.searchsorted(offsets, index, side="right") - 1)
+        episode = index - int(offsets[part])
+        where = f"episode {episode}" if kind == "condition" else f"{parts[part][0]} episode {episode}"
+    return SafetyRow(policy, name, kind, quantity, worst, cvar, where, len(pooled), limit, bool(found)), found
+
+
+def _gated(values: np.ndarray, quantity: str, limits: SafetyLimits) -> tuple[float, str, int]:
+    """(the value a limit is checked against, its name, the worst episode)."""
+    episode = int(np.argmax(values))
+    if quantity == "diverged":
+        return float(values.sum()), "count", episode
+    if limits.statistic == "cvar":
+        return cvar_upper(values, limits.alpha), f"CVaR {limits.alpha:g}", episode
+    return float(values[episode]), "worst", episode
+
+
+# ------------------------------------------------------------------------------------------------ stress policy
+
+
+class ConstantAction:
+    """A policy that sends the same action every step (``{constant: [...]}`` in an evaluation spec): the plainest
+    stress of an envelope, e.g. full torque into a joint limit, or zero to check that holding still is safe.
+
+    Args:
+        action: the action, a number or a list (broadcast to every observation of a batch).
+
+    Example:
+        >>> ConstantAction([1.0, -0.5])(np.zeros((3, 4))).tolist()
+        [[1.0, -0.5], [1.0, -0.5], [1.0, -0.5]]
+    """
+
+    batched = True
+
+    def __init__(self, action: float | Sequence[float]) -> None:
+        arr = np.atleast_1d(np.asarray(action, dtype=np.float64))
+        if arr.ndim != 1 or not arr.size or not np.isfinite(arr).all():
+            raise ValueError(f"`action` must be a finite number or a non-empty list of them. Received {action!r}.")
+        self.action = arr.astype(np.float32)
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        obs = np.asarray(obs)
+        if obs.ndim == 1:
+            return self.action.copy()
+        return np.broadcast_to(self.action, (obs.shape[0], self.action.size)).copy()
+
+    def __repr__(self) -> str:
+        return f"ConstantAction({self.action.tolist()})"

@@ -1,0 +1,189 @@
+"""Measuring a safety envelope while episodes run: :class:`SafetyMeter` reads ``MjData`` after every control step.
+
+Five quantities per episode (the names :mod:`sim2real.safety` aggregates and gates on):
+
+* ``joint_limit_hits``: control steps on which a limited hinge/slide joint is beyond its range, or MuJoCo's
+  limit constraint of any limited joint is active (within ``jnt_margin``);
+* ``effort_ratio``: the peak ``|actuator_force| / limit`` over steps and actuators, where the limit is
+  ``actuator_forcerange`` when ``forcelimited``, else ``max|ctrlrange| * |gainprm[0]|`` for a direct-force
+  actuator (``gaintype`` fixed, no bias: a motor) with a limited control; other actuators declare no limit and are
+  left out (NaN when no actuator has one). The limits are the *nominal* model's, read once: a perturbation that
+  makes an actuator push harder than the hardware can shows as a ratio above 1;
+* ``contact_force``: the peak, over steps and the declared geoms, of the norm of the net contact force on a geom
+  (``mj_contactForce`` of each of its contacts, rotated to the world frame and summed), newtons; NaN when no geoms
+  are declared;
+* ``ee_speed``: the peak linear speed of a declared site or body (``mj_objectVelocity``), m/s; NaN without one;
+* ``diverged``: 1.0 when the episode's physics diverged (the wrappers' ``diverged`` flag), else 0.0.
+
+Sampling: once per control step, from ``MjData`` as the step leaves it (forces and contacts of the last physics
+step's forward pass). A peak that lives only between two control samples (inside the substeps) is not seen.
+
+Example:
+    >>> import mujoco
+    >>> from sim2real.safety import SafetyLimits
+    >>> model = mujoco.MjModel.from_xml_string(
+    ...     '<mujoco><worldbody><body><joint name="j" type="slide" range="-0.1 0.1"/><geom size=".1"/>'
+    ...     '</body></worldbody><actuator><motor joint="j" ctrlrange="-1 1"/></actuator></mujoco>')
+    >>> data = mujoco.MjData(model)
+    >>> meter = SafetyMeter(model, SafetyLimits(), num_envs=1)
+    >>> data.qpos[0], data.ctrl[0] = 0.15, 0.5
+    >>> mujoco.mj_forward(model, data)
+    >>> meter.observe(0, model, data)
+    >>> episode = meter.episode(0, diverged=False)
+    >>> episode["joint_limit_hits"], episode["effort_ratio"]
+    (1.0, 0.5)
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import mujoco
+import numpy as np
+
+if TYPE_CHECKING:
+    from sim2real.safety import SafetyLimits
+
+__all__ = ["QUANTITIES", "SafetyMeter"]
+
+#: The per-episode quantities, in report order.
+QUANTITIES = ("joint_limit_hits", "effort_ratio", "contact_force", "ee_speed", "diverged")
+
+_LIMIT_JOINT = int(mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT)
+_SCALAR_JOINTS = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+
+
+def actuator_limits(model: mujoco.MjModel) -> np.ndarray:
+    """``(nu,)`` force limit of each actuator (NaN where none is declared); see the module docstring.
+
+    Example:
+        >>> m = mujoco.MjModel.from_xml_string(
+        ...     '<mujoco><worldbody><body><joint name="j"/><geom size=".1"/></body></worldbody><actuator>'
+        ...     '<motor joint="j" ctrlrange="-2 2" gear="3"/><position joint="j" kp="10" forcerange="-5 5"/>'
+        ...     '<position joint="j" kp="10"/></actuator></mujoco>')
+        >>> actuator_limits(m).tolist()
+        [2.0, 5.0, nan]
+    """
+    limits = np.full(model.nu, np.nan)
+    for i in range(model.nu):
+        if model.actuator_forcelimited[i]:
+            limits[i] = float(np.abs(model.actuator_forcerange[i]).max())
+        elif (
+            model.actuator_ctrllimited[i]
+            and model.actuator_gaintype[i] == mujoco.mjtGain.mjGAIN_FIXED
+            and model.actuator_biastype[i] == mujoco.mjtBias.mjBIAS_NONE
+        ):
+            limits[i] = float(np.abs(model.actuator_ctrlrange[i]).max() * abs(model.actuator_gainprm[i, 0]))
+    limits[limits <= 0] = np.nan  # a zero range limits nothing measurable
+    return limits
+
+
+class SafetyMeter:
+    """Per-episode safety quantities of ``num_envs`` envs of one model structure, updated step by step.
+
+    Args:
+        model: the nominal model (names are resolved and limits read here, once).
+        limits: the envelope; its ``contact_geoms`` and ``ee_site``/``ee_body`` say what to measure.
+        num_envs: envs measured side by side (index ``i`` of :meth:`observe`).
+
+    Raises:
+        ValueError: a geom pattern, site or body that the model does not have (close matches listed).
+    """
+
+    def __init__(self, model: mujoco.MjModel, limits: SafetyLimits, num_envs: int) -> None:
+        from randomizers.parameters import select  # the one resolver of element names
+
+        scalar = [j for j in range(model.njnt) if model.jnt_limited[j] and int(model.jnt_type[j]) in _SCALAR_JOINTS]
+        self._qadr = np.asarray([model.jnt_qposadr[j] for j in scalar], np.intp)
+        self._low = model.jnt_range[scalar, 0].copy() if scalar else np.zeros(0)
+        self._high = model.jnt_range[scalar, 1].copy() if scalar else np.zeros(0)
+        self._any_limited = bool(np.any(model.jnt_limited))
+        limit = actuator_limits(model)
+        self._act = np.flatnonzero(np.isfinite(limit))
+        self._act_limit = limit[self._act]
+        self._geoms = np.zeros(0, np.intp)
+        if limits.contact_geoms:
+            chosen = select(model, "geom", list(limits.contact_geoms), "max_contact_force.geoms")
+            self._geoms = np.asarray([i for i, _ in chosen], np.intp)
+        self._object: tuple[int, int] | None = None
+        if limits.ee_site is not None:
+            (sid, _), *_ = select(model, "site", limits.ee_site, "max_ee_speed.site")
+            self._object = (int(mujoco.mjtObj.mjOBJ_SITE), sid)
+        elif limits.ee_body is not None:
+            (bid, _), *_ = select(model, "body", limits.ee_body, "max_ee_speed.body")
+            self._object = (int(mujoco.mjtObj.mjOBJ_BODY), bid)
+        self._force6 = np.zeros(6)
+        self._vel6 = np.zeros(6)
+        self._net = np.zeros((len(self._geoms), 3))
+        self.hits = np.zeros(num_envs)
+        self.effort = np.zeros(num_envs)
+        self.contact = np.zeros(num_envs)
+        self.speed = np.zeros(num_envs)
+
+    def reset(self) -> None:
+        """Zeroes every env's accumulators (call at the start of a batch of episodes)."""
+        for array in (self.hits, self.effort, self.contact, self.speed):
+            array[:] = 0.0
+
+    def observe(self, i: int, model: mujoco.MjModel, data: mujoco.MjData) -> None:
+        """Folds env ``i``'s state after a control step (``model``/``data`` of its physics) into its episode's
+        peaks and counts."""
+        q = data.qpos[self._qadr]
+        hit = bool(np.any(q < self._low) or np.any(q > self._high))
+        if not hit and self._any_limited and data.nefc:
+            hit = bool(np.any(data.efc_type[: data.nefc] == _LIMIT_JOINT))
+        if hit:
+            self.hits[i] += 1.0
+        if len(self._act):
+            ratio = float(np.max(np.abs(data.actuator_force[self._act]) / self._act_limit))
+            if ratio > self.effort[i]:
+                self.effort[i] = ratio
+        if len(self._geoms) and data.ncon:
+            force = self._contact_peak(model, data)
+            if force > self.contact[i]:
+                self.contact[i] = force
+        if self._object is not None:
+            mujoco.mj_objectVelocity(model, data, self._object[0], self._object[1], self._vel6, 0)
+            speed = float(np.linalg.norm(self._vel6[3:]))
+            if speed > self.speed[i]:
+                self.speed[i] = speed
+
+    def _contact_peak(self, model: mujoco.MjModel, data: mujoco.MjData) -> float:
+        pairs = data.contact.geom[: data.ncon]
+        side1 = pairs[:, 0, None] == self._geoms[None, :]  # (ncon, G): the declared geom is geom1
+        side2 = pairs[:, 1, None] == self._geoms[None, :]
+        touching = np.flatnonzero(side1.any(1) | side2.any(1))
+        if not len(touching):
+            return 0.0
+        net = self._net
+        net[:] = 0.0
+        frames = data.contact.frame
+        for k in touching.tolist():
+            mujoco.mj_contactForce(model, data, k, self._force6)
+            # The contact frame's first row is the normal, from geom1 towards geom2: +f acts on geom2, -f on geom1.
+            world = frames[k].reshape(3, 3).T @ self._force6[:3]
+            net[side2[k]] += world
+            net[side1[k]] -= world
+        return float(np.linalg.norm(net, axis=1).max())
+
+    def episode(self, i: int, *, diverged: bool) -> dict[str, float]:
+        """Env ``i``'s quantities for the episode observed since :meth:`reset` (see :data:`QUANTITIES`)."""
+        return {
+            "joint_limit_hits": float(self.hits[i]),
+            "effort_ratio": float(self.effort[i]) if len(self._act) else float("nan"),
+            "contact_force": float(self.contact[i]) if len(self._geoms) else float("nan"),
+            "ee_speed": float(self.speed[i]) if self._object is not None else float("nan"),
+            "diverged": 1.0 if diverged else 0.0,
+        }
+
+    def episodes(self, diverged: np.ndarray) -> dict[str, np.ndarray]:
+        """Every env's quantities as ``{quantity: (num_envs,) float64}``."""
+        n = len(self.hits)
+        nan = np.full(n, np.nan)
+        return {
+            "joint_limit_hits": self.hits.copy(),
+            "effort_ratio": self.effort.copy() if len(self._act) else nan.copy(),
+            "contact_force": self.contact.copy() if len(self._geoms) else nan.copy(),
+            "ee_speed": self.speed.copy() if self._object is not None else nan.copy(),
+            "diverged": np.asarray(diverged, dtype=np.float64).copy(),
+        }
