@@ -98,6 +98,9 @@ class BatchedEnv:
             reuses its envs across conditions); :meth:`close` then releases them, restored and still open.
         stream_seeds: the root seed of each world's streams instead of ``(seed, i)`` (evaluation wraps every
             env with its own root seed and tells episodes apart by reset seed).
+        end_diverged: False mirrors a task env *without* sim2real's wrappers where that differs: a gymnasium
+            env (arm-reach) whose physics diverged goes on from the state MuJoCo reset to, unflagged (evaluation
+            steps unrandomised conditions on bare envs). dm-control envs end such episodes either way.
         threads: threads that step the worlds (each its own share; results do not depend on it). Pays off
             when a world's control step is long (manipulator: 10 substeps) and cores are free.
         options: keyword arguments for :func:`sim2real.make` (those the task's kernel lists in ``options``).
@@ -121,6 +124,7 @@ class BatchedEnv:
         envs: Sequence[Any] | None = None,
         stream_seeds: Sequence[Any] | None = None,
         threads: int = 1,
+        end_diverged: bool = True,
         **options: Any,
     ) -> None:
         from sim2real.physics import find_physics
@@ -187,6 +191,7 @@ class BatchedEnv:
         self._action_dim = int(np.prod(self.envs[0].action_space.shape))
         self.params: dict[str, np.ndarray] = {}
         self._world_params: list[dict[str, float]] = [{} for _ in range(n)]
+        self._end_diverged = bool(end_diverged) or kernel.diverged_reward == "zero"
         self.threads = int(threads)
         self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="sim2real-batched") if threads > 1 else None
         self._closed = False
@@ -238,7 +243,7 @@ class BatchedEnv:
                 self._signals.reset_world(i, self.envs[i], self._out[i])
             report = info["sim2real"]
             self._world_params[i] = report["params"]
-            self._reset_diverged[i] = self._diverged[i] = bool(report["diverged"])
+            self._reset_diverged[i] = self._diverged[i] = bool(report["diverged"]) and self._end_diverged
             self._steps[i] = 0
             m, d = self.models[i], self.datas[i]
             mujoco.mj_getState(m, d, self._state[i], _STATE_SPEC)
@@ -293,7 +298,7 @@ class BatchedEnv:
         # MuJoCo resets a world whose positions, velocities or accelerations went bad (its clock restarts).
         # dm-control raises PhysicsError there and the adapter ends the episode with reward 0; a gymnasium env's
         # own step returns what it computes, and RandomizePhysics ends the episode. Both keep the last observation.
-        diverged = active & (state[:, 0] < before)
+        diverged = active & (state[:, 0] < before) if self._end_diverged else np.zeros(n, bool)
         fresh, reward, terminated = kernel.outputs(qpos, qvel, gathered)
         keep = active & ~diverged
         self._obs[keep] = fresh[keep]
