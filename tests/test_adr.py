@@ -369,7 +369,7 @@ def test_rounds_are_deterministic_in_item_order_on_every_backend() -> None:
         adr = slider_adr()
         for r in range(2):
             items = [((r, w), 15, goal) for w in range(2)]
-            rnd = run_adr_round(slider_worker, adr, items, backend=backend, workers=None if backend == "serial" else 2)
+            rnd = run_adr_round(slider_worker, adr, items, backend=backend, workers=None if backend == "serial" else 1)
             assert rnd.outputs == (15, 15) and [len(x) for x in rnd.results] == [15, 15]
         states[backend] = adr.state()
     assert states["serial"] == states["local"]
@@ -513,3 +513,29 @@ def _dm_env_tests() -> type:
 
 
 TestDmEnvADRContract = _dm_env_tests()
+
+
+def test_ray_round_matches_serial() -> None:
+    ray = pytest.importorskip("ray")
+    import sys
+
+    from ray import cloudpickle
+
+    from sim2real.adr_rounds import run_adr_round
+
+    module = sys.modules[__name__]
+    cloudpickle.register_pickle_by_value(module)  # Ray workers do not have tests/ on their path
+    ours = not ray.is_initialized()
+    if ours:
+        ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False)
+    try:
+        goal = distance(THRESHOLD)
+        items = [((0, w), 15, goal) for w in range(2)]
+        serial, remote = slider_adr(), slider_adr()
+        run_adr_round(slider_worker, serial, items, backend="serial")
+        run_adr_round(slider_worker, remote, items, backend="ray", workers=1)
+        assert remote.state() == serial.state() and serial.frames == 600
+    finally:
+        if ours:
+            ray.shutdown()
+        cloudpickle.unregister_pickle_by_value(module)
