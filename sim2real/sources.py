@@ -327,6 +327,11 @@ def open_source(source: Source) -> tuple[Any, Any]:
 
     obj = source._build({})
     handle = find_physics(obj)
+    inner = getattr(obj, "_env", None)
+    if handle is not None and handle.owner is obj and inner is not None and not isinstance(obj, gym.Env):
+        # A TorchRL wrapper forwards `model`/`data` to the env it wraps but answers `frame_skip` (its own action
+        # repeat, 1 by default) itself: ask the wrapped env, whose substeps are the control period's.
+        handle = find_physics(inner) or handle
     if handle is None:
         _close(obj)
         raise SourceError(
