@@ -30,6 +30,7 @@ from randomizers import (
 from randomizers.parameters import EFFECT_FIELDS, Address, effect_for
 from sim2real.recording import parse_set, record
 from sysid import FitResult
+from sysid.quality import FitQuality
 
 XML = """<mujoco><worldbody>
   <body name="arm" pos="0 0 1"><joint name="shoulder" axis="0 1 0" damping="0.5"/>
@@ -174,6 +175,18 @@ def _results(draw: st.DrawFn) -> FitResult:
         trace_predicted=vec(n, len(channels)),
         trace_source=draw(st.sampled_from(["fit", "validation"])),
         true_params=draw(st.none() | st.just({a: 1.5 for a in addresses})),
+        quality=FitQuality(
+            fit_percent=mapping(list(channels) or ["x"]),
+            whiteness_pvalue=mapping(list(channels) or ["x"]),
+            at_bounds=tuple(draw(st.lists(st.sampled_from(addresses), unique=True))) if addresses else (),
+            condition_number=draw(_floats),
+            identifiable=draw(st.booleans()),
+            validation_ratio=draw(_floats),
+            se_inflation=mapping(addresses or ["x"]),
+            horizon=draw(st.integers(0, 10**4)),
+            segments=draw(st.integers(0, 10**4)),
+            reasons=tuple(draw(st.lists(st.text(max_size=20), max_size=3))),
+        ),
     )
 
 
@@ -182,6 +195,7 @@ def _results(draw: st.DrawFn) -> FitResult:
 def test_fit_result_json_round_trip_is_lossless(result: FitResult) -> None:
     back = FitResult.from_json(result.to_json())
     assert back == result
+    assert back.quality == result.quality and back.ok == result.ok
     for name in ("correlation", "covariance", "bounds"):
         np.testing.assert_array_equal(getattr(back, name), getattr(result, name))
 
