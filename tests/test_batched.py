@@ -363,3 +363,30 @@ def test_threads_do_not_change_results() -> None:
     two.close()
     with pytest.raises(ValueError, match=r"`threads` must be an int >= 1. Received 0."):
         make_batched("dmc/reacher-easy", 2, threads=0)
+
+
+@pytest.mark.parametrize(
+    ("task", "effect"),
+    [
+        ("dmc/reacher-easy", s2r.ActuatorGain(scale=s2r.Constant(1e9))),
+        ("dmc/manipulator-bring_ball", s2r.ActuatorGain(scale=s2r.Constant(1e9))),
+        ("sim2real/arm-reach", s2r.Stiffness(set=s2r.Constant(1e14))),
+    ],
+)
+def test_a_diverged_world_ends_its_episode_like_the_single_env(task: str, effect: object) -> None:
+    # dm-control: PhysicsError -> truncated, reward 0, last observation; arm-reach (gymnasium): RandomizePhysics
+    # ends the episode on MuJoCo's bad-state warnings. The engine sees both through the warning counters.
+    options = OPTIONS.get(task, SHORT)
+    batched = make_batched(task, 2, effect, seed=0, **options)
+    singles = [s2r.wrap(s2r.make(task, **options), effect, seed=(0, i)) for i in range(2)]
+    obs, _ = batched.reset(seed=[1, 2])
+    for i, env in enumerate(singles):
+        assert np.array_equal(env.reset(seed=i + 1)[0], obs[i])
+    actions = np.full((2, batched.action_dim), 0.5 * ACTION_SCALE.get(task, 1.0), np.float32)
+    obs, reward, terminated, truncated, diverged = batched.step(actions)
+    assert diverged.all() and truncated.all()
+    for i, env in enumerate(singles):
+        o, r, te, tr, info = env.step(actions[i])
+        assert np.array_equal(o, obs[i]) and r == reward[i] and te == terminated[i] and tr == truncated[i]
+        assert info["sim2real"]["diverged"]
+    batched.close()

@@ -178,6 +178,16 @@ class BatchedEnv:
         self._ctrl = [d.ctrl for d in self.datas]
         self._gathered = {f: np.zeros((n, *getattr(self.datas[0], f).shape)) for f in kernel.fields}
         self._views = {f: [getattr(d, f) for d in self.datas] for f in kernel.fields}
+        # MuJoCo's warning counters, gathered like a field: a step that raises one is how dm-control (any warning,
+        # PhysicsError) and sim2real's gymnasium wrapper (bad qpos/qvel/qacc) see a diverged physics.
+        self._warning_views = [d.warning.number for d in self.datas]
+        self._warnings = np.zeros((n, len(self._warning_views[0])), np.int64)
+        self._watched = (
+            slice(None)
+            if kernel.diverged_reward == "zero"
+            else [int(mujoco.mjtWarning.mjWARN_BADQPOS), int(mujoco.mjtWarning.mjWARN_BADQVEL),
+                  int(mujoco.mjtWarning.mjWARN_BADQACC)]
+        )  # fmt: skip
         if self._site >= 0:
             self._gathered["jacobian"] = np.zeros((n, 3, m0.nv))
         self._obs = np.zeros((n, self.kernel.obs_dim), np.float32)  # the task's own (clean) observations
@@ -247,6 +257,7 @@ class BatchedEnv:
             self._steps[i] = 0
             m, d = self.models[i], self.datas[i]
             mujoco.mj_getState(m, d, self._state[i], _STATE_SPEC)
+            self._warnings[i] = self._warning_views[i]
             for field, views in self._views.items():
                 self._gathered[field][i] = views[i]
             if self._site >= 0:
@@ -282,7 +293,7 @@ class BatchedEnv:
         stuck = active & self._reset_diverged  # a reset that diverged: the next step ends the episode unstepped
         signalled = active.copy()
         active &= ~self._reset_diverged
-        before = self._state[:, 0].copy()
+        before = self._warnings[:, self._watched].sum(axis=1)
         state, gathered, kernel = self._state, self._gathered, self.kernel
         controls = kernel.controls(actions, state[:, 1 : 1 + self._nq], gathered)
         worlds = np.flatnonzero(active).tolist()
@@ -295,10 +306,11 @@ class BatchedEnv:
                           [controls] * self.threads))  # fmt: skip
         qpos = state[:, 1 : 1 + self._nq]
         qvel = state[:, 1 + self._nq :]
-        # MuJoCo resets a world whose positions, velocities or accelerations went bad (its clock restarts).
-        # dm-control raises PhysicsError there and the adapter ends the episode with reward 0; a gymnasium env's
+        # A warning during the step: MuJoCo reset the world (bad positions, velocities or accelerations) or
+        # ran out of room. dm-control raises PhysicsError there and the adapter ends the episode with reward 0; a gymnasium env's
         # own step returns what it computes, and RandomizePhysics ends the episode. Both keep the last observation.
-        diverged = active & (state[:, 0] < before) if self._end_diverged else np.zeros(n, bool)
+        raised = self._warnings[:, self._watched].sum(axis=1) > before
+        diverged = active & raised if self._end_diverged else np.zeros(n, bool)
         fresh, reward, terminated = kernel.outputs(qpos, qvel, gathered)
         keep = active & ~diverged
         self._obs[keep] = fresh[keep]
@@ -319,6 +331,7 @@ class BatchedEnv:
         """One control step of ``worlds``: the task's C calls in its order, then the gathers into row ``i``."""
         models, datas, ctrl, state = self.models, self.datas, self._ctrl, self._state
         views = [(self._gathered[f], self._views[f]) for f in self.kernel.fields]
+        views.append((self._warnings, self._warning_views))
         split, sync, forward, n_sub, site = (
             self._split_step,
             self._sync_after,
