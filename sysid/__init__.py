@@ -39,6 +39,7 @@ from sysid.logs import (
 )
 from sysid.online import OnlineEstimator, OnlineResult, estimate_noise_std, estimate_online
 from sysid.params import EFFECT_FIELDS, ParameterSpace
+from sysid.quality import FitQuality, NotOkError
 from sysid.result import FitResult
 
 __all__ = [
@@ -54,9 +55,11 @@ __all__ = [
     "CsvWarning",
     "DesignResult",
     "ExcitationPolicy",
+    "FitQuality",
     "FitResult",
     "LogError",
     "Multisine",
+    "NotOkError",
     "OnlineEstimator",
     "OnlineResult",
     "ParameterSpace",
