@@ -51,6 +51,7 @@ from sim2real.safety_probe import QUANTITIES, SafetyMeter
 __all__ = [
     "QUANTITIES",
     "ConstantAction",
+    "LimitsError",
     "SafetyLimits",
     "SafetyMeter",
     "SafetyRow",
@@ -136,8 +137,15 @@ class SafetyLimits:
         return None if value is None else float(value)
 
     def meter(self, model: Any, num_envs: int) -> SafetyMeter:
-        """A :class:`SafetyMeter` of ``num_envs`` envs of ``model`` (names resolved, limits read)."""
-        return SafetyMeter(model, self, num_envs)
+        """A :class:`SafetyMeter` of ``num_envs`` envs of ``model`` (names resolved, limits read).
+
+        Raises:
+            LimitsError: a geom pattern, site or body the model does not have (close matches listed).
+        """
+        try:
+            return SafetyMeter(model, self, num_envs)
+        except ValueError as err:
+            raise LimitsError(str(err)) from err
 
     def to_dict(self) -> dict[str, Any]:
         """The limits in the file's form (keys left out when not declared)."""

@@ -12,7 +12,8 @@ Five quantities per episode (the names :mod:`sim2real.safety` aggregates and gat
 * ``contact_force``: the peak, over steps and the declared geoms, of the norm of the net contact force on a geom
   (``mj_contactForce`` of each of its contacts, rotated to the world frame and summed), newtons; NaN when no geoms
   are declared;
-* ``ee_speed``: the peak linear speed of a declared site or body (``mj_objectVelocity``), m/s; NaN without one;
+* ``ee_speed``: the peak linear speed of a declared site, or of a declared body's centre of mass
+  (``mj_objectVelocity``), m/s; NaN without one;
 * ``diverged``: 1.0 when the episode's physics diverged (the wrappers' ``diverged`` flag), else 0.0.
 
 Sampling: once per control step, from ``MjData`` as the step leaves it (forces and contacts of the last physics
@@ -87,7 +88,8 @@ class SafetyMeter:
         num_envs: envs measured side by side (index ``i`` of :meth:`observe`).
 
     Raises:
-        ValueError: a geom pattern, site or body that the model does not have (close matches listed).
+        ValueError: a geom pattern, site or body that the model does not have (close matches listed);
+            :meth:`sim2real.safety.SafetyLimits.meter` raises it as a ``LimitsError``.
     """
 
     def __init__(self, model: mujoco.MjModel, limits: SafetyLimits, num_envs: int) -> None:
@@ -102,16 +104,19 @@ class SafetyMeter:
         self._act = np.flatnonzero(np.isfinite(limit))
         self._act_limit = limit[self._act]
         self._geoms = np.zeros(0, np.intp)
-        if limits.contact_geoms:
-            chosen = select(model, "geom", list(limits.contact_geoms), "max_contact_force.geoms")
-            self._geoms = np.asarray([i for i, _ in chosen], np.intp)
         self._object: tuple[int, int] | None = None
-        if limits.ee_site is not None:
-            (sid, _), *_ = select(model, "site", limits.ee_site, "max_ee_speed.site")
-            self._object = (int(mujoco.mjtObj.mjOBJ_SITE), sid)
-        elif limits.ee_body is not None:
-            (bid, _), *_ = select(model, "body", limits.ee_body, "max_ee_speed.body")
-            self._object = (int(mujoco.mjtObj.mjOBJ_BODY), bid)
+        try:
+            if limits.contact_geoms:
+                chosen = select(model, "geom", list(limits.contact_geoms), "max_contact_force.geoms")
+                self._geoms = np.asarray([i for i, _ in chosen], np.intp)
+            if limits.ee_site is not None:
+                (sid, _), *_ = select(model, "site", limits.ee_site, "max_ee_speed.site")
+                self._object = (int(mujoco.mjtObj.mjOBJ_SITE), sid)
+            elif limits.ee_body is not None:
+                (bid, _), *_ = select(model, "body", limits.ee_body, "max_ee_speed.body")
+                self._object = (int(mujoco.mjtObj.mjOBJ_BODY), bid)
+        except ValueError as err:
+            raise ValueError(f"{limits.source}: {err}") from err
         self._force6 = np.zeros(6)
         self._vel6 = np.zeros(6)
         self._net = np.zeros((len(self._geoms), 3))

@@ -8,9 +8,10 @@ Format (paths are relative to the YAML file; every key but ``task`` and ``polici
     max_steps: 100          # cap on episode length (default: the task's limit)
     batch: 64               # envs stepped together
     task_options: {}        # keyword arguments of sim2real.make
-    policies:               # name -> {baseline: Class, <kwargs>} | {checkpoint: file.pt} | "baseline"
+    policies:               # name -> {baseline: Class, <kwargs>} | {checkpoint: file.pt} | {constant: [...]} | "baseline"
       scripted: baseline    # the task's scripted baseline
       ppo: {checkpoint: ppo.pt}
+      hold: {constant: [0.0, 0.0]}   # the same action every step (sim2real.safety.ConstantAction)
     randomized: randomized.yaml              # a randomisation config (file or inline effects/signals)
     simulators:                              # more simulators by name, e.g. the calibrated one of a fit
       calibrated: calibrated.yaml            #   (sysid fit --export ...): file or inline effects/signals
@@ -100,8 +101,11 @@ class EvaluationSpec:
 
         return contact_sheet(self.task, effects, n=n, seed=self.seed, size=(64, 64))
 
-    def run(self, *, backend: str = "serial", workers: int | None = None, progress: bool = False) -> Any:
-        """Evaluates the spec's policies on its conditions (see :func:`sim2real.evaluation.evaluate`)."""
+    def run(
+        self, *, backend: str = "serial", workers: int | None = None, progress: bool = False, safety: Any = None
+    ) -> Any:
+        """Evaluates the spec's policies on its conditions (see :func:`sim2real.evaluation.evaluate`; ``safety``
+        is its :class:`sim2real.safety.SafetyLimits`)."""
         from sim2real.evaluation import evaluate
 
         return evaluate(
@@ -116,6 +120,7 @@ class EvaluationSpec:
             backend=backend,
             workers=workers,
             progress=progress,
+            safety=safety,
         )
 
 
@@ -143,6 +148,13 @@ def _policy(name: str, value: Any, task: str, base: Path, where: str) -> Any:
         if not path.is_file():
             raise SpecError(f"{key}.checkpoint: file {str(path)!r} does not exist.")
         return str(path)
+    if isinstance(value, Mapping) and "constant" in value and len(value) == 1:
+        from sim2real.safety import ConstantAction
+
+        try:
+            return ConstantAction(value["constant"])
+        except (TypeError, ValueError) as err:
+            raise SpecError(f"{key}.constant: {err}") from err
     if isinstance(value, Mapping) and "baseline" in value:
         classes = {cls.__name__: cls for cls in BASELINES.values()}
         cls = classes.get(value["baseline"])
@@ -154,7 +166,8 @@ def _policy(name: str, value: Any, task: str, base: Path, where: str) -> Any:
         except (TypeError, ValueError) as err:
             raise SpecError(f"{key}: {err}") from err
     raise SpecError(
-        f"{key} must be 'baseline', {{baseline: <class>, ...}} or {{checkpoint: <file>}}. Received {value!r}."
+        f"{key} must be 'baseline', {{baseline: <class>, ...}} or {{checkpoint: <file>}} or {{constant: <action>}}. "
+        f"Received {value!r}."
     )
 
 

@@ -20,7 +20,7 @@ import argparse
 import dataclasses
 import sys
 from pathlib import Path
-from typing import TextIO
+from typing import Any, TextIO
 
 from sim2real.cli._common import UsageError, check_outputs, source_of, writing
 
@@ -41,15 +41,19 @@ def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
         raise UsageError(str(err)) from err
     except (SpecError, ValueError) as err:
         raise UsageError(str(err)) from err
+    limits = _limits(args.safety)
     if args.task is not None or args.model is not None or args.env is not None:
         spec = dataclasses.replace(spec, task=source_of(args).id)  # the command line overrides the spec's source
     check_outputs({}, ("--out", args.out, False))
     from sim2real.agents.checkpoint import CheckpointError
+    from sim2real.safety import LimitsError, SafetyTable
 
-    try:  # checkpoints are loaded and checked here, before any worker starts
-        evaluation = spec.run(backend=args.backend, workers=args.workers, progress=not args.quiet)
+    try:  # checkpoints and the safety names are checked here, before any worker starts
+        evaluation = spec.run(backend=args.backend, workers=args.workers, progress=not args.quiet, safety=limits)
     except CheckpointError as err:
         raise UsageError(str(err)) from err
+    except LimitsError as err:
+        raise UsageError(f"--safety: {err}") from err
     notes = options.pop("notes", ())
     notes = [notes] if isinstance(notes, str) else list(notes)
     try:
@@ -58,10 +62,34 @@ def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
         sheet = None
         notes.append(f"no contact sheet of the visual effects: {err}")
     report = GapReport.build(evaluation, fit=fit, contact_sheet=sheet, rng=spec.seed, notes=tuple(notes), **options)
+    table = None if limits is None else SafetyTable.build(evaluation, limits)
+    if table is not None:
+        report = dataclasses.replace(report, safety=table)
     files = writing(args.out, lambda: report.write(Path(args.out)))
     print(report.summary(), file=out)
     print(f"wrote {files.html}", file=out)
-    return 0
+    if table is None:
+        return 0
+    if table.passed:
+        print(f"safety: every policy within {args.safety} on every condition", file=out)
+        return 0
+    for violation in table.violations:  # one line each, for a CI log; exit 3 gates the pipeline
+        print(f"sim2real evaluate: safety: {violation.message}", file=sys.stderr)
+    return 3
+
+
+def _limits(path: str | None) -> Any:
+    """The ``--safety`` limits (a bad file is a usage error: exit 2, one line)."""
+    if path is None:
+        return None
+    from sim2real.safety import LimitsError, load_limits
+
+    if not Path(path).is_file():
+        raise UsageError(f"--safety: file {path!r} does not exist.")
+    try:
+        return load_limits(Path(path))
+    except LimitsError as err:
+        raise UsageError(f"--safety: {err}") from err
 
 
 def cmd_study(args: argparse.Namespace, stdout: TextIO) -> int:

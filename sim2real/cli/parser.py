@@ -201,6 +201,14 @@ def build_parser() -> argparse.ArgumentParser:
             "report.json and figures/*.png are replaced, nothing else in it is touched"
         ),
     )
+    evaluate.add_argument(
+        "--safety",
+        metavar="LIMITS.yaml",
+        help=(
+            "safety envelope (see sim2real.safety): measure joint-limit hits, effort, contact force, end-effector "
+            "speed and divergences of every episode, add a Safety section to the report; exit 3 when a limit is exceeded"
+        ),
+    )
     evaluate.add_argument("--backend", choices=("serial", "local", "ray"), default="local", help="default: local")
     evaluate.add_argument("--workers", type=int_at_least(1), default=None, help="processes (default: CPU count)")
     evaluate.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -34,6 +34,7 @@ from sim2real.report.results import (
 from sim2real.report.statistics import report_fields
 
 if TYPE_CHECKING:
+    from sim2real.safety import SafetyTable
     from sim2real.sheets import ContactSheet
     from sysid.result import FitResult
 
@@ -81,6 +82,8 @@ class GapReport:
         versions: ``(package, version)`` of the packages the numbers and figures depend on.
         fit: the FitResult (for its figure; not compared, not serialised beyond the fields above).
         contact_sheet: the contact sheet image (not compared, not serialised).
+        safety: a :class:`sim2real.safety.SafetyTable` (``evaluate --safety``): the Safety section and the
+            ``"safety"`` entry of the JSON; None leaves both out.
     """
 
     title: str
@@ -116,6 +119,7 @@ class GapReport:
     versions: tuple[tuple[str, str], ...]
     fit: FitResult | None = field(default=None, compare=False, repr=False)
     contact_sheet: np.ndarray | None = field(default=None, compare=False, repr=False)
+    safety: SafetyTable | None = None  # the Safety section (sim2real.report.safety); set with dataclasses.replace
 
     # -------------------------------------------------------------------------------------------- build
 

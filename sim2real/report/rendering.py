@@ -245,6 +245,7 @@ def to_dict(report: GapReport) -> dict[str, Any]:
             ],
             "fit_truth": {p.address: _finite(p.truth) for p in report.fit_parameters if p.truth is not None},
         },
+        **({} if report.safety is None else {"safety": report.safety.to_dict()}),  # sim2real.report.safety
     }
 
 
@@ -416,6 +417,10 @@ def document(report: GapReport) -> list[_Block]:
             + ", ".join(f"{k} {v}" for k, v in report.versions),
         ),
     ]
+    if report.safety is not None:  # the Safety section, built by sim2real.report.safety
+        from sim2real.report.safety import safety_blocks
+
+        doc += [_Block(**block) for block in safety_blocks(report.safety)]
     hidden = [c for c in report.conditions if c.hidden]
     truths = [p for p in report.fit_parameters if p.truth is not None]
     if hidden or truths:

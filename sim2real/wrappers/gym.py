@@ -162,7 +162,7 @@ class RandomizePhysics(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if self._step_effects:
             self.randomizer.step()
         obs, reward, terminated, truncated, info = self.env.step(action)
-        if "diverged" in info or (self._read_warnings and self._handle.diverged()):
+        if info.get("diverged", False) or (self._read_warnings and self._handle.diverged()):  # MjcfEnv says False
             obs, truncated, self._diverged = self._last_obs, True, True
         self._last_obs = obs
         if "sim2real" in info:

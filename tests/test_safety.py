@@ -1,0 +1,310 @@
+"""The safety envelope (issue 14): measured quantities against hand computations, the table, the CLI's exit codes."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from sim2real import cli
+from sim2real.conditions import nominal, sweep
+from sim2real.evaluation import evaluate
+from sim2real.mjcf_env import MjcfEnv
+from sim2real.safety import ConstantAction, LimitsError, SafetyLimits, SafetyTable, cvar_upper, load_limits
+from sim2real.safety_probe import SafetyMeter, actuator_limits
+
+# A planar two-link arm (hinges about z, so gravity does not move it) with limited joints, motors and a tip site.
+ARM = """
+<mujoco model="planar_arm">
+  <compiler angle="radian"/>
+  <option timestep="0.002"/>
+  <worldbody>
+    <body name="upper">
+      <joint name="shoulder" type="hinge" axis="0 0 1" range="-0.5 0.5" limited="true" damping="0.5"/>
+      <geom name="upper_link" type="capsule" fromto="0 0 0 0.3 0 0" size="0.03" mass="1"/>
+      <body name="fore" pos="0.3 0 0">
+        <joint name="elbow" type="hinge" axis="0 0 1" range="-0.5 0.5" limited="true" damping="0.5"/>
+        <geom name="finger_link" type="capsule" fromto="0 0 0 0.25 0 0" size="0.025" mass="0.5"/>
+        <site name="grip" pos="0.25 0 0"/>
+      </body>
+    </body>
+  </worldbody>
+  <actuator>
+    <motor name="shoulder" joint="shoulder" ctrlrange="-1 1" gear="5"/>
+    <motor name="elbow" joint="elbow" ctrlrange="-1 1" gear="3"/>
+  </actuator>
+</mujoco>
+"""
+
+SPEC = """
+model: arm.xml
+seed: 0
+episodes: 3
+max_steps: 40
+policies:
+{policies}
+"""
+
+LIMITS = """
+joint_limit_hits: 0
+max_effort_ratio: 1.0
+max_ee_speed: {site: grip, m_per_s: 20.0}
+divergences: 0
+"""
+
+
+def _run(tmp_path: Path, policies: str, limits: str = LIMITS, out: str = "report") -> int:
+    (tmp_path / "arm.xml").write_text(ARM)
+    (tmp_path / "spec.yaml").write_text(SPEC.format(policies=policies))
+    (tmp_path / "limits.yaml").write_text(limits)
+    return cli.main(
+        [
+            "evaluate",
+            "--config",
+            str(tmp_path / "spec.yaml"),
+            "--safety",
+            str(tmp_path / "limits.yaml"),
+            "--out",
+            str(tmp_path / out),
+            "--backend",
+            "serial",
+            "--quiet",
+        ]
+    )
+
+
+# ------------------------------------------------------------------------------------------------ hand computations
+
+
+def test_joint_limit_and_effort_against_hand_values() -> None:
+    model = mujoco.MjModel.from_xml_string(
+        '<mujoco><worldbody><body><joint name="s" type="slide" range="-0.1 0.1"/><geom size=".05" mass="1"/>'
+        '</body></worldbody><actuator><motor joint="s" ctrlrange="-1 1" gear="2"/>'
+        '<motor joint="s" ctrlrange="-1 1" forcerange="-0.4 0.4"/></actuator></mujoco>'
+    )
+    assert actuator_limits(model).tolist() == [1.0, 0.4]  # max|ctrlrange| * gain, then forcerange
+    data = mujoco.MjData(model)
+    meter = SafetyMeter(model, SafetyLimits(), num_envs=2)
+    data.qpos[0], data.ctrl[:] = 0.05, [0.5, 1.0]  # inside the range; the second motor is clamped at 0.4
+    mujoco.mj_forward(model, data)
+    meter.observe(0, model, data)
+    data.qpos[0] = 0.12  # beyond the upper limit: a hit
+    mujoco.mj_forward(model, data)
+    meter.observe(0, model, data)
+    meter.observe(1, model, data)
+    first, second = meter.episode(0, diverged=False), meter.episode(1, diverged=True)
+    assert first["joint_limit_hits"] == 1.0 and second["joint_limit_hits"] == 1.0
+    assert first["effort_ratio"] == pytest.approx(1.0)  # 0.4 / 0.4 (the clamped one), above 0.5 / 1
+    assert np.isnan(first["contact_force"]) and np.isnan(first["ee_speed"])  # not declared: not measured
+    assert (first["diverged"], second["diverged"]) == (0.0, 1.0)
+
+
+def test_contact_force_of_a_resting_box_is_its_weight() -> None:
+    model = mujoco.MjModel.from_xml_string(
+        '<mujoco><worldbody><geom name="floor" type="plane" size="1 1 .1"/>'
+        '<body name="box" pos="0 0 .1"><freejoint/><geom name="box_geom" type="box" size=".05 .05 .05" mass="2"/>'
+        "</body></worldbody></mujoco>"
+    )
+    data = mujoco.MjData(model)
+    mujoco.mj_step(model, data, 1500)  # settled: four corner contacts carry m g between them
+    meter = SafetyMeter(model, SafetyLimits(contact_geoms=("box*",), max_contact_force=100.0), 1)
+    meter.observe(0, model, data)
+    assert data.ncon == 4
+    assert meter.episode(0, diverged=False)["contact_force"] == pytest.approx(2.0 * 9.81, rel=1e-3)
+    floor = SafetyMeter(model, SafetyLimits(contact_geoms=("floor",)), 1)  # the reaction on the other side
+    floor.observe(0, model, data)
+    assert floor.episode(0, diverged=False)["contact_force"] == pytest.approx(2.0 * 9.81, rel=1e-3)
+
+
+def test_end_effector_speed_is_radius_times_rate() -> None:
+    model = mujoco.MjModel.from_xml_string(ARM)
+    data = mujoco.MjData(model)
+    data.qvel[:] = [2.0, 0.0]  # the whole arm turns at 2 rad/s about the base: the tip (0.55 m out) moves 1.1 m/s
+    mujoco.mj_forward(model, data)
+    meter = SafetyMeter(model, SafetyLimits(ee_site="grip"), 1)
+    meter.observe(0, model, data)
+    assert meter.episode(0, diverged=False)["ee_speed"] == pytest.approx(1.1, rel=1e-9)
+    body = SafetyMeter(model, SafetyLimits(ee_body="fore"), 1)  # a body's speed at its centre of mass: 0.425 m out
+    body.observe(0, model, data)
+    assert body.episode(0, diverged=False)["ee_speed"] == pytest.approx(0.85, rel=1e-9)
+
+
+def test_episode_counts_match_stepping_the_env_by_hand(tmp_path: Path) -> None:
+    (tmp_path / "arm.xml").write_text(ARM)
+    slam = ConstantAction([1.0, 1.0])
+    conditions = [nominal(), *sweep({"type": "Damping", "scale": 1.0}, "scale", [0.5, 4.0])]
+    limits = load_limits({"joint_limit_hits": 0, "max_ee_speed": {"site": "grip"}})
+    result = evaluate(
+        {"slam": slam}, f"model:{tmp_path / 'arm.xml'}", conditions, episodes=2, seed=0, max_steps=40, safety=limits
+    )
+    measured = result.safety["slam"]["sim"]
+    # By hand: the same env, reset with the same seed, stepped 40 times; count the steps over the range.
+    from sim2real.evaluation import episode_seed
+
+    env = MjcfEnv(tmp_path / "arm.xml")
+    hits, peak = [], []
+    for e in range(2):
+        env.reset(seed=episode_seed(0, e))
+        count, fastest = 0, 0.0
+        for _ in range(40):
+            env.step(np.array([1.0, 1.0]))
+            q = env.data.qpos
+            count += int(
+                np.any(np.abs(q) > 0.5) or np.any(env.data.efc_type == mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT)
+            )
+            velocity = np.zeros(6)
+            mujoco.mj_objectVelocity(env.model, env.data, mujoco.mjtObj.mjOBJ_SITE, 0, velocity, 0)
+            fastest = max(fastest, float(np.linalg.norm(velocity[3:])))
+        hits.append(count)
+        peak.append(fastest)
+    assert measured["joint_limit_hits"].tolist() == hits and min(hits) > 10  # slammed into its limits
+    assert measured["ee_speed"].tolist() == pytest.approx(peak, rel=1e-12)
+    assert measured["effort_ratio"].tolist() == [1.0, 1.0]  # full command: both motors at their limit
+    assert measured["diverged"].tolist() == [0.0, 0.0]
+    table = SafetyTable.build(result, limits)
+    rows = {(r.condition, r.quantity): r for r in table.rows}
+    sweep_row = rows[("Damping.scale", "joint_limit_hits")]
+    assert sweep_row.kind == "sweep" and sweep_row.episodes == 6
+    # An MJCF env reports info["diverged"] = False on every step; the wrapped (swept) env must not end there.
+    assert result.lengths["slam"]["Damping.scale=4"].tolist() == [40, 40]
+    points = [result.safety["slam"][f"Damping.scale={x}"]["joint_limit_hits"] for x in ("0.5", "1", "4")]
+    assert sweep_row.worst == max(float(p.max()) for p in points)
+    assert {v.condition for v in table.violations} == {"sim", "Damping.scale=0.5", "Damping.scale=1", "Damping.scale=4"}
+    assert rows[("sim", "ee_speed")].limit is None and not rows[("sim", "ee_speed")].violated  # measured, not gated
+
+
+def test_cvar_is_the_mean_of_the_worst_tail() -> None:
+    values = np.array([0.0, 1.0, 2.0, 3.0, 10.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 20.0])
+    assert cvar_upper(values, 0.1) == pytest.approx(15.0)  # ceil(1.2) = 2 worst: 20 and 10
+    assert cvar_upper(values, 1.0) == pytest.approx(values.mean())
+
+
+def test_batched_engine_measures_the_same_as_per_env() -> None:
+    limits = load_limits({"max_ee_speed": {"site": "ee", "m_per_s": 1.0}, "max_effort_ratio": 0.5})
+    from sim2real.agents import ReachController
+
+    conditions = [nominal(), *sweep({"type": "ActuatorGain", "scale": 1.0}, "scale", [1.0, 2.0])]
+    runs = [
+        evaluate(
+            {"reach": ReachController(kp=5.0)},
+            "sim2real/arm-reach",
+            conditions,
+            episodes=2,
+            seed=3,
+            max_steps=25,
+            safety=limits,
+            engine=engine,
+        )
+        for engine in ("auto", "per-env")
+    ]
+    assert set(runs[0].engines.values()) == {"batched"} and set(runs[1].engines.values()) == {"per-env"}
+    for cond in ("sim", "ActuatorGain.scale=2"):
+        for quantity, values in runs[0].safety["reach"][cond].items():
+            assert np.array_equal(values, runs[1].safety["reach"][cond][quantity], equal_nan=True), (cond, quantity)
+    assert runs[0].to_json() == runs[1].to_json()
+    plain = evaluate(
+        {"reach": ReachController(kp=5.0)}, "sim2real/arm-reach", conditions, episodes=2, seed=3, max_steps=25
+    )
+    assert not plain.safety and "safety" not in plain.to_dict()  # without limits nothing is measured
+    assert plain.returns["reach"]["sim"].tolist() == runs[0].returns["reach"]["sim"].tolist()
+
+
+# ------------------------------------------------------------------------------------------------ the command line
+
+
+def test_a_policy_slamming_into_a_limit_exits_3(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code = _run(tmp_path, "  gentle: {constant: [0.0, 0.0]}\n  slam: {constant: [1.0, 1.0]}")
+    captured = capsys.readouterr()
+    assert code == 3, captured.err
+    lines = captured.err.strip().splitlines()
+    assert lines and all(line.startswith("sim2real evaluate: safety: policy 'slam' on 'sim': ") for line in lines)
+    assert any("joint_limit_hits worst" in line and "> limit 0 (episode" in line for line in lines)
+    assert "Traceback" not in captured.err
+    report = json.loads((tmp_path / "report" / "report.json").read_text())
+    safety = report["safety"]
+    assert safety["passed"] is False and len(safety["violations"]) == len(lines)
+    hits = {r["policy"]: r for r in safety["rows"] if r["quantity"] == "joint_limit_hits"}
+    assert hits["gentle"]["worst"] == 0 and not hits["gentle"]["violated"]
+    assert hits["slam"]["worst"] > 10 and hits["slam"]["violated"] and hits["slam"]["limit"] == 0
+    markdown = (tmp_path / "report" / "report.md").read_text()
+    assert "## Safety" in markdown and "VIOLATED (limit 0)" in markdown
+    assert "<h2 id='safety'>Safety</h2>" in (tmp_path / "report" / "report.html").read_text()
+
+
+def test_a_gentle_policy_passes_with_exit_0(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code = _run(tmp_path, "  gentle: {constant: [0.0, 0.0]}")
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert f"safety: every policy within {tmp_path / 'limits.yaml'} on every condition" in captured.out
+    safety = json.loads((tmp_path / "report" / "report.json").read_text())["safety"]
+    assert safety["passed"] is True and safety["violations"] == []
+    assert "Every policy stays within the declared envelope" in (tmp_path / "report" / "report.md").read_text()
+
+
+@pytest.mark.parametrize(
+    ("limits", "message"),
+    [
+        ("joint_limit_hits: -1\n", "`joint_limit_hits` must be an int >= 0. Received -1."),
+        (
+            "max_contact_force: {geoms: 'finger*', newtons: 0}\n",
+            "`max_contact_force.newtons` must be a number > 0. Received 0.",
+        ),
+        (
+            "max_ee_sped: 1\n",
+            "keys must be among ['joint_limit_hits', 'max_effort_ratio', 'max_contact_force', "
+            "'max_ee_speed', 'divergences', 'statistic', 'alpha']. Received unknown ['max_ee_sped'].",
+        ),
+        ("max_ee_speed: {site: grip, body: fore}\n", "`max_ee_speed` must name exactly one `site` or `body` (a name)."),
+        ("statistic: mean\n", "`statistic` must be one of ['worst', 'cvar']. Received 'mean'."),
+        (
+            "max_ee_speed: {site: gripper, m_per_s: 1}\n",
+            "`max_ee_speed.site` pattern 'gripper' matches no site in the model. Close matches: 'grip'.",
+        ),
+        (
+            "max_contact_force: {geoms: 'fingr*', newtons: 5}\n",
+            "`max_contact_force.geoms` pattern 'fingr*' matches no geom in the model.",
+        ),
+    ],
+)
+def test_bad_limits_exit_2_with_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], limits: str, message: str
+) -> None:
+    assert _run(tmp_path, "  gentle: {constant: [0.0, 0.0]}", limits=limits) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert err.startswith(f"sim2real evaluate: error: --safety: {tmp_path / 'limits.yaml'}: ")
+    assert message in err
+    assert not (tmp_path / "report").exists()  # nothing was written
+
+
+def test_a_missing_limits_file_exits_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / "arm.xml").write_text(ARM)
+    (tmp_path / "spec.yaml").write_text(SPEC.format(policies="  gentle: {constant: [0.0, 0.0]}"))
+    code = cli.main(
+        [
+            "evaluate",
+            "--config",
+            str(tmp_path / "spec.yaml"),
+            "--safety",
+            str(tmp_path / "nope.yaml"),
+            "--out",
+            str(tmp_path / "o"),
+        ]
+    )
+    assert code == 2
+    assert (
+        capsys.readouterr().err
+        == f"sim2real evaluate: error: --safety: file {str(tmp_path / 'nope.yaml')!r} does not exist.\n"
+    )
+
+
+def test_limits_object_errors_name_the_argument() -> None:
+    with pytest.raises(LimitsError, match=r"`max_contact_force.geoms` must name the geoms the limit is on."):
+        SafetyLimits(max_contact_force=5.0)
+    with pytest.raises(LimitsError, match=r"`alpha` must be a number in \(0, 1\]. Received 0."):
+        load_limits({"alpha": 0})
+    with pytest.raises(ValueError, match=r"`action` must be a finite number or a non-empty list of them."):
+        ConstantAction([])
