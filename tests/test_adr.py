@@ -427,7 +427,8 @@ def test_train_logs_ranges_and_checkpoints_the_state(tmp_path: Any) -> None:
     assert checkpoint.adr == result.adr and checkpoint.config == cfg
 
 
-def test_cli_train_adr_errors_exit_2_with_one_line(tmp_path: Any, capsys: Any) -> None:
+def test_cli_train_adr_runs_and_errors_exit_2_with_one_line(tmp_path: Any, capsys: Any) -> None:
+    from sim2real.agents import load_checkpoint
     from sim2real.cli import main
 
     bad = tmp_path / "adr.yaml"
@@ -438,6 +439,23 @@ def test_cli_train_adr_errors_exit_2_with_one_line(tmp_path: Any, capsys: Any) -
     assert err == "sim2real train: error: --adr: `p_boundary` of ADR must be in [0, 1]. Received 2.0."
     code = main(["train", "--task", "sim2real/arm-reach", "--adr", str(tmp_path / "no.yaml"), "--out", "p.pt"])
     assert code == 2 and "--adr: cannot read" in capsys.readouterr().err
+
+    good = tmp_path / "good.yaml"
+    good.write_text(ADR_YAML)
+    agent = tmp_path / "ppo.yaml"
+    agent.write_text(
+        "algo: ppo\nframes: 400\nframes_per_batch: 200\nminibatch_size: 100\nepochs: 1\nobs_norm_frames: 0\n"
+    )
+    out = tmp_path / "policy.pt"
+    argv = ["train", "--task", "sim2real/arm-reach", "--adr", str(good), "--agent-config", str(agent)]
+    assert main([*argv, "--out", str(out), "--no-log", "--quiet"]) == 0
+    summary = capsys.readouterr().out
+    state = load_checkpoint(out).adr
+    assert state is not None
+    adr = ADR.from_state(state)
+    ranges = ", ".join(f"{key} [{lo:g}, {hi:g}]" for key, (lo, hi) in adr.ranges.items())
+    assert f"adr: entropy {adr.entropy():.3f} nats/dim; {ranges}" in summary
+    assert adr.frames == 400 and len(adr.history.frames) == 3  # two episodes, each pinned and widened
 
 
 def test_api_checkers_pass_with_adr() -> None:

@@ -161,6 +161,12 @@ def cli_train(argv: Sequence[str] | None = None, out: TextIO | None = None) -> i
         file=out,
     )
     print(f"episode return (batch mean): first {first}, last {last}", file=out)
+    if result.adr is not None:
+        from randomizers import ADR
+
+        adr = ADR.from_state(result.adr)
+        ranges = ", ".join(f"{key} [{lo:g}, {hi:g}]" for key, (lo, hi) in adr.ranges.items())
+        print(f"adr: entropy {adr.entropy():.3f} nats/dim; {ranges}", file=out)
     print(f"run id: {result.run_id}", file=out)
     if result.log_dir is not None:
         print(f"log: {result.log_dir}", file=out)
