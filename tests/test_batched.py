@@ -110,7 +110,7 @@ def _compare(task: str, seed: int, kind: int, episodes: int, num: int = 3) -> in
     ],
 )
 def test_each_world_is_bitwise_its_single_env(task: str, seed: int, kind: int) -> None:
-    assert _compare(task, seed, kind, episodes=3) == 3 * 3 * 15
+    assert _compare(task, seed, kind, episodes=2) == 2 * 3 * 15  # a seeded episode, then one continuing the streams
 
 
 def test_reacher_rewards_are_bitwise_over_a_full_episode_that_reaches() -> None:
@@ -238,44 +238,6 @@ def test_evaluate_uses_the_engine_and_reports_byte_identical_results() -> None:
         evaluate(_reach, "dmc/reacher-easy", [nominal()], engine="gpu")
 
 
-def test_torchrl_env_passes_check_env_specs_and_matches_the_single_envs() -> None:
-    torch = pytest.importorskip("torch")
-    from tensordict import TensorDict
-    from torchrl.envs.utils import check_env_specs
-
-    from sim2real.batched.torchrl_env import BatchedTorchRLEnv
-
-    effects = _effects(1)
-    env = BatchedTorchRLEnv("dmc/reacher-easy", 3, *effects, seed=6, **SHORT)
-    check_env_specs(env, seed=0)
-    singles = [s2r.wrap(s2r.make("dmc/reacher-easy", **SHORT), *effects, seed=(6, i)) for i in range(3)]
-    env.set_seed(20)
-    td = env.reset()
-    for i, single in enumerate(singles):
-        obs, info = single.reset(seed=20 + i)
-        assert np.array_equal(td["observation"][i].numpy(), obs)
-        params = info["sim2real"]["params"]
-        assert td["sim2real_params"][i].tolist() == [params[name] for name in env.param_names]
-    rng = np.random.default_rng(1)
-    for _ in range(15):
-        actions = rng.uniform(-1, 1, (3, 2)).astype(np.float32)
-        td = env.step(TensorDict({"action": torch.as_tensor(actions)}, batch_size=[3]))["next"]
-        for i, single in enumerate(singles):
-            obs, reward, _, truncated, _ = single.step(actions[i])
-            assert np.array_equal(td["observation"][i].numpy(), obs)
-            assert float(td["reward"][i]) == reward and bool(td["truncated"][i]) == truncated
-    assert td["done"].all()  # 15 steps: every world's episode ended
-    # A partial reset starts a new episode in world 1 only, continuing its streams like the single env's reset().
-    td = env.reset(TensorDict({"_reset": torch.tensor([[False], [True], [False]])}, batch_size=[3]))
-    obs, info = singles[1].reset()
-    assert np.array_equal(td["observation"][1].numpy(), obs)
-    assert env.engine.steps.tolist() == [15, 0, 15]  # worlds 0 and 2 were left alone
-    assert td["sim2real_params"][1].tolist() == [info["sim2real"]["params"][n] for n in env.param_names]
-    env.close()
-    for single in singles:
-        single.close()
-
-
 def test_evaluate_arm_reach_successes_and_early_ends_are_byte_identical() -> None:
     from sim2real.agents import ReachController
     from sim2real.evaluation import evaluate, nominal, randomized
@@ -328,25 +290,6 @@ def test_noise_blocks_and_latency_rings_stay_per_world_when_worlds_step_unevenly
     # Past a block refill inside an episode, a world reset while the others ran on, different lags in play.
     assert steps.min() > 256 and resets >= 1 and len(lags) > 1
     batched.close()
-
-
-def test_torchrl_env_with_signal_models_reports_their_draws() -> None:
-    pytest.importorskip("torch")
-    from torchrl.envs.utils import check_env_specs
-
-    from sim2real.batched.torchrl_env import BatchedTorchRLEnv
-
-    env = BatchedTorchRLEnv("dmc/reacher-easy", 2, *_effects(3), seed=2, **SHORT)
-    check_env_specs(env, seed=0)
-    assert "obs_latency_steps" in env.param_names and "dof_damping[shoulder]" in env.param_names
-    single = s2r.wrap(s2r.make("dmc/reacher-easy", **SHORT), *_effects(3), seed=(2, 1))
-    env.set_seed(30)
-    td = env.reset()
-    obs, info = single.reset(seed=31)
-    assert np.array_equal(td["observation"][1].numpy(), obs)
-    column = env.param_names.index("obs_latency_steps")
-    assert float(td["sim2real_params"][1, column]) == info["sim2real"]["params"]["obs_latency_steps"]
-    env.close()
 
 
 def test_threads_do_not_change_results() -> None:
