@@ -12,6 +12,9 @@ processes like a task id:
   :class:`sim2real.DmEnvToGym`); a TorchRL ``EnvBase`` serves the commands that only need its MuJoCo model
   (``record``, ``sysid fit``). The id is ``env:package.module:factory``.
 
+The building half (an MJCF file or a factory into an env) lives in :mod:`sim2real.user_envs`, which
+:func:`sim2real.make` calls, so the task registry and this module do not import each other.
+
 Bad input fails with :class:`SourceError` (a ``ValueError``) naming the argument, what is allowed and what was
 received: a missing file, an MJCF that does not compile (MuJoCo's message quoted), a module that does not import,
 a factory that is missing, raises or returns something that is not an env.
@@ -30,23 +33,31 @@ Example:
     >>> resolve_source(task="dmc/reacher-easy", model=path)
     Traceback (most recent call last):
     ...
-    sim2real.sources.SourceError: give one of --task, --model and --env. Received --task and --model.
+    sim2real.user_envs.SourceError: give one of --task, --model and --env. Received --task and --model.
 """
 
 from __future__ import annotations
 
-import contextlib
-import difflib
-import importlib
 import os
-import sys
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import mujoco
+
+from sim2real.user_envs import (
+    ENV_PREFIX,
+    MODEL_PREFIX,
+    SourceError,
+    as_gym,
+    build_factory,
+    build_model,
+    close_quietly,
+    import_factory,
+    make_user_env,
+)
 
 __all__ = [
     "ENV_PREFIX",
@@ -61,17 +72,8 @@ __all__ = [
     "source_from_config",
 ]
 
-#: Prefix of the id of an MJCF-file source.
-MODEL_PREFIX = "model:"
-#: Prefix of the id of an env-factory source.
-ENV_PREFIX = "env:"
 #: The source kinds, in the order the arguments are listed.
 KINDS: tuple[str, ...] = ("task", "model", "env")
-_OPTIONS = ("render_mode", "width", "height", "max_episode_steps", "control_timestep", "reset_noise")
-
-
-class SourceError(ValueError):
-    """A ``--task``/``--model``/``--env`` (or YAML ``task:``/``model:``/``env:``) that does not give an env."""
 
 
 @dataclass(frozen=True)
@@ -105,8 +107,7 @@ class Source:
 
     def check(self) -> None:
         """Fails early (:class:`SourceError`) when the source cannot give an env; builds and closes one."""
-        obj = self._build({})
-        _close(obj)
+        close_quietly(self._build({}))
 
     def _build(self, options: Mapping[str, Any]) -> Any:
         """The raw object: a gymnasium env (task, model) or what the factory returned (checked to be an env)."""
@@ -118,31 +119,8 @@ class Source:
             except (TypeError, ValueError) as err:
                 raise SourceError(f"`{self._arg()}`: {err}") from err
         if self.kind == "model":
-            from sim2real.mjcf_env import MjcfEnv
-
-            unknown = sorted(set(options) - set(_OPTIONS))
-            if unknown:
-                raise SourceError(f"options of `{self._arg()}` must be among {list(_OPTIONS)}. Received {unknown}.")
-            try:
-                return MjcfEnv(self.value, **options)
-            except FileNotFoundError as err:
-                raise SourceError(f"`{self._arg()}` {self.value!r} does not exist.") from err
-            except ValueError as err:
-                raise SourceError(f"`{self._arg()}`: {err}") from err
-        factory = _import_factory(self.value, self._arg())
-        try:
-            obj = factory()
-        except Exception as err:  # a user's factory may raise anything; say whose it was
-            raise SourceError(
-                f"`{self._arg()}` {self.value!r}: the factory raised {type(err).__name__}: {err}"
-            ) from err
-        if not _is_env(obj):
-            _close(obj)
-            raise SourceError(
-                f"`{self._arg()}` {self.value!r} must return a gymnasium.Env, a dm_env.Environment or a TorchRL "
-                f"EnvBase. Received {type(obj).__module__}.{type(obj).__qualname__}."
-            )
-        return obj
+            return build_model(self.value, self._arg(), options)
+        return build_factory(self.value, self._arg())
 
     def make(self, **options: Any) -> gym.Env:
         """A gymnasium env of this source (dm_env factories adapted by :class:`sim2real.DmEnvToGym`).
@@ -157,82 +135,7 @@ class Source:
         """
         if self.kind != "env":
             return self._build(options)
-        obj = self._build({})
-        if isinstance(obj, gym.Env):
-            if options:
-                _close(obj)
-                raise SourceError(
-                    f"`{self._arg()}` {self.value!r} returns a gymnasium env, which takes no options. "
-                    f"Received {sorted(options)}."
-                )
-            return obj
-        import dm_env
-
-        if isinstance(obj, dm_env.Environment):
-            from sim2real.adapters import DmEnvToGym
-
-            return DmEnvToGym(obj, **options)
-        _close(obj)
-        raise SourceError(
-            f"`{self._arg()}` {self.value!r} returns a TorchRL {type(obj).__name__}; `record` and `sysid fit` can use "
-            "its MuJoCo model, but this command needs a gymnasium env or a dm_env.Environment (or call "
-            "sim2real.agents.train(env) from Python)."
-        )
-
-
-def _close(obj: Any) -> None:
-    close = getattr(obj, "close", None)
-    if callable(close):
-        with contextlib.suppress(Exception):  # closing a half-built user env must not hide the real error
-            close()
-
-
-def _is_env(obj: Any) -> bool:
-    if isinstance(obj, gym.Env):
-        return True
-    import dm_env
-
-    if isinstance(obj, dm_env.Environment):
-        return True
-    try:
-        from torchrl.envs import EnvBase
-    except ImportError:  # pragma: no cover - torchrl is a dependency
-        return False
-    return isinstance(obj, EnvBase)
-
-
-def _import_factory(spec: str, argument: str) -> Callable[[], Any]:
-    module_name, sep, attr = spec.partition(":")
-    if not sep or not module_name or not attr or ":" in attr:
-        raise SourceError(f"`{argument}` must look like 'package.module:factory'. Received {spec!r}.")
-    try:
-        module = importlib.import_module(module_name)
-    except ModuleNotFoundError as first:
-        # The console script does not put the working folder on sys.path; a user's own module usually lives there.
-        cwd = os.getcwd()
-        if cwd in sys.path or first.name != module_name.split(".")[0]:
-            raise SourceError(f"`{argument}` {spec!r}: cannot import module {module_name!r}: {first}.") from first
-        sys.path.insert(0, cwd)
-        try:
-            module = importlib.import_module(module_name)
-        except ImportError as err:
-            sys.path.remove(cwd)
-            raise SourceError(f"`{argument}` {spec!r}: cannot import module {module_name!r}: {err}.") from err
-    except Exception as err:  # a module that fails while importing (syntax error, its own ImportError)
-        raise SourceError(
-            f"`{argument}` {spec!r}: importing module {module_name!r} raised {type(err).__name__}: {err}"
-        ) from err
-    factory = getattr(module, attr, None)
-    if factory is None:
-        names = [n for n in dir(module) if not n.startswith("_")]
-        close = difflib.get_close_matches(attr, names, n=3, cutoff=0.6)
-        hint = f" Close matches: {', '.join(repr(c) for c in close)}." if close else ""
-        raise SourceError(f"`{argument}` {spec!r}: module {module_name!r} has no attribute {attr!r}.{hint}")
-    if not callable(factory):
-        raise SourceError(
-            f"`{argument}` {spec!r} must name a callable that returns an env. Received {type(factory).__name__}."
-        )
-    return factory
+        return as_gym(self._build({}), self.value, self._arg(), options)
 
 
 def resolve_source(
@@ -291,7 +194,7 @@ def resolve_source(
         return source
     if not isinstance(env, str):
         raise SourceError(f"`{arguments[2]}` must look like 'package.module:factory'. Received {env!r}.")
-    _import_factory(env, arguments[2])
+    import_factory(env, arguments[2])
     return Source("env", env, arguments[2])
 
 
@@ -311,8 +214,9 @@ def parse_source_id(text: str) -> Source:
 
 
 def make_source_env(source_id: str, **options: Any) -> gym.Env:
-    """The gymnasium env of a ``model:``/``env:`` id: what :func:`sim2real.make` calls for those ids."""
-    return parse_source_id(source_id).make(**options)
+    """The gymnasium env of a ``model:``/``env:`` id (:func:`sim2real.user_envs.make_user_env`, which
+    :func:`sim2real.make` calls for those ids)."""
+    return make_user_env(source_id, **options)
 
 
 def open_source(source: Source) -> tuple[Any, Any]:
@@ -333,7 +237,7 @@ def open_source(source: Source) -> tuple[Any, Any]:
         # repeat, 1 by default) itself: ask the wrapped env, whose substeps are the control period's.
         handle = find_physics(inner) or handle
     if handle is None:
-        _close(obj)
+        close_quietly(obj)
         raise SourceError(
             f"`{source._arg()}` {source.value!r} gives a {type(obj).__name__} with no MuJoCo model inside "
             "(sim2real looks for model/data attributes, dm-control physics and the wrappers' inner envs)."

@@ -53,7 +53,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from sysid.logs import LogError, TrajectoryLog, _check_model
+from sysid.logs import LogError, TrajectoryLog, _check_model, log_format
 
 __all__ = ["UNITS", "CsvWarning", "load_column_map", "load_csv", "log_format"]
 
@@ -80,28 +80,6 @@ _SPACING_TOLERANCE = 0.2
 
 class CsvWarning(UserWarning):
     """A CSV log loaded, but something in it deserves a look (gaps, angles that look like degrees)."""
-
-
-def log_format(path: str | os.PathLike[str]) -> str:
-    """``"npz"`` (a zip archive), ``"csv"`` (text with a delimiter on its first line) or ``"unknown"``.
-
-    Example:
-        >>> import os, tempfile
-        >>> path = os.path.join(tempfile.mkdtemp(), "x.bin")
-        >>> _ = open(path, "wb").write(bytes(range(256)))
-        >>> log_format(path)
-        'unknown'
-    """
-    with open(path, "rb") as handle:
-        head = handle.read(4096)
-    if head.startswith(b"PK\x03\x04") or head.startswith(b"PK\x05\x06"):
-        return "npz"
-    try:
-        text = head.decode("utf-8")
-    except UnicodeDecodeError:
-        return "unknown"
-    first = text.splitlines()[0] if text else ""
-    return "csv" if any(d in first for d in (",", ";", "\t")) else "unknown"
 
 
 def load_column_map(path: str | os.PathLike[str]) -> dict[str, Any]:

@@ -67,6 +67,7 @@ __all__ = [
     "TrajectoryLog",
     "channel_names",
     "load_log",
+    "log_format",
     "record_log",
     "save_log",
     "validate_log",
@@ -366,6 +367,28 @@ def save_log(log: TrajectoryLog, path: str | os.PathLike[str]) -> None:
     atomic_write(target, write)
 
 
+def log_format(path: str | os.PathLike[str]) -> str:
+    """``"npz"`` (a zip archive), ``"csv"`` (text with a delimiter on its first line) or ``"unknown"``.
+
+    Example:
+        >>> import os, tempfile
+        >>> path = os.path.join(tempfile.mkdtemp(), "x.bin")
+        >>> _ = open(path, "wb").write(bytes(range(256)))
+        >>> log_format(path)
+        'unknown'
+    """
+    with open(path, "rb") as handle:
+        head = handle.read(4096)
+    if head.startswith(b"PK\x03\x04") or head.startswith(b"PK\x05\x06"):
+        return "npz"
+    try:
+        text = head.decode("utf-8")
+    except UnicodeDecodeError:
+        return "unknown"
+    first = text.splitlines()[0] if text else ""
+    return "csv" if any(d in first for d in (",", ";", "\t")) else "unknown"
+
+
 def load_log(path: str | os.PathLike[str], model: mujoco.MjModel | None = None) -> TrajectoryLog:
     """Reads and validates a ``.npz`` log.
 
@@ -381,16 +404,11 @@ def load_log(path: str | os.PathLike[str], model: mujoco.MjModel | None = None) 
     where = str(path)
     if not Path(path).is_file():
         raise FileNotFoundError(f"`path` {where!r} does not exist.")
-    with open(path, "rb") as handle:
-        head = handle.read(4)
-    if head != b"PK\x03\x04":
-        from sysid.csv_import import log_format
-
-        if log_format(path) == "csv":
-            raise LogError(
-                f"`path` {where!r} is a CSV text file, not a .npz trajectory log; read it with "
-                "sysid.load_csv(path, columns, meta) or `sim2real sysid fit LOG.csv --columns MAP.yaml`."
-            )
+    if log_format(path) == "csv":
+        raise LogError(
+            f"`path` {where!r} is a CSV text file, not a .npz trajectory log; read it with "
+            "sysid.load_csv(path, columns, meta) or `sim2real sysid fit LOG.csv --columns MAP.yaml`."
+        )
     try:
         with np.load(path, allow_pickle=False) as npz:
             arrays = {key: npz[key] for key in npz.files}

@@ -300,9 +300,9 @@ def _make(task_id: str, **options: Any) -> gym.Env:
     if task_id.startswith("gym/") and len(task_id) > 4:
         return _gym(task_id, **options)
     if task_id.startswith(("model:", "env:")):  # an MJCF file or an env factory (sim2real.sources)
-        from sim2real.sources import make_source_env
+        from sim2real.user_envs import make_user_env
 
-        return make_source_env(task_id, **options)
+        return make_user_env(task_id, **options)
     task = TASKS.get(task_id)
     if task is None:
         close = difflib.get_close_matches(task_id, list(TASKS), n=3, cutoff=0.6)
