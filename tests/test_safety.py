@@ -308,3 +308,55 @@ def test_limits_object_errors_name_the_argument() -> None:
         load_limits({"alpha": 0})
     with pytest.raises(ValueError, match=r"`action` must be a finite number or a non-empty list of them."):
         ConstantAction([])
+
+
+def test_composer_task_contacts_measured_alike_on_both_engines() -> None:
+    """dm-control's manipulator recompiles its physics every episode: both engines read the live MjData."""
+    limits = load_limits(
+        {
+            "max_contact_force": {"geoms": ["finger*", "thumb*"], "newtons": 5.0},
+            "joint_limit_hits": 0,
+            "max_ee_speed": {"site": "grasp"},
+        }
+    )
+    push = ConstantAction([1.0] * 5)
+    runs = [
+        evaluate(
+            {"push": push},
+            "dmc/manipulator-bring_ball",
+            [nominal()],
+            episodes=2,
+            seed=0,
+            max_steps=40,
+            safety=limits,
+            engine=engine,
+        )
+        for engine in ("auto", "per-env")
+    ]
+    assert runs[0].engines == {"sim": "batched"} and runs[1].engines == {"sim": "per-env"}
+    assert runs[0].to_json() == runs[1].to_json()
+    measured = runs[0].safety["push"]["sim"]
+    assert (measured["contact_force"] > 5.0).all() and (measured["joint_limit_hits"] > 0).all()  # it slams
+    table = SafetyTable.build(runs[0], limits)
+    assert {v.quantity for v in table.violations} == {"contact_force", "joint_limit_hits"}
+
+
+def test_process_backend_gives_the_same_measurements(tmp_path: Path) -> None:
+    (tmp_path / "arm.xml").write_text(ARM)
+    limits = load_limits({"joint_limit_hits": 0, "max_ee_speed": {"site": "grip"}})
+    runs = [
+        evaluate(
+            {"slam": ConstantAction([1.0, -1.0])},
+            f"model:{tmp_path / 'arm.xml'}",
+            [nominal()],
+            episodes=3,
+            batch=2,
+            seed=1,
+            max_steps=20,
+            safety=limits,
+            backend=backend,
+            workers=2,
+        )
+        for backend in ("serial", "local")
+    ]
+    assert runs[0].to_json() == runs[1].to_json() and "safety" in runs[0].to_dict()
