@@ -176,3 +176,19 @@ def test_train_sac_refuses_an_unbounded_action_space() -> None:
 
     with pytest.raises(TypeError, match=r"^the env's action space must be a bounded Box\. Received Box\("):
         train(Unbounded(), TINY_SAC, progress=False, logger=None)
+
+
+def test_the_checkpointed_policy_acts_with_the_mean_the_update_trains() -> None:
+    """as_policy (the deterministic TorchRL TanhNormal) gives mid + half * tanh(loc): the noise-free action of
+    the squashed Gaussian SACUpdate samples from."""
+    from sim2real.agents.sac import _actor_parts
+
+    torch.manual_seed(0)
+    actor = build_actor("sac", 5, [-0.05, 0.0, -2.0], [0.05, 1.0, 3.0], (16,), "relu")
+    norm, mlp, extractor = _actor_parts(actor)
+    obs = torch.randn(9, 5) * 2
+    with torch.no_grad():
+        loc, _ = extractor(mlp(norm(obs)))
+    low, high = torch.tensor([-0.05, 0.0, -2.0]), torch.tensor([0.05, 1.0, 3.0])
+    expected = (high + low) / 2 + (high - low) / 2 * torch.tanh(loc)
+    np.testing.assert_allclose(as_policy(actor)(obs.numpy()), expected.numpy(), rtol=1e-6, atol=1e-6)
