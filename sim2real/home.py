@@ -163,9 +163,13 @@ class ExcitationPlan:
     notes: tuple[str, ...]
 
 
-def _limited_joints(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
+def _limited_joint_ids(model: mujoco.MjModel) -> np.ndarray:
     scalar = np.isin(model.jnt_type, (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE))
-    joints = np.flatnonzero(scalar & model.jnt_limited.astype(bool))
+    return np.flatnonzero(scalar & model.jnt_limited.astype(bool))
+
+
+def _limited_joints(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
+    joints = _limited_joint_ids(model)
     ranges = model.jnt_range[joints]
     margin = np.maximum(_MARGIN * (ranges[:, 1] - ranges[:, 0]), 1e-6)
     names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, int(j)) or f"#{j}" for j in joints]
@@ -264,6 +268,17 @@ def plan_excitation(
     full = np.stack([unit.signal(steps, dt, t0=e * steps * dt) for e in range(episodes)]) - center
     bounds = (limits.low, limits.high)
     notes: list[str] = []
+    adr, _, _, names = _limited_joints(model)
+    off_range = [
+        f"{names[k]!r} (home {home[a]:.4g}, range [{model.jnt_range[j, 0]:.4g}, {model.jnt_range[j, 1]:.4g}])"
+        for k, (a, j) in enumerate(zip(adr, _limited_joint_ids(model), strict=True))
+        if not model.jnt_range[j, 0] <= home[a] <= model.jnt_range[j, 1]
+    ]
+    if off_range:  # the usual cause: MJCF ranges are in degrees unless <compiler angle="radian"/>
+        notes.append(
+            f"the home pose lies outside the range of joint(s) {', '.join(off_range)}; if the MJCF's ranges are meant "
+            'in radians, add <compiler angle="radian"/> (MuJoCo reads them in degrees by default).'
+        )
     _, still = _simulate(model, home, 0.0 * full, center, bounds, substeps, latency, gravity, True)
     if still is not None:
         hint = "" if gravity_comp or servo.all() else "; try --gravity-comp"

@@ -241,6 +241,14 @@ def test_home_gravity_comp_and_joint_limits(workdir: Path, capsys: pytest.Captur
     servo = ["record", "--model", "servo.xml", "--episodes", "1", "--steps", "20", "--gravity-comp", "--out", "s.npz"]
     assert main(servo) == 2
     assert "`--gravity-comp` applies to torque-driven actuators" in capsys.readouterr().err
+    # MuJoCo reads joint ranges in degrees unless told otherwise: a home pose outside them gets a note saying so
+    text = Path("servo.xml").read_text().replace('angle="radian"', 'angle="degree"')
+    assert 'angle="degree"' in text
+    Path("degrees.xml").write_text(text)
+    assert main(["record", "--model", "degrees.xml", "--episodes", "1", "--steps", "20", "--out", "d.npz"]) == 0
+    out = capsys.readouterr().out
+    assert "note: the home pose lies outside the range of joint(s) '" in out
+    assert 'if the MJCF\'s ranges are meant in radians, add <compiler angle="radian"/>' in out
 
 
 def test_cli_source_errors_exit_2_with_one_line(workdir: Path, capsys: pytest.CaptureFixture[str]) -> None:
