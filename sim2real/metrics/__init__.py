@@ -5,7 +5,8 @@ independent run (an episode or a training seed), each column one condition (nomi
 "real" target, a point of a perturbation grid, a task or a policy). Nothing here touches an environment; the
 functions only need numpy and scipy.
 
-Intervals are percentile intervals of a **stratified bootstrap** (:mod:`~sim2real.metrics.bootstrap` says how they
+Intervals are percentile intervals of a **stratified bootstrap** (bias-corrected when the replicates would miss the
+point estimate: every interval contains its estimate) (:mod:`~sim2real.metrics.bootstrap` says how they
 are drawn and when the data are too thin for them, warning with :class:`FewSamplesWarning`); success rates get a
 Wilson score interval instead (no resampling).
 
@@ -16,7 +17,7 @@ The package's modules, by role: :mod:`~sim2real.metrics.bootstrap` (argument che
 stratified bootstrap and :class:`Estimate`), :mod:`~sim2real.metrics.estimates` (one statistic per condition:
 mean, IQM, CVaR, worst case, success rate, and the pooled aggregate), :mod:`~sim2real.metrics.comparisons`
 (between conditions: gaps and the probability of improvement), :mod:`~sim2real.metrics.robustness` (the radius of
-a perturbation sweep) and :mod:`~sim2real.metrics.agreement` (sim against real across policies: SRCC, MMRV).
+a perturbation sweep) and :mod:`~sim2real.metrics.agreement` (sim against real across policies: SRCC (Spearman), Pearson, MMRV).
 The modules import one another relatively, so the package loads with numpy and scipy alone.
 
 Example:
@@ -33,7 +34,7 @@ Example:
 
 from __future__ import annotations
 
-from .agreement import mmrv, srcc
+from .agreement import mmrv, pearson, srcc
 from .bootstrap import Estimate, FewSamplesWarning, minimum_runs
 from .bootstrap import Statistic as Statistic  # the `statistic` argument's type: public, not in __all__
 from .comparisons import Gap, gap, probability_of_improvement, unpaired_gap
@@ -53,6 +54,7 @@ __all__ = [
     "mean",
     "minimum_runs",
     "mmrv",
+    "pearson",
     "probability_of_improvement",
     "robustness_radius",
     "srcc",

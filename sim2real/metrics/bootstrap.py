@@ -5,6 +5,11 @@ independently within each condition (the stratum), as in rliable. The bootstrap 
 ``numpy.random.Generator`` passed as ``rng`` (an int is taken as the seed of a fresh ``default_rng``), never from
 the global ``np.random``: the same seed gives bitwise-identical intervals.
 
+Every interval contains its point estimate. When the plain percentile interval would miss it (the replicates are
+median-biased: a correlation of noisy means, a censored radius), the replicates are shifted so that their median is
+the estimate and ``Estimate.method`` reads ``'percentile bootstrap, median-bias corrected'``. A non-finite estimate
+(a relative gap from a reference of 0) has a non-finite interval.
+
 When the data are too thin for the interval asked, the functions still answer but warn with
 :class:`FewSamplesWarning`. The rule (see :func:`minimum_runs`): every resampled stratum needs at least
 ``max(10, ceil(0.5 / (1 - confidence)))`` runs — 10 at 95%, 50 at 99% — because below ~10 runs the percentile
@@ -42,6 +47,7 @@ __all__ = ["Estimate", "FewSamplesWarning", "Statistic", "minimum_runs"]
 Statistic = Literal["mean", "iqm"]
 _STATISTICS = ("mean", "iqm")
 _BOOTSTRAP = "percentile bootstrap"
+_BIAS_CORRECTED = "percentile bootstrap, median-bias corrected"
 _DEFAULT_RESAMPLES = 2000
 
 
@@ -275,9 +281,41 @@ def _interval(boots: np.ndarray, confidence: float) -> tuple[float, float]:
     return float(low), float(high)
 
 
-def _estimate(value: float, boots: np.ndarray, confidence: float, n: int) -> Estimate:
+def _estimate(
+    value: float,
+    boots: np.ndarray,
+    confidence: float,
+    n: int,
+    bounds: tuple[float, float] = (-math.inf, math.inf),
+) -> Estimate:
+    """The percentile interval of ``boots`` around ``value``, made to contain ``value`` when the replicates are
+    median-biased.
+
+    A percentile interval that misses its own point estimate means the bootstrap distribution is shifted away from
+    the estimate by more than its spread (a correlation of noisy per-policy means is attenuated once in the data and
+    twice in a resample; a censored radius piles replicates on the grid's end). Then the replicates are shifted so
+    their median is the estimate (the bias-corrected percentile interval of a location shift), clipped to ``bounds``
+    (the statistic's range), and ``method`` says so. A non-finite estimate gets a non-finite interval: there is
+    nothing to cover.
+    """
+    value = float(value)
+    if not math.isfinite(value):
+        return Estimate(value, math.nan, math.nan, confidence, int(n), _BOOTSTRAP)
     low, high = _interval(boots, confidence)
-    return Estimate(float(value), low, high, confidence, int(n), _BOOTSTRAP)
+    method = _BOOTSTRAP
+    rounding = 1e-9 * max(abs(value), abs(low), abs(high)) if math.isfinite(low) else 0.0
+    if math.isfinite(low) and low - rounding <= value <= high + rounding:
+        low, high = min(low, value), max(high, value)  # a point computed in another summation order
+    elif math.isfinite(low):
+        finite = boots[np.isfinite(boots)]
+        shift = value - float(np.median(finite))
+        low, high = _interval(finite + shift, confidence)
+        low, high = min(low, value), max(high, value)  # rounding of the shift must not push the point outside
+        low, high = max(low, bounds[0]), min(high, bounds[1])
+        method = _BIAS_CORRECTED
+    elif not math.isfinite(low):
+        low = high = math.nan
+    return Estimate(value, low, high, confidence, int(n), method)
 
 
 def _per_condition(

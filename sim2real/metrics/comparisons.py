@@ -244,4 +244,4 @@ def probability_of_improvement(
         cx = _draw_counts(gen, nx, num_resamples)
         cy = _draw_counts(gen, ny, num_resamples)
         boots[:, j] = np.einsum("bi,ik,bk->b", cx, wins, cy, optimize=True) / (nx * ny)
-    return _estimate(points.mean(), boots.mean(axis=1), confidence, a.size + b.size)
+    return _estimate(points.mean(), boots.mean(axis=1), confidence, a.size + b.size, bounds=(0.0, 1.0))

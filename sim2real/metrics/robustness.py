@@ -41,7 +41,9 @@ class RobustnessRadius:
         radius: Distance from the nominal grid value, with its bootstrap interval.
         fraction: Required fraction of the nominal return, e.g. 0.9.
         nominal: The grid value of the unperturbed condition.
-        nominal_return: The statistic (mean or IQM) of the returns at the nominal grid value.
+        nominal_return: The return the threshold is a fraction of: the statistic (mean or IQM) of the returns at the
+            nominal grid value, or of the ``reference`` runs when they were given (e.g. the policy's own training
+            sim).
         censored: True when no grid point on the binding side fell below the threshold, so ``radius.value`` is the
             extent of the grid there: a lower bound, not a measured crossing.
         statistic: ``'mean'`` or ``'iqm'``.
@@ -60,10 +62,9 @@ class RobustnessRadius:
 
 
 def _radius(
-    curve: np.ndarray, distances: np.ndarray, nominal_index: int, fraction: float, interpolate: bool
+    curve: np.ndarray, distances: np.ndarray, nominal_index: int, thresholds: np.ndarray, interpolate: bool
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Radius and censoring flag per row of ``curve`` (shape ``(B, K)``)."""
-    thresholds = fraction * curve[:, nominal_index]
+    """Radius and censoring flag per row of ``curve`` (shape ``(B, K)``), against ``thresholds`` ``(B,)``."""
     best = np.full(curve.shape[0], np.inf)
     censored = np.zeros(curve.shape[0], dtype=bool)
     k = curve.shape[1]
@@ -101,6 +102,7 @@ def robustness_radius(
     statistic: Statistic = "mean",
     interpolate: bool = True,
     paired: bool = False,
+    reference: ArrayLike | None = None,
     rng: np.random.Generator | int,
     confidence: float = 0.95,
     num_resamples: int = _DEFAULT_RESAMPLES,
@@ -121,7 +123,11 @@ def robustness_radius(
         fraction: Fraction of the nominal return to keep, in (0, 1].
         statistic: ``'mean'`` or ``'iqm'`` of the returns at each grid point.
         interpolate: Interpolate the crossing linearly between grid points.
-        paired: Resample runs jointly across grid points (row ``i`` is the same seed at every grid point).
+        paired: Resample runs jointly across grid points (row ``i`` is the same seed at every grid point), and with
+            ``reference`` when it has as many runs.
+        reference: Runs ``(num_runs_ref,)`` of the condition whose return the threshold is a fraction of (e.g. the
+            sim the policy was trained in); default: the returns at the nominal grid value. When the nominal grid
+            point itself falls below the threshold, the radius is 0.
         rng: Generator (or int seed) the bootstrap draws from.
         confidence: Nominal coverage of the interval, in (0, 1).
         num_resamples: Bootstrap resamples.
@@ -165,21 +171,33 @@ def robustness_radius(
     confidence = _open_unit(confidence, "confidence")
     num_resamples = _resamples(num_resamples)
     gen = _generator(rng)
-    points, boots = _columns(x, statistic, gen, num_resamples, paired=bool(paired))
-    if points[nominal_index] <= 0:
+    ref = None if reference is None else _runs_array(np.asarray(reference)[:, None], "reference", "1")
+    if ref is not None and paired and ref.shape[0] == x.shape[0]:
+        points, boots = _columns(np.column_stack([x, ref]), statistic, gen, num_resamples, paired=True)
+        ref_point, ref_boots = points[-1], boots[:, -1]
+        points, boots = points[:-1], boots[:, :-1]
+    else:
+        points, boots = _columns(x, statistic, gen, num_resamples, paired=bool(paired))
+        if ref is None:
+            ref_point, ref_boots = points[nominal_index], boots[:, nominal_index]
+        else:
+            ref_points, ref_all = _columns(ref, statistic, gen, num_resamples)
+            ref_point, ref_boots = ref_points[0], ref_all[:, 0]
+    if ref_point <= 0:
+        where = "at the nominal grid value" if ref is None else "of `reference`"
         raise ValueError(
-            f"`returns` at the nominal grid value must have a positive {statistic} to keep a fraction of it "
-            f"(shift the returns so that 0 is the worst acceptable). Received {points[nominal_index]:g}."
+            f"`returns` {where} must have a positive {statistic} to keep a fraction of it "
+            f"(shift the returns so that 0 is the worst acceptable). Received {ref_point:g}."
         )
     _check_enough("robustness_radius", [x.shape[0]], confidence, num_resamples)
     distances = np.abs(g - g[nominal_index])
-    value, censored = _radius(points[None, :], distances, nominal_index, float(fraction), interpolate)
-    boot_radius, _ = _radius(boots, distances, nominal_index, float(fraction), interpolate)
+    value, censored = _radius(points[None, :], distances, nominal_index, np.array([fraction * ref_point]), interpolate)
+    boot_radius, _ = _radius(boots, distances, nominal_index, fraction * ref_boots, interpolate)
     return RobustnessRadius(
-        radius=_estimate(value[0], boot_radius, confidence, x.size),
+        radius=_estimate(value[0], boot_radius, confidence, x.size, bounds=(0.0, np.inf)),
         fraction=float(fraction),
         nominal=float(g[nominal_index]),
-        nominal_return=float(points[nominal_index]),
+        nominal_return=float(ref_point),
         censored=bool(censored[0]),
         statistic=statistic,
     )
