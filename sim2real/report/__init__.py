@@ -6,8 +6,10 @@
 (stratified-bootstrap intervals), CVaR, worst case and success rate (Wilson); the absolute and relative gap from
 the nominal sim and from the randomised sim to the "real" target (paired when both conditions are simulated,
 since row ``e`` is the same initial state everywhere; unpaired for measured returns); robustness curves and
-radii per sweep; grid means for heatmaps; sim-vs-real agreement across policies (SRCC, MMRV); the probability
-that one policy beats another on the target. Warnings raised by :mod:`sim2real.metrics` (e.g. too few runs for
+radii per sweep (against each policy's training sim); grid means for heatmaps; for every simulator, whether it
+predicts the target policy by policy, and its rank agreement (SRCC = Spearman, Pearson, MMRV); paired differences
+between policies on the target, from which the headline is read (:mod:`~sim2real.report.findings`); the
+probability that one policy beats another on the target. Warnings raised by :mod:`sim2real.metrics` (e.g. too few runs for
 the interval asked) are collected into the report rather than lost.
 
 Reproducible: every interval draws from its own generator, :func:`stream` ``(seed, *key)``, keyed by what it
@@ -19,8 +21,10 @@ Configurations of hidden conditions (a "real" twin with held-out parameters) and
 only in the last section, "Appendix: the real target".
 
 The package's modules, by role: :mod:`~sim2real.report.results` (the frozen result objects),
-:mod:`~sim2real.report.statistics` (computing the numbers), :mod:`~sim2real.report.figures` (deterministic PNGs),
-:mod:`~sim2real.report.rendering` (summary, JSON, Markdown, HTML), :mod:`~sim2real.report.files` (writing a report
+:mod:`~sim2real.report.statistics` (checking the arguments) and :mod:`~sim2real.report.computing` (computing the
+numbers), :mod:`~sim2real.report.findings` (the headline in sentences), :mod:`~sim2real.report.labels` (display
+names and units), :mod:`~sim2real.report.figures` (deterministic PNGs), :mod:`~sim2real.report.rendering` (summary,
+JSON, Markdown, HTML) with :mod:`~sim2real.report.markup`, :mod:`~sim2real.report.files` (writing a report
 atomically) and :mod:`~sim2real.report.gap_report` (:class:`GapReport`, which ties them together).
 
 Example:
@@ -38,6 +42,8 @@ Example:
     >>> g.paired, g.absolute.low < g.absolute.value < g.absolute.high
     (True, True)
     >>> print(report.summary().splitlines()[1])
+    sim mispredicts real for 1 of 1 policy ('ppo': their 95% gap interval excludes 0); largest: 'ppo' loses 10.2% [9.6%, 10.9%] from sim to real (gap 10.12 [9.528, 10.76], paired).
+    >>> print(report.summary().splitlines()[2])
     'ppo' loses 10.2% [9.6%, 10.9%] from sim to real (gap 10.12 [9.528, 10.76], paired).
 """
 
@@ -55,6 +61,8 @@ from sim2real.report.results import (
     GridMeans,
     Improvement,
     ParameterDraws,
+    PolicyDifference,
+    Prediction,
     ReportFiles,
     RobustnessCurve,
 )
@@ -72,6 +80,8 @@ __all__ = [
     "GridMeans",
     "Improvement",
     "ParameterDraws",
+    "PolicyDifference",
+    "Prediction",
     "ReportFiles",
     "RobustnessCurve",
     "html_page",

@@ -29,6 +29,7 @@ if TYPE_CHECKING:
 __all__ = ["plan", "png_bytes", "render"]
 
 _DPI = 100
+_CHANNELS_PER_PAGE = 6
 _PNG_METADATA = {"Software": None}  # no matplotlib version stamp: PNGs depend on the data only
 
 
@@ -51,7 +52,9 @@ def plan(report: GapReport) -> list[tuple[str, str, str]]:
     for grid in dict.fromkeys(g.grid for g in report.grids):
         out.append((unique(f"heatmap_{_slug(grid)}"), "heatmap", grid))
     if report.fit is not None and len(report.fit.channels):  # a fit read back from JSON has no traces
-        out.append(("sysid_fit", "sysid_fit", ""))
+        pages = math.ceil(len(report.fit.channels) / _CHANNELS_PER_PAGE)
+        for page in range(pages):  # every channel, paged
+            out.append(("sysid_fit" if page == 0 else f"sysid_fit-{page + 1}", "sysid_fit", str(page)))
     if report.contact_sheet is not None:
         out.append(("contact_sheet", "contact_sheet", ""))
     return out
@@ -69,11 +72,21 @@ def render(report: GapReport) -> Mapping[str, bytes]:
             out[name] = _png(_heatmap_figure(report, key))
         elif kind == "sysid_fit":
             assert report.fit is not None
-            out[name] = _png(report.fit.plot())
+            out[name] = _png(_sysid_figure(report.fit, int(key)))
         else:
             assert report.contact_sheet is not None
             out[name] = _image_png(report.contact_sheet)
     return MappingProxyType(out)
+
+
+def _outside_legend(ax: Any, title: str) -> None:
+    """A legend right of the axes (never over the data), one entry per label, with a title."""
+    handles, labels = ax.get_legend_handles_labels()
+    unique = dict(zip(labels, handles, strict=True))
+    ax.legend(
+        unique.values(), unique.keys(), title=title, fontsize=8, title_fontsize=8, loc="upper left",
+        bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0,
+    )  # fmt: skip
 
 
 def _returns_figure(report: GapReport) -> Any:
@@ -81,7 +94,7 @@ def _returns_figure(report: GapReport) -> Any:
 
     conditions = list(dict.fromkeys(s.condition for s in report.stats))
     policies = [p for p in report.policies if any(s.policy == p for s in report.stats)]
-    fig = Figure(figsize=(max(5.0, 1.1 * len(policies) * max(1, len(conditions)) * 0.6 + 2.0), 3.8))
+    fig = Figure(figsize=(max(5.0, 1.1 * len(policies) * max(1, len(conditions)) * 0.6 + 2.0) + 2.2, 4.0))
     fig.set_layout_engine("constrained")
     ax = fig.subplots()
     width = 0.8 / max(1, len(conditions))
@@ -95,44 +108,56 @@ def _returns_figure(report: GapReport) -> Any:
                     ys.append(e.value)
                     lo.append(max(0.0, e.value - e.low) if math.isfinite(e.low) else 0.0)
                     hi.append(max(0.0, e.high - e.value) if math.isfinite(e.high) else 0.0)
-        ax.errorbar(xs, ys, yerr=[lo, hi], fmt="o", capsize=3, color=f"C{k % 10}", label=_tex(condition))
-    ax.set_xticks(range(len(policies)), labels=[_tex(p) for p in policies], rotation=20 if len(policies) > 4 else 0)
-    ax.set_ylabel(f"{report.statistic} return ({report.confidence:.0%} interval)")
-    ax.set_title(_tex(f"{report.task}: return per condition"), fontsize=10)
+        label = _tex(report.label(condition, "condition"))
+        ax.errorbar(xs, ys, yerr=[lo, hi], fmt="o", capsize=3, color=f"C{k % 10}", label=label)
+    ax.set_xticks(
+        range(len(policies)),
+        labels=[_tex(report.label(p, "policy")) for p in policies],
+        rotation=20 if len(policies) > 3 else 0,
+    )
+    ax.set_xlabel("policy")
+    ax.set_ylabel(f"{report.statistic} episode return ({report.confidence:.0%} interval)")
+    ax.set_title(_tex(f"{report.task}: return per policy and condition"), fontsize=10)
     ax.grid(axis="y", alpha=0.3)
-    ax.legend(fontsize=8)
+    _outside_legend(ax, "evaluated on")
     return fig
 
 
 def _robustness_figure(report: GapReport, sweep: str) -> Any:
     from matplotlib.figure import Figure
 
+    from sim2real.report.labels import axis_label
+
     curves = [c for c in report.robustness if c.sweep == sweep]
-    fig = Figure(figsize=(6.4, 4.0))
+    axis = axis_label(curves[0].axis, report.control_timestep)
+    fig = Figure(figsize=(8.4, 4.0))
     fig.set_layout_engine("constrained")
     ax = fig.subplots()
     for k, c in enumerate(curves):
         color = f"C{k % 10}"
+        x = np.asarray(c.values) * axis.factor
         values = np.array([p.value for p in c.points])
         low = np.array([p.low for p in c.points])
         high = np.array([p.high for p in c.points])
-        ax.plot(c.values, values, "o-", color=color, ms=3, label=_tex(c.policy))
-        ax.fill_between(c.values, low, high, color=color, alpha=0.2, linewidth=0)
+        ax.plot(x, values, "o-", color=color, ms=3, label=_tex(report.label(c.policy, "policy")))
+        ax.fill_between(x, low, high, color=color, alpha=0.2, linewidth=0)
         if c.threshold is not None:
             ax.axhline(c.threshold, color=color, ls=":", lw=1)
-    ax.axvline(curves[0].nominal, color="0.4", ls="--", lw=1, label="nominal")
-    ax.plot([], [], color="0.4", ls=":", lw=1, label=f"{report.fraction:g} x nominal return")
-    ax.set_xlabel(_tex(curves[0].axis))
-    ax.set_ylabel(f"{report.statistic} return ({report.confidence:.0%} band)")
-    ax.set_title(_tex(f"robustness: {sweep}"), fontsize=10)
+    ax.axvline(curves[0].nominal * axis.factor, color="0.4", ls="--", lw=1, label="unperturbed value")
+    ax.plot([], [], color="0.4", ls=":", lw=1, label=f"{report.fraction:g} × return in own training sim")
+    ax.set_xlabel(_tex(axis.text))
+    ax.set_ylabel(f"{report.statistic} episode return ({report.confidence:.0%} band)")
+    ax.set_title(_tex(f"robustness to {axis.text}"), fontsize=10)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    _outside_legend(ax, "policy")
     return fig
 
 
 def _heatmap_figure(report: GapReport, grid: str) -> Any:
     from matplotlib.figure import Figure
     from matplotlib.patches import Rectangle
+
+    from sim2real.report.labels import axis_label
 
     maps = [g for g in report.grids if g.grid == grid]
     cols = min(3, len(maps))
@@ -145,13 +170,15 @@ def _heatmap_figure(report: GapReport, grid: str) -> Any:
     vmin, vmax = (float(every.min()), float(every.max())) if every.size else (0.0, 1.0)
     image = None
     for ax, g in zip(axes.ravel(), maps, strict=False):
+        ax_x, ax_y = axis_label(g.axes[0], report.control_timestep), axis_label(g.axes[1], report.control_timestep)
         m = np.asarray(g.values, dtype=np.float64)
+        # x across, y up (largest at the top): the layout of the report's grid tables
         image = ax.imshow(m.T, origin="lower", aspect="auto", vmin=vmin, vmax=vmax, cmap="viridis")
-        ax.set_xticks(range(len(g.x)), labels=[f"{v:g}" for v in g.x])
-        ax.set_yticks(range(len(g.y)), labels=[f"{v:g}" for v in g.y])
-        ax.set_xlabel(_tex(g.axes[0]))
-        ax.set_ylabel(_tex(g.axes[1]))
-        ax.set_title(_tex(g.policy), fontsize=10)
+        ax.set_xticks(range(len(g.x)), labels=[f"{v * ax_x.factor:g}" for v in g.x])
+        ax.set_yticks(range(len(g.y)), labels=[f"{v * ax_y.factor:g}" for v in g.y])
+        ax.set_xlabel(_tex(ax_x.text))
+        ax.set_ylabel(_tex(ax_y.text))
+        ax.set_title(_tex(report.label(g.policy, "policy")), fontsize=10)
         if m.size <= 100:
             mid = (vmin + vmax) / 2.0
             for i in range(m.shape[0]):
@@ -167,8 +194,58 @@ def _heatmap_figure(report: GapReport, grid: str) -> Any:
     for ax in axes.ravel()[len(maps) :]:
         ax.set_axis_off()
     if image is not None:
-        fig.colorbar(image, ax=axes.ravel().tolist(), label=f"{report.statistic} return")
-    fig.suptitle(_tex(f"{grid} (nominal boxed)"), fontsize=10)
+        fig.colorbar(image, ax=axes.ravel().tolist(), label=f"{report.statistic} episode return")
+    names = f"{axis_label(maps[0].axes[0], report.control_timestep).text} × "
+    names += axis_label(maps[0].axes[1], report.control_timestep).text
+    fig.suptitle(_tex(f"{report.statistic} return over {names} (unperturbed point boxed in red)"), fontsize=10)
+    return fig
+
+
+def _sysid_figure(fit: Any, page: int) -> Any:
+    """Page ``page`` of the fit's channels (in the fit's order): measured vs simulated, and the residual with its
+    ±2σ noise band, each axis in the channel's unit; the legend sits above the plots, not on the data."""
+    from matplotlib.figure import Figure
+
+    from sim2real.report.labels import channel_unit
+
+    count = len(fit.channels)
+    pages = math.ceil(count / _CHANNELS_PER_PAGE)
+    chosen = list(range(page * _CHANNELS_PER_PAGE, min(count, (page + 1) * _CHANNELS_PER_PAGE)))
+    fig = Figure(figsize=(10, 2.1 * len(chosen) + 0.8))
+    fig.set_layout_engine("constrained")
+    axes = fig.subplots(len(chosen), 2, squeeze=False)
+    t = np.asarray(fit.trace_time)
+    for row, c in enumerate(chosen):
+        name = fit.channels[c]
+        unit = channel_unit(name) or "channel units"
+        measured, predicted = fit.trace_measured[:, c], fit.trace_predicted[:, c]
+        ok = np.isfinite(measured)
+        ax = axes[row, 0]
+        ax.plot(t[ok], measured[ok], ".", ms=2, color="0.4", label="measured (twin log)")
+        ax.plot(t[ok], predicted[ok], "-", lw=1, color="C0", label="simulated (fitted model)")
+        ax.set_ylabel(_tex(f"{name} ({unit})"), fontsize=8)
+        ax.set_title(_tex(f"{name}: fit {fit.fit_percent.get(name, math.nan):.1f}%"), fontsize=9)
+        ax2 = axes[row, 1]
+        ax2.plot(t[ok], measured[ok] - predicted[ok], ".", ms=2, color="C3", label="residual")
+        sigma = fit.noise_std.get(name, math.nan)
+        if math.isfinite(sigma):
+            for sign in (-2, 2):
+                ax2.axhline(sign * sigma, color="0.5", lw=0.8, ls="--", label="±2σ noise")
+        ax2.set_ylabel(f"residual ({unit})", fontsize=8)
+    axes[-1, 0].set_xlabel(f"time (s), {fit.trace_source} data")
+    axes[-1, 1].set_xlabel("time (s)")
+    handles, labels = [], []
+    for ax in axes[0]:
+        h, lab = ax.get_legend_handles_labels()
+        for one, text in zip(h, lab, strict=True):
+            if text not in labels:
+                handles.append(one)
+                labels.append(text)
+    fig.legend(handles, labels, loc="outside upper center", ncols=len(labels), fontsize=8)
+    fig.suptitle(
+        f"system identification: channels {chosen[0] + 1}-{chosen[-1] + 1} of {count} (page {page + 1} of {pages})",
+        fontsize=10,
+    )
     return fig
 
 

@@ -7,6 +7,7 @@ See :mod:`sim2real.report` for an example.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -28,6 +29,8 @@ from sim2real.report.results import (
     GapStats,
     GridMeans,
     Improvement,
+    PolicyDifference,
+    Prediction,
     ReportFiles,
     RobustnessCurve,
 )
@@ -80,6 +83,15 @@ class GapReport:
         skipped: analyses left out and why (e.g. a non-positive nominal return for a radius).
         warnings: warnings raised while computing (e.g. :class:`~sim2real.metrics.FewSamplesWarning`), grouped.
         versions: ``(package, version)`` of the packages the numbers and figures depend on.
+        differences: ``stat(x) - stat(y)`` on the target for each pair of policies, with intervals (the headline is
+            read from these: a difference is claimed only when its interval excludes 0).
+        predictions: per simulated condition, how closely it predicts the target across the policies.
+        training: ``(policy, condition)``: the sim each policy was trained in; its robustness radii keep a fraction
+            of the policy's return there.
+        control_timestep: seconds per control step (latencies are shown in ms), or None.
+        policy_labels: ``(policy, label)`` shown in tables and figures (``"policy: <name>"`` by default).
+        condition_labels: ``(condition, label)`` shown in tables and figures (``"sim: nominal"``, ``"real twin"``).
+        lead: the caller's opening paragraph (e.g. the study's), shown first in the summary; see :meth:`with_lead`.
         fit: the FitResult (for its figure; not compared, not serialised beyond the fields above).
         contact_sheet: the contact sheet image (not compared, not serialised).
         safety: a :class:`sim2real.safety.SafetyTable` (``evaluate --safety``): the Safety section and the
@@ -117,6 +129,13 @@ class GapReport:
     skipped: tuple[str, ...]
     warnings: tuple[str, ...]
     versions: tuple[tuple[str, str], ...]
+    differences: tuple[PolicyDifference, ...] = ()
+    predictions: tuple[Prediction, ...] = ()
+    training: tuple[tuple[str, str], ...] = ()
+    control_timestep: float | None = None
+    policy_labels: tuple[tuple[str, str], ...] = ()
+    condition_labels: tuple[tuple[str, str], ...] = ()
+    lead: str = ""
     fit: FitResult | None = field(default=None, compare=False, repr=False)
     contact_sheet: np.ndarray | None = field(default=None, compare=False, repr=False)
     safety: SafetyTable | None = None  # the Safety section (sim2real.report.safety); set with dataclasses.replace
@@ -141,6 +160,11 @@ class GapReport:
         rng: np.random.Generator | int = 0,
         title: str | None = None,
         notes: Sequence[str] | str = (),
+        training: Mapping[str, str] | None = None,
+        control_timestep: float | None = None,
+        policy_labels: Mapping[str, str] | None = None,
+        condition_labels: Mapping[str, str] | None = None,
+        lead: str = "",
     ) -> GapReport:
         """Computes every number of the report from an evaluation.
 
@@ -162,6 +186,12 @@ class GapReport:
             rng: int seed or Generator; every interval draws from :func:`stream` ``(seed, ...)``.
             title: report title (default ``"Sim-to-real gap report: <task>"``).
             notes: free-text notes shown in the report (a string is one note).
+            training: policy -> the simulated condition it was trained in (default: ``reference`` for every
+                policy); a robustness radius keeps ``fraction`` of the policy's return there.
+            control_timestep: seconds per control step, to show latencies in ms (None: in control steps).
+            policy_labels: policy -> display name (default ``"policy: <name>"``).
+            condition_labels: condition -> display name (default by kind: ``"sim: nominal"``, ``"real twin"``).
+            lead: an opening paragraph for the summary (e.g. the study's).
 
         Raises:
             TypeError: an argument of the wrong type.
@@ -184,8 +214,41 @@ class GapReport:
                 rng=rng,
                 title=title,
                 notes=notes,
+                training=training,
+                control_timestep=control_timestep,
+                policy_labels=policy_labels,
+                condition_labels=condition_labels,
+                lead=lead,
             )
         )
+
+    def with_lead(self, lead: str) -> GapReport:
+        """A copy of this report whose summary opens with ``lead`` (a paragraph computed from this report, e.g.
+        :func:`sim2real.study.study_summary`), so the paragraph is part of the HTML, Markdown and JSON."""
+        if not isinstance(lead, str):
+            raise TypeError(f"`lead` must be a string. Received {type(lead).__name__}.")
+        return dataclasses.replace(self, lead=lead)
+
+    def label(self, name: str, role: str = "policy") -> str:
+        """The display name of a policy (``role="policy"``) or a condition (``role="condition"``)."""
+        table = dict(self.policy_labels if role == "policy" else self.condition_labels)
+        return table.get(name, name)
+
+    def difference(self, x: str, y: str) -> PolicyDifference:
+        """The :class:`PolicyDifference` ``stat(x) - stat(y)`` on the target (the sign flipped when the report
+        holds ``y - x``).
+
+        Raises:
+            KeyError: no such pair (naming the pairs that exist).
+        """
+        for d in self.differences:
+            if (d.x, d.y) == (x, y):
+                return d
+            if (d.x, d.y) == (y, x):
+                e = d.difference
+                flipped = dataclasses.replace(e, value=-e.value, low=-e.high, high=-e.low)
+                return dataclasses.replace(d, x=x, y=y, difference=flipped)
+        raise KeyError(f"no difference {x!r} - {y!r}. Available: {[(d.x, d.y) for d in self.differences]}.")
 
     # -------------------------------------------------------------------------------------------- lookups
 

@@ -5,8 +5,6 @@ those same blocks, so the two never drift apart. Every user-supplied string is e
 configurations and the sysid ground truth appear only in the last section, :data:`APPENDIX`.
 
 Example:
-    >>> print(_md_table(["policy", "a|b"], [["<x>", "1"]])[2])
-    | \\<x\\> | 1 |
     >>> _cell(None), _pct1(0.1234)
     ('n/a', '12.3%')
 """
@@ -14,16 +12,17 @@ Example:
 from __future__ import annotations
 
 import base64
-import html
 import json
 import math
-import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from sim2real.metrics import Estimate
+from sim2real.report import findings
 from sim2real.report.figures import plan
+from sim2real.report.labels import axis_label, parameter_unit
+from sim2real.report.markup import _e, _html_table, _md, _md_table, html_page
 from sim2real.report.results import ConditionInfo, GapStats, ParameterDraws, RobustnessCurve
 
 if TYPE_CHECKING:
@@ -33,18 +32,6 @@ __all__ = ["APPENDIX", "document", "html_page", "json_text", "summary", "to_dict
 
 #: The heading of the last section, the only place hidden configurations and sysid ground truth appear.
 APPENDIX = "Appendix: the real target"
-_STYLE = (
-    "body{font-family:system-ui,-apple-system,'Segoe UI',sans-serif;max-width:1100px;margin:2em auto;"
-    "padding:0 1em;color:#222;line-height:1.45}"
-    "h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.8em}"
-    "table{border-collapse:collapse;margin:.6em 0;font-size:.92em}"
-    "th,td{border:1px solid #ccc;padding:.25em .6em;text-align:right}"
-    "th:first-child,td:first-child{text-align:left}th{background:#f3f3f3}"
-    "pre{background:#f6f6f6;padding:.6em;overflow-x:auto;font-size:.85em}"
-    "img{max-width:100%;height:auto}figure{margin:1em 0}figcaption{font-size:.85em;color:#555}"
-    ".summary{background:#eef4fb;border-left:4px solid #3a78c2;padding:.6em 1em}"
-    ".muted{color:#666;font-size:.9em}"
-)
 
 
 @dataclass(frozen=True)
@@ -59,40 +46,32 @@ class _Block:
     rows: tuple[tuple[str, ...], ...] = ()
     items: tuple[str, ...] = ()
     style: str = ""
+    muted: tuple[tuple[int, int], ...] = ()  # (row, column) of table cells shown greyed (e.g. censored radii)
 
 
 def summary(report: GapReport) -> str:
-    """The report's opening paragraph as plain text: the gap before and after randomisation per policy.
+    """The report's opening paragraph as plain text, every claim with an interval from the report.
 
-    The first line names the study; then one line per policy (at most 8), then agreement and warnings.
+    The caller's lead paragraph (:attr:`GapReport.lead`, e.g. the study's) comes first, then a line naming the
+    study, the headline read from significance (:func:`sim2real.report.findings.findings`), one line per policy with
+    its gaps (at most 8), and the budget warnings.
     """
-    lines = [
+    lines = [report.lead] if report.lead else []
+    lines.append(
         f"{len(report.policies)} polic{'y' if len(report.policies) == 1 else 'ies'} evaluated on {report.task} under "
         f"{len(report.conditions)} condition(s), {report.episodes} episode(s) per simulated condition (seed "
         f"{report.seed})."
-    ]
+    )
+    lines += [f for f in findings.findings(report) if f not in report.lead]  # the lead may say it already
     for policy in report.policies[:8]:
-        parts = []
-        for ref in (report.reference, report.randomized):
-            if ref is None or report.target is None:
-                continue
-            try:
-                g = report.gap(policy, ref, report.target)
-            except KeyError:
-                continue
-            parts.append(_gap_phrase(g))
+        parts = [_gap_phrase(g) for g in report.gaps if g.policy == policy and g.target == report.target]
         if parts:
             lines.append(f"{policy!r} " + "; ".join(parts) + ".")
     if len(report.policies) > 8:
         lines.append(f"... and {len(report.policies) - 8} more policies (see the gap table).")
-    for a in report.agreement:
-        if a.srcc is not None:
-            lines.append(
-                f"{a.reference} ranks the {len(a.policies)} policies like {a.target} with correlation "
-                f"{_cell(a.srcc)} (MMRV {_cell(a.mmrv)})."
-            )
     if report.target is None:
         lines.append("No target condition: no sim-to-real gap is reported.")
+    lines += [f"Warning: {w}" for w in findings.budget_warnings(report)]
     if report.warnings:
         lines.append(f"{len(report.warnings)} kind(s) of warning were raised while computing (see Warnings).")
     return "\n".join(lines)
@@ -121,6 +100,36 @@ def to_dict(report: GapReport) -> dict[str, Any]:
     return {
         "title": report.title,
         "summary": report.summary(),
+        "lead": report.lead,
+        "findings": list(findings.findings(report)),
+        "budget_warnings": list(findings.budget_warnings(report)),
+        "labels": {"policies": dict(report.policy_labels), "conditions": dict(report.condition_labels)},
+        "training": dict(report.training),
+        "control_timestep": report.control_timestep,
+        "differences": [
+            {
+                "condition": d.condition,
+                "x": d.x,
+                "y": d.y,
+                "difference": _estimate_dict(d.difference),
+                "paired": d.paired,
+                "n": d.n,
+                "significant": d.significant,
+                "statistic": d.statistic,
+            }
+            for d in report.differences
+        ],
+        "predictions": [
+            {
+                "simulator": p.simulator,
+                "target": p.target,
+                "policies": list(p.policies),
+                "within": _finite(p.within),
+                "differ": list(p.differ),
+                "worst": p.worst,
+            }
+            for p in report.predictions
+        ],
         "evaluation": {
             "task": report.task,
             "seed": report.seed,
@@ -179,6 +188,7 @@ def to_dict(report: GapReport) -> dict[str, Any]:
                 "fraction": c.fraction,
                 "statistic": c.statistic,
                 "note": c.note,
+                "reference": c.reference,
                 "radius": None
                 if c.radius is None
                 else {
@@ -209,6 +219,7 @@ def to_dict(report: GapReport) -> dict[str, Any]:
                 "target": a.target,
                 "policies": list(a.policies),
                 "srcc": _estimate_dict(a.srcc),
+                "pearson": _estimate_dict(a.pearson),
                 "mmrv": _estimate_dict(a.mmrv),
                 "note": a.note,
             }
@@ -277,21 +288,27 @@ def document(report: GapReport) -> list[_Block]:
         if name is not None:
             doc.append(_Block("figure", caption, items=(name,)))
 
-    def table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> None:
-        doc.append(_Block("table", header=tuple(header), rows=tuple(tuple(r) for r in rows)))
+    def table(header: Sequence[str], rows: Sequence[Sequence[str]], muted: Sequence[tuple[int, int]] = ()) -> None:
+        doc.append(_Block("table", header=tuple(header), rows=tuple(tuple(r) for r in rows), muted=tuple(muted)))
+
+    def lab(name: str, role: str = "condition") -> str:
+        return report.label(name, role)
 
     if report.stats:
         conditions = list(dict.fromkeys(s.condition for s in report.stats))
         doc += [_Block("h2", "Returns"), _Block("p", f"{stat} return [{conf} interval] per policy and condition.")]
-        table(["policy", *conditions], [[p, *(_cell_for(report, p, c) for c in conditions)] for p in report.policies])
+        table(
+            ["policy", *(lab(c) for c in conditions)],
+            [[lab(p, "policy"), *(_cell_for(report, p, c) for c in conditions)] for p in report.policies],
+        )
         figure("returns", "", f"{stat} return per policy and condition, with {conf} interval whiskers")
         doc.append(_Block("h3", "Detail"))
         table(
             ["policy", "condition", "n", "mean", "IQM", f"CVaR {report.alpha:g}", "worst", "success"],
             [
                 [
-                    s.policy,
-                    s.condition,
+                    lab(s.policy, "policy"),
+                    lab(s.condition),
                     str(s.n),
                     _cell(s.mean),
                     _cell(s.iqm),
@@ -307,23 +324,69 @@ def document(report: GapReport) -> list[_Block]:
             _Block("h2", "Sim-to-real gaps"),
             _Block(
                 "p",
-                f"absolute = {stat}(from) - {stat}(to), positive when the target does worse; relative = absolute / "
-                f"|{stat}(from)|. Paired: resampled jointly (same initial states); unpaired: independently.",
+                f"gap = {stat}(from) - {stat}(to): positive when the target does worse (the policy loses), negative "
+                f"when it does better (gains); relative = gap / |{stat}(from)|. Paired: resampled jointly (same "
+                "initial states); unpaired: independently.",
             ),
         ]
         table(
-            ["policy", "from", "to", "absolute", "relative", "paired", "runs"],
+            ["policy", "from", "to", "gap", "relative", "reads", "paired", "runs"],
             [
                 [
-                    g.policy,
-                    g.reference,
-                    g.target,
+                    lab(g.policy, "policy"),
+                    lab(g.reference),
+                    lab(g.target),
                     _cell(g.absolute),
-                    _pct(g.relative),
+                    _pct(g.relative)
+                    if math.isfinite(g.relative.value)
+                    else f"undefined: the {g.reference} return is 0",
+                    _reads(g),
                     "yes" if g.paired else "no",
                     f"{g.n_reference} / {g.n_target}",
                 ]
                 for g in report.gaps
+            ],
+        )
+    if report.predictions:
+        doc += [
+            _Block("h2", "Does each simulator predict the target?"),
+            _Block(
+                "p",
+                f"Per simulator, the policies' paired gaps to the target (above): 'within' is the largest end of any "
+                f"policy's {conf} interval of the relative gap; a policy is mispredicted when its gap interval "
+                "excludes 0.",
+            ),
+        ]
+        table(
+            ["simulator", "target", "policies", "within", "mispredicted"],
+            [
+                [
+                    lab(p.simulator),
+                    lab(p.target),
+                    str(len(p.policies)),
+                    _pct1(p.within) if math.isfinite(p.within) else "undefined (a return of 0)",
+                    ", ".join(lab(x, "policy") for x in p.differ) or "none",
+                ]
+                for p in report.predictions
+            ],
+        )
+    if report.differences:
+        doc += [
+            _Block("h2", f"Policy differences on {lab(report.target or '')}"),
+            _Block("p", f"{stat}(x) - {stat}(y) [{conf} interval]; significant when the interval excludes 0."),
+        ]
+        table(
+            ["x", "y", "x - y", "significant", "paired", "episodes"],
+            [
+                [
+                    lab(d.x, "policy"),
+                    lab(d.y, "policy"),
+                    findings.signed(d.difference, 4),
+                    "yes" if d.significant else "no",
+                    "yes" if d.paired else "no",
+                    str(d.n),
+                ]
+                for d in report.differences
             ],
         )
     if report.robustness:
@@ -331,52 +394,82 @@ def document(report: GapReport) -> list[_Block]:
             _Block("h2", "Robustness"),
             _Block(
                 "p",
-                f"Radius: the largest distance from the nominal value that keeps {report.fraction:g} of the nominal "
-                f"{stat} return (censored: the sweep never crossed the threshold there, so the radius is a lower "
-                "bound).",
+                f"Radius: the largest distance from the nominal value that keeps {report.fraction:g} of the policy's "
+                f"{stat} return in the sim it was trained in (the reference). '>= sweep end' (greyed): the curve never "
+                "fell below the threshold within the sweep, so the radius is only a lower bound; '0': the threshold "
+                "is missed already at the nominal value.",
             ),
         ]
-        table(
-            ["policy", "sweep", "nominal", "nominal return", "radius", "censored"],
-            [_radius_row(c) for c in report.robustness],
-        )
+        rows = [_radius_row(report, c) for c in report.robustness]
+        censored = [(i, 4) for i, c in enumerate(report.robustness) if c.radius is not None and c.radius.censored]
+        table(["policy", "sweep", "nominal", "reference return", "radius", "interval"], rows, censored)
         for sweep in dict.fromkeys(c.sweep for c in report.robustness):
-            figure("robustness", sweep, f"robustness curves over {sweep} ({conf} bands)")
+            axis = next(c.axis for c in report.robustness if c.sweep == sweep)
+            figure(
+                "robustness",
+                sweep,
+                f"robustness to {axis_label(axis, report.control_timestep).text} (sweep {sweep}; {conf} bands)",
+            )
     if report.grids:
         doc.append(_Block("h2", "Parameter grids"))
         for grid in dict.fromkeys(g.grid for g in report.grids):
             figure("heatmap", grid, f"{stat} return over {grid}")
         for g in report.grids:
-            doc.append(_Block("p", f"{g.policy} on {g.grid} ({stat}; rows {g.axes[0]}, columns {g.axes[1]}):"))
-            table(
-                [f"{g.axes[0]} \\ {g.axes[1]}", *(f"{v:g}" for v in g.y)],
-                [[f"{x:g}", *(_num(v) for v in row)] for x, row in zip(g.x, g.values, strict=True)],
+            ax = axis_label(g.axes[0], report.control_timestep)
+            ay = axis_label(g.axes[1], report.control_timestep)
+            doc.append(
+                _Block("p", f"{lab(g.policy, 'policy')}, {stat} return over {ax.text} × {ay.text} (grid {g.grid}):")
+            )
+            table(  # rows y (top: largest, as in the heatmap), columns x: the figure's layout
+                [f"{ay.text} \\ {ax.text}", *(f"{v * ax.factor:g}" for v in g.x)],
+                [
+                    [f"{y * ay.factor:g}", *(_num(row[j]) for row in g.values)]
+                    for j, y in reversed(list(enumerate(g.y)))
+                ],
             )
     if report.agreement:
         doc += [
             _Block("h2", "Agreement across policies"),
             _Block(
                 "p",
-                "SRCC: Pearson correlation of the per-policy scores between a simulated condition and the target; "
-                "MMRV: mean maximum rank violation (0 = the same ranking), in return units.",
+                "SRCC: Spearman rank correlation of the per-policy scores between a simulated condition and the "
+                "target; Pearson: their linear correlation; MMRV: mean maximum rank violation (0 = the same ranking), "
+                "in return units.",
             ),
         ]
         table(
-            ["sim", "target", "policies", "SRCC", "MMRV", "note"],
+            ["sim", "target", "policies", "SRCC (Spearman)", "Pearson", "MMRV", "note"],
             [
-                [a.reference, a.target, str(len(a.policies)), _cell(a.srcc), _cell(a.mmrv), a.note]
+                [
+                    lab(a.reference),
+                    lab(a.target),
+                    str(len(a.policies)),
+                    _cell(a.srcc),
+                    _cell(a.pearson),
+                    _cell(a.mmrv),
+                    a.note,
+                ]
                 for a in report.agreement
             ],
         )
     if report.improvements:
         doc.append(_Block("h2", f"Probability of improvement on {report.target}"))
-        table(["x", "y", "P(x > y)"], [[i.x, i.y, _cell(i.probability)] for i in report.improvements])
+        table(
+            ["x", "y", "P(x > y)"],
+            [[lab(i.x, "policy"), lab(i.y, "policy"), _cell(i.probability)] for i in report.improvements],
+        )
     if report.fit is not None or report.fit_parameters:
         doc.append(_Block("h2", "System identification"))
         table(
-            ["parameter", "estimate", "stderr", "95% interval"],
+            ["parameter", "unit", "estimate", "stderr", "95% interval"],
             [
-                [p.address, _num(p.estimate, 6), _num(p.stderr, 3), f"[{_num(p.low, 6)}, {_num(p.high, 6)}]"]
+                [
+                    p.address,
+                    parameter_unit(p.address),
+                    _num(p.estimate, 6),
+                    _num(p.stderr, 3),
+                    f"[{_num(p.low, 6)}, {_num(p.high, 6)}]",
+                ]
                 for p in report.fit_parameters
             ],
         )
@@ -385,7 +478,14 @@ def document(report: GapReport) -> list[_Block]:
         if report.fit_warnings:
             doc.append(_Block("list", items=tuple(f"fit warning: {w}" for w in report.fit_warnings)))
         if report.fit is not None and len(report.fit.channels):
-            figure("sysid_fit", "", "measured vs simulated signals and residuals")
+            pages = [key for _, kind, key in plan(report) if kind == "sysid_fit"]
+            for key in pages:
+                figure(
+                    "sysid_fit",
+                    key,
+                    f"measured vs simulated signals and residuals, all {len(report.fit.channels)} channels "
+                    f"(page {int(key) + 1} of {len(pages)})",
+                )
     if report.contact_sheet is not None:
         doc.append(_Block("h2", "Visual randomisation"))
         figure("contact_sheet", "", "contact sheet of randomised first frames")
@@ -406,8 +506,9 @@ def document(report: GapReport) -> list[_Block]:
         table(["condition", "parameter", "low", "mean", "high", "episodes"], drawn)
     if report.notes or report.skipped:
         doc += [_Block("h2", "Notes"), _Block("list", items=(*report.notes, *report.skipped))]
-    if report.warnings:
-        doc += [_Block("h2", "Warnings"), _Block("list", items=report.warnings)]
+    budget = findings.budget_warnings(report)
+    if report.warnings or budget:
+        doc += [_Block("h2", "Warnings"), _Block("list", items=(*budget, *report.warnings))]
     doc += [
         _Block("h2", "Settings"),
         _Block(
@@ -484,7 +585,7 @@ def to_markdown(report: GapReport, figure_dir: str | None = None) -> str:
         elif block.kind == "list":
             out += [*(f"- {_md(item)}" for item in block.items), ""]
         elif block.kind == "table":
-            out += [*_md_table(block.header, block.rows), ""]
+            out += [*_md_table(block.header, block.rows, block.muted), ""]
         elif block.kind == "figure" and figure_dir is not None:
             name = block.items[0]
             out += [f"![{_md(block.text)}]({figure_dir}/{name}.png)", ""]
@@ -507,7 +608,7 @@ def to_html(report: GapReport, figures: Mapping[str, bytes]) -> str:
         elif block.kind == "list":
             body.append("<ul>" + "".join(f"<li>{_e(item)}</li>" for item in block.items) + "</ul>")
         elif block.kind == "table":
-            body.append(_html_table(block.header, block.rows))
+            body.append(_html_table(block.header, block.rows, block.muted))
         elif block.kind == "figure" and block.items[0] in figures:
             name = block.items[0]
             data = base64.b64encode(figures[name]).decode("ascii")
@@ -540,9 +641,7 @@ def _num(value: float, digits: int = 4) -> str:
 
 
 def _cell(e: Estimate | None) -> str:
-    if e is None:
-        return "n/a"
-    return f"{_num(e.value)} [{_num(e.low)}, {_num(e.high)}]"
+    return findings.cell(e)
 
 
 def _pct(e: Estimate) -> str:
@@ -553,41 +652,37 @@ def _pct1(value: float) -> str:
     return f"{100.0 * value:.1f}%" if math.isfinite(value) else "n/a"
 
 
-def _md(text: str) -> str:
-    """Markdown-safe inline text: no raw HTML, no table breaks."""
-    text = " ".join(str(text).split())
-    return re.sub(r"([\\`*_\[\]<>|#])", r"\\\1", text)
-
-
-def _e(text: Any) -> str:
-    return html.escape(str(text), quote=True)
-
-
 def _gap_phrase(g: GapStats) -> str:
-    where = f"from {g.reference} to {g.target}"
-    pairing = "paired" if g.paired else f"unpaired, {g.n_reference} vs {g.n_target} runs"
-    rel = g.relative
-    if math.isfinite(rel.value):
-        if rel.value >= 0:
-            amount = f"loses {_pct(rel)}"
-        else:
-            amount = f"gains {_pct1(-rel.value)} [{_pct1(-rel.high)}, {_pct1(-rel.low)}]"
-        return f"{amount} {where} (gap {_cell(g.absolute)}, {pairing})"
-    return f"has a gap of {_cell(g.absolute)} {where} ({pairing})"
+    return findings.gap_phrase(g)
 
 
-def _radius_row(c: RobustnessCurve) -> list[str]:
+def _reads(g: GapStats) -> str:
+    """The gap in words, by the sign of its point estimate, and whether its interval excludes 0."""
+    ab = g.absolute
+    verb = "loses" if ab.value > 0 else "gains" if ab.value < 0 else "same"
+    if ab.low > 0 or ab.high < 0:
+        return f"{verb} (significant)"
+    return f"{verb} (not significant)" if verb != "same" else "same"
+
+
+def _radius_row(report: GapReport, c: RobustnessCurve) -> list[str]:
+    label = axis_label(c.axis, report.control_timestep)
+    unit = label.text[label.text.rfind("(") + 1 : -1] if label.text.endswith(")") else ""
+    unit = "" if unit.startswith("×") else f" {unit}"
+    policy, sweep = report.label(c.policy, "policy"), label.text
+    nominal = f"{c.nominal * label.factor:g}"
     if c.radius is None:
-        return [c.policy, c.sweep, f"{c.nominal:g}", "n/a", f"n/a ({c.note})", ""]
+        return [policy, sweep, nominal, "n/a", f"n/a ({c.note})", ""]
     r = c.radius
-    return [
-        c.policy,
-        c.sweep,
-        f"{c.nominal:g}",
-        _num(r.nominal_return),
-        _cell(r.radius),
-        "yes (lower bound)" if r.censored else "no",
-    ]
+    trained = f" ({report.label(c.reference, 'condition')})" if c.reference else " (nominal point)"
+    reference = _num(r.nominal_return) + trained
+    value = r.radius.value * label.factor
+    interval = f"[{_num(r.radius.low * label.factor)}, {_num(r.radius.high * label.factor)}]"
+    if r.censored:
+        return [policy, sweep, nominal, reference, f">= {_num(value)}{unit} (sweep end; not crossed)", interval]
+    if value == 0:
+        return [policy, sweep, nominal, reference, f"0{unit} (missed at the nominal value)", interval]
+    return [policy, sweep, nominal, reference, f"{_num(value)}{unit}", interval]
 
 
 def _points_text(group: Sequence[ConditionInfo]) -> str:
@@ -602,30 +697,3 @@ def _draw_dict(d: ParameterDraws) -> dict[str, Any]:
 
 def _draw_row(d: ParameterDraws) -> list[str]:
     return [d.address, _num(d.low, 6), _num(d.mean, 6), _num(d.high, 6), str(d.n)]
-
-
-def _md_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
-    lines = ["| " + " | ".join(_md(h) for h in header) + " |", "|" + "---|" * len(header)]
-    lines += ["| " + " | ".join(_md(c) for c in row) + " |" for row in rows]
-    return lines
-
-
-def _html_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
-    head = "".join(f"<th>{_e(h)}</th>" for h in header)
-    body = "".join("<tr>" + "".join(f"<td>{_e(c)}</td>" for c in row) + "</tr>" for row in rows)
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
-
-
-def html_page(title: str, body: str) -> str:
-    """A self-contained HTML page (inline CSS, no scripts, no external resources) around ``body`` (already
-    escaped HTML); ``title`` is escaped here. The house look of every HTML report (gap report, sysid fit).
-
-    Example:
-        >>> html_page("a <b>", "<p>hi</p>").count("&lt;b&gt;")
-        1
-    """
-    return (
-        "<!doctype html>\n<html lang='en'><head><meta charset='utf-8'>"
-        "<meta name='viewport' content='width=device-width, initial-scale=1'>"
-        f"<title>{_e(title)}</title><style>{_STYLE}</style></head>\n<body>\n{body}\n</body></html>\n"
-    )

@@ -25,6 +25,8 @@ __all__ = [
     "GridMeans",
     "Improvement",
     "ParameterDraws",
+    "PolicyDifference",
+    "Prediction",
     "ReportFiles",
     "RobustnessCurve",
 ]
@@ -101,11 +103,13 @@ class RobustnessCurve:
         conditions: the condition name at each grid value.
         nominal: the unperturbed grid value.
         points: the statistic at each grid value with its interval, shape ``(K,)``.
-        radius: the largest distance from ``nominal`` keeping ``fraction`` of the nominal return, or None (see
+        radius: the largest distance from ``nominal`` keeping ``fraction`` of the reference return, or None (see
             ``note``).
-        fraction: the fraction of the nominal return to keep.
+        fraction: the fraction of the reference return to keep.
         note: why there is no radius ("" when there is one).
         statistic: ``"mean"`` or ``"iqm"``.
+        reference: the condition whose return the threshold is a fraction of: the sim the policy was trained in
+            (``GapReport.training``), or ``""`` for the sweep's own nominal point.
     """
 
     policy: str
@@ -119,6 +123,7 @@ class RobustnessCurve:
     fraction: float
     note: str
     statistic: str
+    reference: str = ""
 
     @property
     def threshold(self) -> float | None:
@@ -153,15 +158,16 @@ class GridMeans:
 
 @dataclass(frozen=True)
 class Agreement:
-    """Whether a simulated condition ranks the policies as the target does (SIMPLER's SRCC and MMRV).
+    """Whether a simulated condition ranks the policies as the target does (SIMPLER's SRCC, Pearson and MMRV).
 
     Attributes:
         reference: the simulated condition compared (e.g. ``"sim"``).
         target: the target condition (e.g. ``"real"``).
         policies: the policies compared (those with returns on both).
-        srcc: Pearson correlation of the per-policy statistic, or None when undefined (see ``note``).
+        srcc: Spearman rank correlation of the per-policy statistic, or None when undefined (see ``note``).
         mmrv: mean maximum rank violation (0 = same ranking), in return units.
         note: why a value is missing ("" otherwise).
+        pearson: Pearson (linear) correlation of the per-policy statistic, or None when undefined.
     """
 
     reference: str
@@ -170,6 +176,59 @@ class Agreement:
     srcc: Estimate | None
     mmrv: Estimate | None
     note: str
+    pearson: Estimate | None = None
+
+
+@dataclass(frozen=True)
+class PolicyDifference:
+    """``stat(x) - stat(y)`` on one condition: is policy ``x`` better than ``y`` there, beyond the noise?
+
+    Attributes:
+        condition: the condition (the target).
+        x: first policy.
+        y: second policy.
+        difference: the difference of the statistic with its interval (paired when both ran the same simulated
+            episodes).
+        paired: whether runs were resampled jointly.
+        n: runs per policy (the smaller count when unpaired).
+        statistic: ``"mean"`` or ``"iqm"``.
+    """
+
+    condition: str
+    x: str
+    y: str
+    difference: Estimate
+    paired: bool
+    n: int
+    statistic: str
+
+    @property
+    def significant(self) -> bool:
+        """The interval excludes 0."""
+        return self.difference.low > 0.0 or self.difference.high < 0.0
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """Does a simulated condition predict the target, policy by policy? Read from the gaps from it to the target.
+
+    Attributes:
+        simulator: the simulated condition.
+        target: the target condition.
+        policies: the policies with a gap from ``simulator`` to ``target``.
+        within: the largest end of any policy's relative-gap interval, in absolute value (0.013: every policy's
+            target return is within 1.3% of its return in ``simulator``, at the report's confidence); NaN when a
+            relative gap is undefined.
+        differ: the policies whose gap interval excludes 0 (the simulator mispredicts them).
+        worst: the policy with the largest ``|relative gap|`` point estimate ("" when none).
+    """
+
+    simulator: str
+    target: str
+    policies: tuple[str, ...]
+    within: float
+    differ: tuple[str, ...]
+    worst: str
 
 
 @dataclass(frozen=True)

@@ -21,39 +21,29 @@ Example:
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
-import warnings
-from collections.abc import Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from sim2real import metrics
 from sim2real.evaluation import Condition, Evaluation
-from sim2real.metrics import Estimate
+from sim2real.report import labels
+from sim2real.report.computing import MAIN_KINDS, Builder, stream
 from sim2real.report.results import (
-    Agreement,
     ConditionInfo,
-    ConditionStats,
     FitParameter,
     GapStats,
-    GridMeans,
-    Improvement,
     ParameterDraws,
-    RobustnessCurve,
+    Prediction,
 )
 
 if TYPE_CHECKING:
     from sim2real.sheets import ContactSheet
     from sysid.result import FitResult
 
-__all__ = ["MAIN_KINDS", "report_fields", "stream"]
-
-#: Condition kinds summarised one by one (sweep and grid points go to the robustness curves and heatmaps).
-MAIN_KINDS: tuple[str, ...] = ("nominal", "randomized", "real", "measured")
+__all__ = ["MAIN_KINDS", "predictions", "report_fields", "stream"]
 
 
 def report_fields(
@@ -72,6 +62,11 @@ def report_fields(
     rng: np.random.Generator | int = 0,
     title: str | None = None,
     notes: Sequence[str] | str = (),
+    training: Mapping[str, str] | None = None,
+    control_timestep: float | None = None,
+    policy_labels: Mapping[str, str] | None = None,
+    condition_labels: Mapping[str, str] | None = None,
+    lead: str = "",
 ) -> dict[str, Any]:
     """Every field of a :class:`~sim2real.report.GapReport`, by name; the arguments are those of
     :meth:`GapReport.build <sim2real.report.GapReport.build>` (see there).
@@ -111,13 +106,37 @@ def report_fields(
         if name is not None and name == tgt:
             raise ValueError(f"`{argument}` must differ from `target`. Received {name!r} for both.")
 
-    builder = _Builder(evaluation, statistic, confidence, alpha, fraction, num_resamples, seed)
+    names = [c.name for c in evaluation.conditions]
+    trained = _training(evaluation, training, ref)
+    if control_timestep is not None and (
+        isinstance(control_timestep, bool)
+        or not isinstance(control_timestep, (int, float))
+        or not math.isfinite(control_timestep)
+        or control_timestep <= 0
+    ):
+        raise ValueError(f"`control_timestep` must be a number of seconds > 0 or None. Received {control_timestep!r}.")
+    if not isinstance(lead, str):
+        raise TypeError(f"`lead` must be a string. Received {type(lead).__name__}.")
+    plabels = _labels("policy_labels", policy_labels, evaluation.policies, labels.policy_label)
+    clabels = _labels(
+        "condition_labels",
+        condition_labels,
+        names,
+        lambda n: labels.condition_label(n, evaluation.condition(n).kind, simulated=evaluation.condition(n).simulated),
+    )
+    # every simulator that is not the target: the named reference and randomised sims first
+    simulators = [r for r in (ref, rand) if r is not None]
+    simulators += [c.name for c in evaluation.of_kind("nominal", "randomized") if c.name not in simulators]
+    simulators = [n for n in simulators if n != tgt]
+
+    builder = Builder(evaluation, statistic, confidence, alpha, fraction, num_resamples, seed)
     stats = builder.stats()
-    gaps = builder.gaps([r for r in (ref, rand) if r is not None], tgt)
-    curves = builder.curves()
+    gaps = builder.gaps(simulators, tgt)
+    curves = builder.curves(trained)
     grids = builder.grids()
-    agreement = builder.agreement([r for r in (ref, rand) if r is not None], tgt)
+    agreement = builder.agreement(simulators, tgt)
     improvements = builder.improvements(tgt)
+    differences = builder.differences(tgt)
     for role, name in (("reference", ref), ("randomized", rand), ("target", tgt)):
         if name is None:
             builder.skip(f"no {role} condition in the evaluation: the gaps that need it are left out.")
@@ -146,6 +165,13 @@ def report_fields(
         grids=grids,
         agreement=agreement,
         improvements=improvements,
+        differences=differences,
+        predictions=predictions(gaps, simulators, tgt),
+        training=tuple(trained.items()),
+        control_timestep=None if control_timestep is None else float(control_timestep),
+        policy_labels=tuple(plabels.items()),
+        condition_labels=tuple(clabels.items()),
+        lead=lead,
         fit_parameters=fit_parameters,
         fit_warnings=fit_warnings,
         fit_percent=fit_percent,
@@ -177,6 +203,61 @@ def condition_infos(evaluation: Evaluation) -> tuple[ConditionInfo, ...]:
     )
 
 
+def predictions(gaps: Sequence[GapStats], simulators: Sequence[str], target: str | None) -> tuple[Prediction, ...]:
+    """Per simulated condition, how closely it predicts ``target`` across the policies (from the ``gaps``).
+
+    Example:
+        >>> from sim2real.metrics import Estimate
+        >>> e = lambda v, lo, hi: Estimate(v, lo, hi, 0.95, 20, "percentile bootstrap")
+        >>> g = GapStats("p", "sim", "real", e(1.0, -1.0, 3.0), e(0.01, -0.01, 0.03), True, 20, 20, "mean")
+        >>> predictions([g], ["sim"], "real")[0].within, predictions([g], ["sim"], "real")[0].differ
+        (0.03, ())
+    """
+    out = []
+    for sim in simulators:
+        rows = [g for g in gaps if g.reference == sim and g.target == target]
+        if not rows:
+            continue
+        ends = [max(abs(g.relative.low), abs(g.relative.high)) for g in rows]
+        within = max(ends) if all(math.isfinite(v) for v in ends) else math.nan
+        differ = tuple(g.policy for g in rows if g.absolute.low > 0.0 or g.absolute.high < 0.0)
+        finite = [g for g in rows if math.isfinite(g.relative.value)]
+        worst = max(finite, key=lambda g: abs(g.relative.value)).policy if finite else ""
+        out.append(Prediction(sim, str(target), tuple(g.policy for g in rows), within, differ, worst))
+    return tuple(out)
+
+
+def _training(evaluation: Evaluation, training: Mapping[str, str] | None, reference: str | None) -> dict[str, str]:
+    """Policy -> the simulated condition it was trained in (default: the reference sim), checked."""
+    names = [c.name for c in evaluation.of_kind("nominal", "randomized")]
+    given = dict(training or {})
+    for policy, cond in given.items():
+        if policy not in evaluation.policies:
+            raise ValueError(
+                f"`training` keys must be policies of the evaluation {list(evaluation.policies)}. Received {policy!r}."
+            )
+        if cond not in names:
+            raise ValueError(
+                f"`training` values must be simulated (nominal or randomized) conditions {names}. "
+                f"Received {cond!r} for policy {policy!r}."
+            )
+    out: dict[str, str] = {}
+    for policy in evaluation.policies:
+        trained = given.get(policy, reference)
+        if trained is not None:
+            out[policy] = trained
+    return out
+
+
+def _labels(argument: str, given: Mapping[str, str] | None, names: Sequence[str], default: Any) -> dict[str, str]:
+    given = dict(given or {})
+    unknown = sorted(set(given) - set(names))
+    if unknown:
+        raise ValueError(f"`{argument}` keys must be among {list(names)}. Received {unknown}.")
+    out = {n: str(given.get(n, default(n))) for n in names}
+    return out
+
+
 def _fit_fields(
     fit: FitResult | None,
 ) -> tuple[tuple[FitParameter, ...], tuple[str, ...], tuple[tuple[str, float], ...]]:
@@ -196,24 +277,6 @@ def _fit_fields(
         for i, a in enumerate(fit.addresses)
     )
     return parameters, tuple(fit.warnings), tuple((str(k), float(v)) for k, v in fit.fit_percent.items())
-
-
-def stream(seed: int, *key: str) -> np.random.Generator:
-    """The generator one interval of the report draws from: a child of ``seed`` keyed by ``key``.
-
-    Keys name what is measured, e.g. ``("gap", policy, reference, target)``, ``("mean", policy, condition)``,
-    ``("curve", policy, sweep)``, ``("radius", policy, sweep)``, ``("srcc", reference, target)``,
-    ``("mmrv", reference, target)``, ``("improvement", condition, x, y)``; so one interval never depends on which
-    other policies, conditions or sweeps are in the report, and any of them can be recomputed alone.
-
-    Example:
-        >>> a, b = stream(0, "gap", "ppo", "sim", "real"), stream(0, "gap", "ppo", "sim", "real")
-        >>> bool(a.random() == b.random() != stream(0, "gap", "sac", "sim", "real").random())
-        True
-    """
-    digest = hashlib.sha256("\x1f".join(key).encode("utf-8")).digest()
-    spawn = tuple(int.from_bytes(digest[i : i + 4], "little") for i in range(0, 16, 4))
-    return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=spawn))
 
 
 def _root_seed(rng: np.random.Generator | int) -> int:
@@ -263,28 +326,6 @@ def _versions() -> tuple[tuple[str, str], ...]:
     return tuple(out)
 
 
-class _Warnings:
-    """Collects warnings raised inside :meth:`where` blocks, grouped by message, with where they arose."""
-
-    def __init__(self) -> None:
-        self.by_message: dict[str, list[str]] = {}
-
-    @contextmanager
-    def where(self, context: str) -> Iterator[None]:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            yield
-        for w in caught:
-            self.by_message.setdefault(f"{w.category.__name__}: {w.message}", []).append(context)
-
-    def lines(self) -> tuple[str, ...]:
-        out = []
-        for message, contexts in self.by_message.items():
-            shown = "; ".join(contexts[:4]) + ("; ..." if len(contexts) > 4 else "")
-            out.append(f"{message} ({len(contexts)}x: {shown})")
-        return tuple(out)
-
-
 def _resolve(
     evaluation: Evaluation, argument: str, name: str | None, default: str, kinds: tuple[str, ...]
 ) -> str | None:
@@ -329,304 +370,3 @@ def _contact_image(contact_sheet: Any) -> np.ndarray | None:
     out = np.array(arr[..., :3], copy=True)
     out.setflags(write=False)
     return out
-
-
-# ------------------------------------------------------------------------------------------------ computation
-
-
-class _Builder:
-    """The computations behind :meth:`GapReport.build`, each with its own keyed generator and warning context."""
-
-    def __init__(
-        self,
-        evaluation: Evaluation,
-        statistic: str,
-        confidence: float,
-        alpha: float,
-        fraction: float,
-        num_resamples: int,
-        seed: int,
-    ) -> None:
-        self.ev = evaluation
-        self.statistic: metrics.Statistic = "iqm" if statistic == "iqm" else "mean"
-        self.confidence = confidence
-        self.alpha = alpha
-        self.fraction = fraction
-        self.num_resamples = num_resamples
-        self.seed = seed
-        self.warnings = _Warnings()
-        self.skipped: list[str] = []
-
-    def skip(self, note: str) -> None:
-        if note not in self.skipped:
-            self.skipped.append(note)
-
-    def returns(self, policy: str, condition: str) -> np.ndarray | None:
-        values = self.ev.returns.get(policy, {}).get(condition)
-        return None if values is None or len(values) == 0 else np.asarray(values, dtype=np.float64)
-
-    def per_point(self, table: np.ndarray, *key: str) -> tuple[Estimate, ...]:
-        fn = metrics.mean if self.statistic == "mean" else metrics.iqm
-        return fn(table, rng=stream(self.seed, *key), confidence=self.confidence, num_resamples=self.num_resamples)
-
-    def stats(self) -> tuple[ConditionStats, ...]:
-        out = []
-        for policy in self.ev.policies:
-            for cond in self.ev.of_kind(*MAIN_KINDS):
-                x = self.returns(policy, cond.name)
-                if x is None:
-                    self.skip(f"policy {policy!r} has no returns on {cond.name!r}.")
-                    continue
-                col = x[:, None]
-                with self.warnings.where(f"{policy!r} on {cond.name!r}"):
-                    mean = metrics.mean(
-                        col,
-                        rng=stream(self.seed, "mean", policy, cond.name),
-                        confidence=self.confidence,
-                        num_resamples=self.num_resamples,
-                    )[0]
-                    iqm = metrics.iqm(
-                        col,
-                        rng=stream(self.seed, "iqm", policy, cond.name),
-                        confidence=self.confidence,
-                        num_resamples=self.num_resamples,
-                    )[0]
-                    cvar = metrics.cvar(
-                        col,
-                        alpha=self.alpha,
-                        rng=stream(self.seed, "cvar", policy, cond.name),
-                        confidence=self.confidence,
-                        num_resamples=self.num_resamples,
-                    )[0]
-                    flags = self.ev.successes.get(policy, {}).get(cond.name)
-                    success = (
-                        metrics.success_rate(np.asarray(flags, dtype=np.float64)[:, None], confidence=self.confidence)[
-                            0
-                        ]
-                        if flags is not None and len(flags)
-                        else None
-                    )
-                out.append(
-                    ConditionStats(
-                        policy=policy,
-                        condition=cond.name,
-                        kind=cond.kind,
-                        n=int(x.size),
-                        mean=mean,
-                        iqm=iqm,
-                        cvar=cvar,
-                        worst=float(x.min()),
-                        success=success,
-                    )
-                )
-        return tuple(out)
-
-    def gaps(self, references: Sequence[str], target: str | None) -> tuple[GapStats, ...]:
-        if target is None:
-            return ()
-        out = []
-        tcond = self.ev.condition(target)
-        for policy in self.ev.policies:
-            for ref in references:
-                a, b = self.returns(policy, ref), self.returns(policy, target)
-                if a is None or b is None:
-                    self.skip(f"no gap {ref!r} -> {target!r} for policy {policy!r}: returns missing.")
-                    continue
-                paired = self.ev.condition(ref).simulated and tcond.simulated and a.size == b.size
-                rng = stream(self.seed, "gap", policy, ref, target)
-                with self.warnings.where(f"gap of {policy!r} from {ref!r} to {target!r}"):
-                    if paired:
-                        g = metrics.gap(
-                            np.column_stack([a, b]),
-                            paired=True,
-                            statistic=self.statistic,
-                            rng=rng,
-                            confidence=self.confidence,
-                            num_resamples=self.num_resamples,
-                        )
-                    else:
-                        g = metrics.unpaired_gap(
-                            a,
-                            b,
-                            statistic=self.statistic,
-                            rng=rng,
-                            confidence=self.confidence,
-                            num_resamples=self.num_resamples,
-                        )
-                out.append(
-                    GapStats(
-                        policy=policy,
-                        reference=ref,
-                        target=target,
-                        absolute=g.absolute,
-                        relative=g.relative,
-                        paired=g.paired,
-                        n_reference=int(a.size),
-                        n_target=int(b.size),
-                        statistic=self.statistic,
-                    )
-                )
-        return tuple(out)
-
-    def curves(self) -> tuple[RobustnessCurve, ...]:
-        out = []
-        for name, conds in self.ev.sweeps().items():
-            if any(c.kind != "sweep" or len(c.value) != 1 for c in conds):
-                continue
-            conds = tuple(sorted(conds, key=lambda c: c.value[0]))
-            values = np.array([c.value[0] for c in conds])
-            nominal = float(conds[0].nominal[0]) if conds[0].nominal else math.nan
-            names = [c.name for c in conds]
-            for policy in self.ev.policies:
-                found = [self.returns(policy, n) for n in names]
-                columns = [c for c in found if c is not None]
-                if len(columns) != len(found) or len({c.size for c in columns}) != 1:
-                    self.skip(f"no robustness curve of {policy!r} on {name!r}: returns missing or uneven.")
-                    continue
-                table = np.column_stack(columns)
-                with self.warnings.where(f"curve of {policy!r} on {name!r}"):
-                    points = self.per_point(table, "curve", policy, name)
-                radius, note = None, ""
-                on_grid = np.flatnonzero(np.isclose(values, nominal, rtol=1e-9, atol=1e-12))
-                if values.size < 2 or np.any(np.diff(values) <= 0):
-                    note = "the sweep's values are not at least 2 strictly increasing points"
-                elif on_grid.size != 1:
-                    note = f"the nominal value {nominal:g} is not on the sweep's grid"
-                elif not points[int(on_grid[0])].value > 0:
-                    note = f"the nominal {self.statistic} return {points[int(on_grid[0])].value:.4g} is not positive"
-                else:
-                    with self.warnings.where(f"radius of {policy!r} on {name!r}"):
-                        radius = metrics.robustness_radius(
-                            values,
-                            table,
-                            nominal=nominal,
-                            fraction=self.fraction,
-                            statistic=self.statistic,
-                            paired=all(c.simulated for c in conds),
-                            rng=stream(self.seed, "radius", policy, name),
-                            confidence=self.confidence,
-                            num_resamples=self.num_resamples,
-                        )
-                if note:
-                    hint = " (a fraction of it is meaningless: shift returns so 0 is the worst acceptable)"
-                    self.skip(
-                        f"no robustness radius of {policy!r} on {name!r}: {note}{hint if 'positive' in note else ''}."
-                    )
-                out.append(
-                    RobustnessCurve(
-                        policy=policy,
-                        sweep=name,
-                        axis=conds[0].axes[0] if conds[0].axes else name,
-                        values=tuple(float(v) for v in values),
-                        conditions=tuple(names),
-                        nominal=nominal,
-                        points=tuple(points),
-                        radius=radius,
-                        fraction=self.fraction,
-                        note=note,
-                        statistic=self.statistic,
-                    )
-                )
-        return tuple(out)
-
-    def point(self, x: np.ndarray) -> float:
-        if self.statistic == "mean":
-            return float(x.mean())
-        return float(metrics.iqm_point(x[:, None])[0])
-
-    def grids(self) -> tuple[GridMeans, ...]:
-        out = []
-        for name, conds in self.ev.sweeps().items():
-            if any(c.kind != "grid" or len(c.value) != 2 for c in conds):
-                continue
-            xs = sorted({c.value[0] for c in conds})
-            ys = sorted({c.value[1] for c in conds})
-            for policy in self.ev.policies:
-                m = np.full((len(xs), len(ys)), math.nan)
-                for c in conds:
-                    x = self.returns(policy, c.name)
-                    if x is not None:
-                        m[xs.index(c.value[0]), ys.index(c.value[1])] = self.point(x)
-                if not np.isfinite(m).any():
-                    continue
-                first = conds[0]
-                out.append(
-                    GridMeans(
-                        policy=policy,
-                        grid=name,
-                        axes=(first.axes[0], first.axes[1]) if len(first.axes) == 2 else ("x", "y"),
-                        x=tuple(float(v) for v in xs),
-                        y=tuple(float(v) for v in ys),
-                        values=tuple(tuple(float(v) for v in row) for row in m),
-                        nominal=(float(first.nominal[0]), float(first.nominal[1]))
-                        if len(first.nominal) == 2
-                        else (math.nan, math.nan),
-                        statistic=self.statistic,
-                    )
-                )
-        return tuple(out)
-
-    def agreement(self, references: Sequence[str], target: str | None) -> tuple[Agreement, ...]:
-        if target is None or len(self.ev.policies) < 2:
-            return ()
-        out = []
-        for ref in references:
-            policies = tuple(
-                p for p in self.ev.policies if self.returns(p, ref) is not None and self.returns(p, target) is not None
-            )
-            srcc = mmrv = None
-            note = ""
-            sims = [self.returns(p, ref) for p in policies]
-            reals = [self.returns(p, target) for p in policies]
-            if len(policies) < 3:
-                note = f"SRCC and MMRV need >= 3 policies with returns on both; {len(policies)} have"
-            elif len({s.size for s in sims if s is not None}) > 1 or len({r.size for r in reals if r is not None}) > 1:
-                note = "SRCC and MMRV need the same number of runs for every policy on each condition"
-            else:
-                sim = np.column_stack([s for s in sims if s is not None])
-                real = np.column_stack([r for r in reals if r is not None])
-                context = f"agreement of {ref!r} with {target!r}"
-                with self.warnings.where(context):
-                    try:
-                        srcc = metrics.srcc(
-                            sim,
-                            real,
-                            statistic=self.statistic,
-                            rng=stream(self.seed, "srcc", ref, target),
-                            confidence=self.confidence,
-                            num_resamples=self.num_resamples,
-                        )
-                    except ValueError as err:
-                        note = f"SRCC undefined: {err}"
-                    mmrv = metrics.mmrv(
-                        sim,
-                        real,
-                        statistic=self.statistic,
-                        rng=stream(self.seed, "mmrv", ref, target),
-                        confidence=self.confidence,
-                        num_resamples=self.num_resamples,
-                    )
-            if note:
-                self.skip(f"agreement of {ref!r} with {target!r}: {note}.")
-            out.append(Agreement(ref, target, policies, srcc, mmrv, note))
-        return tuple(out)
-
-    def improvements(self, target: str | None) -> tuple[Improvement, ...]:
-        if target is None:
-            return ()
-        out = []
-        policies = [p for p in self.ev.policies if self.returns(p, target) is not None]
-        for i, x in enumerate(policies):
-            for y in policies[i + 1 :]:
-                a, b = self.returns(x, target), self.returns(y, target)
-                assert a is not None and b is not None
-                with self.warnings.where(f"P({x!r} > {y!r}) on {target!r}"):
-                    p = metrics.probability_of_improvement(
-                        a[:, None],
-                        b[:, None],
-                        rng=stream(self.seed, "improvement", target, x, y),
-                        confidence=self.confidence,
-                        num_resamples=self.num_resamples,
-                    )
-                out.append(Improvement(target, x, y, p))
-        return tuple(out)

@@ -1,0 +1,144 @@
+"""Names a robotics engineer reads: display labels of policies and conditions, sweep axes in words with units.
+
+Policies and conditions often share names (a policy ``randomized`` trained in the condition ``randomized``), so the
+report shows them apart: policies as ``"policy: <name>"`` and conditions by kind (``"sim: nominal"``,
+``"sim: <name>"``, ``"real twin"``, ``"real: <name>"``) unless the caller names them. A sweep axis such as
+``ObservationNoise.processes.0.std`` is shown as ``"sensor noise std (observation units)"``; latencies counted in
+control steps are shown in milliseconds, converted by :func:`noise_models.timing.convert_time` (the one converter).
+
+Example:
+    >>> axis_label("ActionLatency.steps", control_timestep=0.02)
+    AxisLabel(text='action latency (ms)', factor=20.0)
+    >>> axis_label("ObservationNoise.processes.0.std").text
+    'sensor noise std (observation units)'
+    >>> condition_label("sim", "nominal", simulated=True), condition_label("real", "real", simulated=True)
+    ('sim: nominal', 'real twin')
+    >>> channel_unit("qvel[shoulder]"), parameter_unit("dof_damping[elbow]")
+    ('rad/s', 'N·m·s/rad')
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+from noise_models.timing import convert_time
+
+__all__ = ["AxisLabel", "axis_label", "channel_unit", "condition_label", "parameter_unit", "policy_label"]
+
+
+@dataclass(frozen=True)
+class AxisLabel:
+    """A sweep axis in words.
+
+    Attributes:
+        text: the axis label with its unit, e.g. ``"action latency (ms)"``.
+        factor: multiply the sweep's values by this to get the label's unit (1 unless a unit was converted).
+    """
+
+    text: str
+    factor: float
+
+
+# effect type -> what it perturbs, in words (the field's unit follows from the field name)
+_EFFECTS = {
+    "Damping": "joint damping",
+    "ActuatorGain": "actuator gain",
+    "Mass": "body mass",
+    "Friction": "friction",
+    "Armature": "joint armature",
+    "Gravity": "gravity",
+    "ActionLatency": "action latency",
+    "ObservationLatency": "observation latency",
+    "ObservationNoise": "sensor noise",
+    "ActionNoise": "actuator noise",
+}
+_TIME_FIELDS = {"steps": "control_steps", "seconds": "seconds", "physics_steps": "physics_steps"}
+
+# address field prefix -> SI unit of the model field (hinge joints; slides would be m / N·s/m)
+_PARAMETER_UNITS = (
+    ("dof_damping", "N·m·s/rad"),
+    ("dof_frictionloss", "N·m"),
+    ("dof_armature", "kg·m²"),
+    ("actuator_gain", "N·m per ctrl unit"),
+    ("actuator_gear", "N·m per ctrl unit"),
+    ("body_mass", "kg"),
+    ("geom_friction", "1"),
+    ("obs_latency", "s"),
+    ("action_latency", "s"),
+)
+_CHANNEL_UNITS = (("qpos", "rad"), ("qvel", "rad/s"), ("qacc", "rad/s²"), ("ctrl", "ctrl units"))
+
+
+def axis_label(axis: str, control_timestep: float | None = None) -> AxisLabel:
+    """The human label of a sweep axis ``"<Effect>.<field path>"`` (``Condition.axes``).
+
+    Args:
+        axis: the axis as the conditions name it, e.g. ``"Damping.scale"``.
+        control_timestep: seconds per control step; latencies in steps are then shown in ms.
+
+    Returns:
+        An :class:`AxisLabel`; an unknown axis keeps its name (with ``factor`` 1).
+
+    Example:
+        >>> axis_label("Damping.scale").text, axis_label("ActionLatency.steps").text
+        ('joint damping (× nominal)', 'action latency (control steps)')
+    """
+    effect, _, field = axis.partition(".")
+    what = _EFFECTS.get(effect)
+    if what is None or not field:
+        return AxisLabel(axis, 1.0)
+    last = field.rsplit(".", 1)[-1]
+    if last in ("scale", "gain"):
+        return AxisLabel(f"{what} (× nominal)", 1.0)
+    if last in _TIME_FIELDS:
+        unit = _TIME_FIELDS[last]
+        if unit == "control_steps" and control_timestep is None:
+            return AxisLabel(f"{what} (control steps)", 1.0)
+        if unit == "physics_steps":
+            return AxisLabel(f"{what} (physics steps)", 1.0)
+        seconds = convert_time(1.0, unit, "seconds", timestep=control_timestep or 1.0, substeps=1)
+        return AxisLabel(f"{what} (ms)", round(1000.0 * seconds, 12))
+    if last == "std":
+        return AxisLabel(f"{what} std (observation units)" if "sensor" in what else f"{what} std (ctrl units)", 1.0)
+    if last in ("offset", "add"):
+        return AxisLabel(f"{what} offset", 1.0)
+    return AxisLabel(f"{what} {last}", 1.0)
+
+
+def policy_label(name: str) -> str:
+    """``"policy: <name>"``: a policy's default display name, apart from any condition of the same name."""
+    return f"policy: {name}"
+
+
+def condition_label(name: str, kind: str, *, simulated: bool) -> str:
+    """A condition's default display name, by kind: ``"sim: nominal"`` for the nominal sim named ``sim``,
+    ``"sim: <name>"`` for other simulators, ``"real twin"`` for a simulated ``real`` target, ``"real: <name>"``
+    for measured returns; sweep points keep their name."""
+    if kind == "nominal":
+        return "sim: nominal" if name == "sim" else f"sim: {name}"
+    if kind == "randomized":
+        return f"sim: {name}"
+    if kind == "real":
+        return ("real twin" if name == "real" else f"real twin: {name}") if simulated else f"real: {name}"
+    if kind == "measured":
+        return f"real: {name}"
+    return name
+
+
+def parameter_unit(address: str) -> str:
+    """The SI unit of an addressed parameter's field (``""`` when unknown), e.g. ``N·m·s/rad`` for
+    ``dof_damping[...]``."""
+    for prefix, unit in _PARAMETER_UNITS:
+        if address.startswith(prefix):
+            return unit
+    return ""
+
+
+def channel_unit(channel: str) -> str:
+    """The unit of a logged channel (``qpos[...]`` rad, ``qvel[...]`` rad/s, ...); ``""`` when unknown."""
+    head = re.split(r"[\[.]", channel, maxsplit=1)[0]
+    for prefix, unit in _CHANNEL_UNITS:
+        if head == prefix:
+            return unit
+    return ""
