@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import sim2real as s2r
-from sim2real.batched import BatchedVectorEnv, make_batched, supports
+from sim2real.batched import BatchedEnv, BatchedVectorEnv, make_batched, supports
 
 # A short time limit (0.3 s = 15 control steps) so episodes end, and the next one starts, inside the test.
 SHORT = {"time_limit": 0.3}
@@ -333,3 +333,19 @@ def test_a_diverged_world_ends_its_episode_like_the_single_env(task: str, effect
         assert np.array_equal(o, obs[i]) and r == reward[i] and te == terminated[i] and tr == truncated[i]
         assert info["sim2real"]["diverged"]
     batched.close()
+
+
+def test_given_envs_are_released_through_every_layer() -> None:
+    # evaluate reuses its envs across conditions: closing the worlds must peel the signal and the physics layers
+    # and restore the nominal model, so the next condition starts from the same env.
+    bases = [s2r.make("dmc/reacher-easy") for _ in range(2)]
+    damping = bases[0].unwrapped.physics.model.dof_damping.copy()
+    worlds = BatchedEnv("dmc/reacher-easy", 2, [*_effects(3)], envs=bases, stream_seeds=[0, 0])
+    worlds.reset(seed=[1, 2])
+    assert not np.array_equal(bases[0].unwrapped.physics.model.dof_damping, damping)
+    worlds.close()
+    assert np.array_equal(bases[0].unwrapped.physics.model.dof_damping, damping)
+    again = BatchedEnv("dmc/reacher-easy", 2, [s2r.Mass(scale=s2r.Uniform(0.7, 1.3))], envs=bases, stream_seeds=[0, 0])
+    assert [type(env).__name__ for env in again.envs] == ["RandomizePhysics", "RandomizePhysics"]
+    assert again.envs[0].env is bases[0]
+    again.close()

@@ -153,6 +153,7 @@ class BatchedEnv:
         bases = [make(task, **options) for _ in range(n)] if envs is None else list(envs)
         roots = [(self.seed, i) for i in range(n)] if stream_seeds is None else list(stream_seeds)
         self.envs = [wrap(base, *effects, seed=root) for base, root in zip(bases, roots, strict=True)]
+        self._bases = bases
         handles = [find_physics(env) for env in self.envs]
         self.models = [h.model for h in handles]  # type: ignore[union-attr]
         self.datas = [h.data for h in handles]  # type: ignore[union-attr]
@@ -369,11 +370,12 @@ class BatchedEnv:
             self._closed = True
             if self._pool is not None:
                 self._pool.shutdown()
-            for env in self.envs:
+            for env, base in zip(self.envs, self._bases, strict=True):
                 if self._owned:
                     env.close()
-                else:
-                    env.release()
+                    continue
+                while env is not base:  # every sim2real layer (signals, then physics) lets go of the given env
+                    env = env.release()
 
 
 def make_batched(task: str, num_envs: int, *effects: Any, seed: int = 0, **options: Any) -> BatchedEnv:
