@@ -503,8 +503,8 @@ def record_log(
 ) -> TrajectoryLog:
     """Simulates ``model`` open loop under ``ctrl`` (through ``mujoco.rollout``) and logs it.
 
-    The physics sees ``ctrl[t - action_latency]`` during control step ``t`` (``ctrl[0]`` before the log
-    starts); ``sensordata[t]`` is the reading of the state ``obs_latency`` control steps earlier (the first
+    The physics sees ``ctrl[t - action_latency]`` during control step ``t`` and zeros before the first command
+    arrives (the reset command, as sim2real's latency wrapper and a real actuator hold it); ``sensordata[t]`` is the reading of the state ``obs_latency`` control steps earlier (the first
     reading repeats before that). Gaussian noise of ``noise_std`` is added to ``qpos``, ``qvel`` and
     ``sensordata`` after that (``ctrl`` is logged as commanded, without noise).
 
@@ -568,9 +568,11 @@ def record_log(
         data.qpos[:] = qpos0[e]
         data.qvel[:] = qvel0[e]
         mujoco.mj_getState(model, data, states[e], spec)
-    # The physics sees the command issued ``action_latency`` control steps earlier (held from ctrl[0]).
-    source = np.clip(np.arange(steps) - action_latency, 0, None)
-    applied = np.repeat(controls[:, source], n_substeps, axis=1)
+    # The physics sees the command issued ``action_latency`` control steps earlier; before the first one arrives,
+    # the reset command (zeros), like the latency wrapper of an evaluated env.
+    source = np.arange(steps) - action_latency
+    applied = np.where((source >= 0)[None, :, None], controls[:, np.clip(source, 0, None)], 0.0)
+    applied = np.repeat(applied, n_substeps, axis=1)
     threads = nthread or os.cpu_count() or 1
     datas = [mujoco.MjData(model) for _ in range(min(threads, episodes))]
     nstep = steps * n_substeps

@@ -61,7 +61,7 @@ def test_record_matches_python_step_loop(model: mujoco.MjModel) -> None:
     qpos, sensors = [], []
     for t in range(30):
         qpos.append(data.qpos.copy())
-        data.ctrl[:] = ctrl[max(t - 2, 0)]
+        data.ctrl[:] = ctrl[t - 2] if t >= 2 else 0.0  # the reset command until the first one arrives
         for k in range(3):
             mujoco.mj_step(model, data)
             if k == 0:
