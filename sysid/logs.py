@@ -504,8 +504,8 @@ def record_log(
     """Simulates ``model`` open loop under ``ctrl`` (through ``mujoco.rollout``) and logs it.
 
     The physics sees ``ctrl[t - action_latency]`` during control step ``t`` and zeros before the first command
-    arrives (the reset command, as sim2real's latency wrapper and a real actuator hold it); ``sensordata[t]`` is the reading of the state ``obs_latency`` control steps earlier (the first
-    reading repeats before that). Gaussian noise of ``noise_std`` is added to ``qpos``, ``qvel`` and
+    arrives (the reset command, as sim2real's latency wrapper and a real actuator hold it); ``sensordata[t]`` is
+    the reading of the state ``obs_latency`` control steps earlier (the first reading repeats before that). Gaussian noise of ``noise_std`` is added to ``qpos``, ``qvel`` and
     ``sensordata`` after that (``ctrl`` is logged as commanded, without noise).
 
     Args:
