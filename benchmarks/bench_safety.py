@@ -10,7 +10,9 @@ Three arms per engine, run one after the other in every repeat (order rotating),
   and the end-effector site's speed.
 
 Each engine is benchmarked: ``per-env`` (gymnasium envs stepped one by one) and ``auto`` (the batched engine).
-The figure is control steps per second (median over repeats) and the ratios to *before*. Usage::
+The figure is control steps per CPU second of this process (``time.process_time``: the serial backend runs here,
+so the figure does not move with the other processes on a shared box), median over repeats, and the ratios to
+*before*; wall-clock medians are printed beside them. Usage::
 
     .venv/bin/python benchmarks/bench_safety.py            # 32 episodes x 100 steps, 3 repeats
     .venv/bin/python benchmarks/bench_safety.py --quick    # smoke test
@@ -57,12 +59,13 @@ def before_module(revision: str) -> Any:
     return module
 
 
-def rate(fn: Any, episodes: int, steps: int, engine: str, **kwargs: Any) -> float:
+def rate(fn: Any, episodes: int, steps: int, engine: str, **kwargs: Any) -> tuple[float, float]:
+    """(steps per CPU second, steps per wall second)."""
     condition = randomized([s2r.Damping(scale=s2r.Uniform(0.5, 2.0)), s2r.ActuatorGain(scale=s2r.Uniform(0.8, 1.2))])
-    start = time.perf_counter()
+    cpu, wall = time.process_time(), time.perf_counter()
     result = fn({"reach": ReachController(kp=5.0)}, "sim2real/arm-reach", [condition], episodes=episodes,
                 batch=episodes, seed=0, max_steps=steps, engine=engine, **kwargs)  # fmt: skip
-    return result.env_steps / (time.perf_counter() - start)
+    return result.env_steps / (time.process_time() - cpu), result.env_steps / (time.perf_counter() - wall)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -71,6 +74,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--steps", type=int, default=100, help="control steps per episode (cap)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--before", default=BEFORE, help="git revision of evaluation.py without safety")
+    parser.add_argument("--engines", nargs="+", choices=("per-env", "auto"), default=["per-env", "auto"])
     parser.add_argument("--quick", action="store_true", help="smoke test: 8 episodes x 30 steps, 1 repeat")
     args = parser.parse_args(argv)
     if args.quick:
@@ -82,23 +86,25 @@ def main(argv: list[str] | None = None) -> None:
           f"load {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")  # fmt: skip
     print(f"# sim2real/arm-reach, ReachController, {args.episodes} episodes x {args.steps} steps, randomized "
           f"(Damping, ActuatorGain), {args.repeats} repeats, before = evaluation.py at {args.before}")  # fmt: skip
-    for engine in ("per-env", "auto"):
+    for engine in args.engines:
         arms = [
             ("before", lambda e=engine: rate(old.evaluate, args.episodes, args.steps, e)),
             ("no limits", lambda e=engine: rate(evaluate, args.episodes, args.steps, e)),
             ("limits", lambda e=engine: rate(evaluate, args.episodes, args.steps, e, safety=limits)),
         ]
-        rates: dict[str, list[float]] = {name: [] for name, _ in arms}
+        rates: dict[str, list[tuple[float, float]]] = {name: [] for name, _ in arms}
         for r in range(args.repeats):
             order = arms[r % 3 :] + arms[: r % 3]
             for name, fn in order:
                 rates[name].append(fn())
-        med = {name: statistics.median(v) for name, v in rates.items()}
-        print(f"engine={engine}: " + ", ".join(f"{n} {med[n]:,.0f} steps/s" for n in med)
+        med = {name: statistics.median(c for c, _ in v) for name, v in rates.items()}
+        wall = {name: statistics.median(w for _, w in v) for name, v in rates.items()}
+        print(f"engine={engine}: " + ", ".join(f"{n} {med[n]:,.0f}" for n in med) + " steps/CPU-s"
               + f"; no limits / before = {med['no limits'] / med['before']:.3f}, "
-              f"limits / before = {med['limits'] / med['before']:.3f}")  # fmt: skip
+              f"limits / before = {med['limits'] / med['before']:.3f}"
+              f"  (wall: " + ", ".join(f"{n} {wall[n]:,.0f}" for n in wall) + " steps/s)")  # fmt: skip
         for name, values in rates.items():
-            print(f"#   {name}: " + ", ".join(f"{v:,.0f}" for v in values))
+            print(f"#   {name} CPU: " + ", ".join(f"{c:,.0f}" for c, _ in values))
 
 
 if __name__ == "__main__":
