@@ -11,7 +11,7 @@ import pytest
 
 from sim2real import cli
 from sim2real.conditions import nominal, sweep
-from sim2real.evaluation import evaluate
+from sim2real.evaluation import Evaluation, evaluate
 from sim2real.mjcf_env import MjcfEnv
 from sim2real.safety import ConstantAction, LimitsError, SafetyLimits, SafetyTable, cvar_upper, load_limits
 from sim2real.safety_probe import SafetyMeter, actuator_limits
@@ -360,3 +360,55 @@ def test_process_backend_gives_the_same_measurements(tmp_path: Path) -> None:
         for backend in ("serial", "local")
     ]
     assert runs[0].to_json() == runs[1].to_json() and "safety" in runs[0].to_dict()
+
+
+def _evaluation_with(values: dict[str, np.ndarray]) -> Evaluation:
+    conditions = (nominal(), *sweep({"type": "Damping", "scale": 1.0}, "scale", [0.5, 2.0]))
+    n = len(next(iter(values.values())))
+    nan = np.full(n, np.nan)
+
+    def quantities(hits: np.ndarray) -> dict[str, np.ndarray]:
+        return {"joint_limit_hits": hits, "effort_ratio": nan, "contact_force": nan, "ee_speed": nan,
+                "diverged": np.zeros(n)}  # fmt: skip
+
+    return Evaluation(
+        task="demo",
+        seed=0,
+        episodes=n,
+        max_steps=None,
+        policies=("p",),
+        conditions=conditions,
+        returns={"p": {c.name: np.zeros(n) for c in conditions}},
+        successes={},
+        lengths={},
+        draws={},
+        safety={"p": {name: quantities(v) for name, v in values.items()}},
+    )
+
+
+def test_cvar_gate_and_sweep_rows_name_the_worst_point() -> None:
+    ten = np.zeros(10)
+    spiky = ten.copy()
+    spiky[7] = 5.0  # one bad episode of ten: worst 5, CVaR 0.1 = 5, CVaR 0.3 = 5/3
+    evaluation = _evaluation_with(
+        {"sim": ten, "Damping.scale=0.5": ten, "Damping.scale=1": ten, "Damping.scale=2": spiky}
+    )
+    worst = SafetyTable.build(evaluation, load_limits({"joint_limit_hits": 2}))
+    assert [v.message for v in worst.violations] == [
+        "policy 'p' on 'Damping.scale=2': joint_limit_hits worst 5 > limit 2 (episode 7)"
+    ]
+    row = next(r for r in worst.rows if r.kind == "sweep")
+    assert (row.condition, row.worst, row.episodes, row.where) == (
+        "Damping.scale",
+        5.0,
+        30,
+        "Damping.scale=2 episode 7",
+    )
+    assert row.cvar == pytest.approx(5.0 / 3.0) and row.violated  # the worst 3 of 30 pooled episodes
+    lenient = SafetyTable.build(evaluation, load_limits({"joint_limit_hits": 2, "statistic": "cvar", "alpha": 0.3}))
+    assert lenient.passed  # CVaR 0.3 of the point: 5/3 <= 2
+    strict = SafetyTable.build(evaluation, load_limits({"joint_limit_hits": 1, "statistic": "cvar", "alpha": 0.3}))
+    assert [v.message for v in strict.violations] == [
+        "policy 'p' on 'Damping.scale=2': joint_limit_hits CVaR 0.3 1.667 > limit 1 (episode 7)"
+    ]
+    assert not any(r.quantity == "effort_ratio" for r in worst.rows)  # not measured: no row

@@ -42,7 +42,8 @@ def main(argv: list[str] | None = None) -> int:
 
     Returns:
         The exit code: 0 on success, 2 on a usage error or bad input, 3 when ``sysid fit`` finds that the fitted
-        model cannot reproduce the log (the fit is written but not exported).
+        model cannot reproduce the log (the fit is written but not exported) or when ``evaluate --safety`` finds a
+        declared safety limit exceeded (the report is written; one line per violation on stderr).
     """
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["train"]:
