@@ -263,6 +263,8 @@ class SafetyRow:
         episodes: episodes aggregated.
         limit: the declared limit, or None.
         violated: whether the gated statistic is above the limit.
+        point: the condition holding the worst episode (for a sweep, its point; for ``diverged``, the point with the
+            most diverged episodes); the condition itself on a condition row.
     """
 
     policy: str
@@ -275,6 +277,7 @@ class SafetyRow:
     episodes: int
     limit: float | None
     violated: bool
+    point: str = ""
 
 
 @dataclass(frozen=True)
@@ -378,6 +381,7 @@ class SafetyTable:
                     "worst": num(r.worst),
                     "cvar": num(r.cvar),
                     "where": r.where,
+                    "point": r.point,
                     "episodes": r.episodes,
                     "limit": num(r.limit),
                     "violated": r.violated,
@@ -410,6 +414,7 @@ def _row(
             found.append(SafetyViolation(policy, point, quantity, statistic, value, limit, where))
     if quantity == "diverged":
         worst, cvar, where = float(pooled.sum()), float(pooled.mean()), f"{int(pooled.sum())} of {len(pooled)} episodes"
+        part = int(np.argmax([a.sum() for a in arrays]))
     else:
         worst, cvar = float(pooled.max()), cvar_upper(pooled, limits.alpha)
         index = int(np.argmax(pooled))
@@ -417,7 +422,8 @@ def _row(
         part = int(np.searchsorted(offsets, index, side="right") - 1)
         episode = index - int(offsets[part])
         where = f"episode {episode}" if kind == "condition" else f"{parts[part][0]} episode {episode}"
-    return SafetyRow(policy, name, kind, quantity, worst, cvar, where, len(pooled), limit, bool(found)), found
+    row = SafetyRow(policy, name, kind, quantity, worst, cvar, where, len(pooled), limit, bool(found), parts[part][0])
+    return row, found
 
 
 def _gated(values: np.ndarray, quantity: str, limits: SafetyLimits) -> tuple[float, str, int]:

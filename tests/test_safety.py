@@ -405,6 +405,11 @@ def test_cvar_gate_and_sweep_rows_name_the_worst_point() -> None:
         "Damping.scale=2 episode 7",
     )
     assert row.cvar == pytest.approx(5.0 / 3.0) and row.violated  # the worst 3 of 30 pooled episodes
+    assert row.point == "Damping.scale=2"
+    from sim2real.report.safety import safety_blocks
+
+    table_rows = safety_blocks(worst)[2]["rows"]
+    assert ("p", "Damping.scale (sweep)", "5 / 1.667 at Damping.scale=2 VIOLATED (limit 2)", "0 / 30") in table_rows
     lenient = SafetyTable.build(evaluation, load_limits({"joint_limit_hits": 2, "statistic": "cvar", "alpha": 0.3}))
     assert lenient.passed  # CVaR 0.3 of the point: 5/3 <= 2
     strict = SafetyTable.build(evaluation, load_limits({"joint_limit_hits": 1, "statistic": "cvar", "alpha": 0.3}))

@@ -47,6 +47,8 @@ def _cell(row: SafetyRow) -> str:
         text = f"{_num(row.worst)} / {row.episodes}"
     else:
         text = f"{_num(row.worst)} / {_num(row.cvar)}"
+    if row.kind == "sweep" and row.worst > 0:  # which perturbation is the dangerous one
+        text += f" at {row.point}"
     if row.violated:
         text += f" VIOLATED (limit {_num(row.limit)})"
     return text
