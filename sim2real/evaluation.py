@@ -430,7 +430,8 @@ def evaluate(
 
 def _check_safety(safety: Any, task: str, conditions: tuple[Condition, ...], options: dict[str, Any]) -> None:
     """A bad ``safety`` (its geom, site or body names) fails here, before any worker starts."""
-    from sim2real.safety import SafetyLimits
+    from sim2real.physics import find_physics
+    from sim2real.safety import LimitsError, SafetyLimits
 
     if not isinstance(safety, SafetyLimits):
         raise TypeError(
@@ -441,7 +442,12 @@ def _check_safety(safety: Any, task: str, conditions: tuple[Condition, ...], opt
         return
     env = simulated[0].base_env(task, **options)
     try:
-        safety.meter(_physics(env).model, 1)
+        handle = find_physics(env)
+        if handle is None:
+            raise LimitsError(
+                f"{safety.source}: the limits need a MuJoCo model inside the env; found none in {type(env).__name__}."
+            )
+        safety.meter(handle.model, 1)
     finally:
         env.close()
 

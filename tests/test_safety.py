@@ -417,3 +417,30 @@ def test_cvar_gate_and_sweep_rows_name_the_worst_point() -> None:
         "policy 'p' on 'Damping.scale=2': joint_limit_hits CVaR 0.3 1.667 > limit 1 (episode 7)"
     ]
     assert not any(r.quantity == "effort_ratio" for r in worst.rows)  # not measured: no row
+
+
+def test_an_env_without_mujoco_exits_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / "spec.yaml").write_text(
+        "env: gymnasium.envs.classic_control.cartpole:CartPoleEnv\nepisodes: 2\npolicies: {hold: {constant: [0]}}\n"
+    )
+    (tmp_path / "limits.yaml").write_text(LIMITS)
+    code = cli.main(
+        [
+            "evaluate",
+            "--config",
+            str(tmp_path / "spec.yaml"),
+            "--safety",
+            str(tmp_path / "limits.yaml"),
+            "--out",
+            str(tmp_path / "o"),
+            "--backend",
+            "serial",
+            "--quiet",
+        ]
+    )
+    assert code == 2
+    assert capsys.readouterr().err == (
+        f"sim2real evaluate: error: --safety: {tmp_path / 'limits.yaml'}: the limits need a MuJoCo model inside the "
+        "env; found none in CartPoleEnv.\n"
+    )
+    assert not (tmp_path / "o").exists()
