@@ -414,7 +414,9 @@ def test_cli_train_usage_errors(tmp_path: Path, capsys) -> None:
     from sim2real.agents import cli_train
 
     assert cli_train(["--task", "dmc/reacher-eazy", "--out", str(tmp_path / "c.pt")]) == 2
-    assert "--task: `task_id` must be one of" in capsys.readouterr().err
+    err = capsys.readouterr().err  # the message of sim2real.sources (one owner of --task/--model/--env)
+    assert "`--task`: `task_id` must be one of" in err and "Close matches: 'dmc/reacher-easy'" in err
+    assert err.count("\n") == 1
     agent = tmp_path / "sac.yaml"
     agent.write_text(TINY_SAC.to_yaml())
     assert cli_train(["--task", ARM, "--agent-config", str(agent), "--out", str(tmp_path / "c.pt")]) == 2

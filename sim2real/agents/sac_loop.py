@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from sim2real.agents.config import SACConfig
+from sim2real.agents.loop_utils import env_bounds, log_row, progress_bar
 from sim2real.agents.sac import LOSS_KEYS, ReplayBuffer, SACUpdate
 
 __all__ = ["train_sac"]
@@ -72,10 +73,8 @@ class _TorchRLSteps:
     """The same interface over a TorchRL env (built by :func:`~sim2real.agents.training.make_train_env`)."""
 
     def __init__(self, env: Any) -> None:
-        from sim2real.agents.training import _bounds
-
         self.env = env
-        self.obs_dim, _, self.low, self.high = _bounds(env)
+        self.obs_dim, _, self.low, self.high = env_bounds(env)
         self._td: Any = None
 
     def reset(self) -> np.ndarray:
@@ -99,19 +98,22 @@ class _TorchRLSteps:
         self.env.close()
 
 
-def _steps(task_or_env: Any, effects: Sequence[Any], seed: int) -> _GymSteps | _TorchRLSteps:
+def steps_directly(task_or_env: Any) -> bool:
+    """Whether :func:`train_sac` steps ``task_or_env`` through gymnasium (a task id or a gymnasium env)."""
     import gymnasium as gym
 
+    return isinstance(task_or_env, (str, gym.Env))
+
+
+def _steps(task_or_env: Any, effects: Sequence[Any], seed: int) -> _GymSteps | _TorchRLSteps:
     import sim2real
 
-    if isinstance(task_or_env, (str, gym.Env)):
+    if steps_directly(task_or_env):
         env = sim2real.make(task_or_env) if isinstance(task_or_env, str) else task_or_env
         if effects:
             env = sim2real.wrap(env, *effects, seed=seed)
         return _GymSteps(env, seed)
-    from sim2real.agents.training import make_train_env
-
-    return _TorchRLSteps(make_train_env(task_or_env, effects, seed))
+    return _TorchRLSteps(task_or_env)
 
 
 def train_sac(
@@ -119,11 +121,13 @@ def train_sac(
 ) -> tuple[Any, list[dict[str, float]], int]:
     """Trains a SAC actor; returns ``(actor, metric rows, frames)`` (see :func:`~sim2real.agents.train`).
 
+    ``task_or_env`` is a task id or gymnasium env (``effects`` are applied here with ``sim2real.wrap``) or a TorchRL
+    env already built by :func:`~sim2real.agents.make_train_env` (effects applied; ``effects`` is then ignored).
+
     Each row covers ``cfg.frames_per_batch`` env steps followed by ``round(utd_ratio * frames_per_batch)`` updates
     (once ``init_random_frames`` steps and one batch are stored).
     """
     from sim2real.agents.nets import actor_normalizer, build_actor, build_qvalue
-    from sim2real.agents.training import _bar, _log
 
     steps = _steps(task_or_env, effects, seed)
     try:
@@ -143,7 +147,7 @@ def train_sac(
         frames = 0
         obs = steps.reset()
         episode_return = 0.0
-        with _bar(cfg.frames, progress, "sac") as bar:
+        with progress_bar(cfg.frames, progress, "sac") as bar:
             while frames < cfg.frames:
                 n = min(cfg.frames_per_batch, cfg.frames - frames)
                 rewards = np.empty(n)
@@ -174,7 +178,7 @@ def train_sac(
                         total += update.step(*buffer.sample(cfg.batch_size))
                     row.update(zip(LOSS_KEYS, (total / updates).tolist(), strict=True))
                 rows.append(row)
-                _log(log, row, frames)
+                log_row(log, row, frames)
                 bar.update(n)
                 if finished:
                     bar.set_postfix(ret=f"{row['episode_return']:.2f}")

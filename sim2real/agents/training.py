@@ -22,6 +22,7 @@ from types import MappingProxyType
 from typing import Any
 
 from sim2real.agents.config import PPOConfig, SACConfig
+from sim2real.agents.loop_utils import env_bounds, log_row, progress_bar
 
 __all__ = ["TrainResult", "make_train_env", "train"]
 
@@ -217,9 +218,11 @@ def train(
         stack.enter_context(torch.random.fork_rng(devices=[]))
         torch.manual_seed(seed)
         if isinstance(config, SACConfig):
-            from sim2real.agents.sac_loop import train_sac
+            from sim2real.agents.sac_loop import steps_directly, train_sac
 
-            policy, rows, frames = train_sac(task_or_env, config, effects=effects, seed=seed, progress=progress, log=log)
+            # A task id or gymnasium env is stepped through gymnasium; any other env through TorchRL.
+            source = task_or_env if steps_directly(task_or_env) else make_train_env(task_or_env, effects, seed)
+            policy, rows, frames = train_sac(source, config, effects=effects, seed=seed, progress=progress, log=log)
         else:
             env = make_train_env(task_or_env, effects, seed)
             try:
@@ -255,15 +258,7 @@ def _effects_text(effects: Sequence[Any]) -> str | None:
     return dump_config(flat)
 
 
-def _bounds(env: Any) -> tuple[int, int, list[float], list[float]]:
-    obs_dim = int(env.observation_spec["observation"].shape[-1])
-    spec = env.action_spec
-    low = getattr(getattr(spec, "space", None), "low", None)
-    if low is None:
-        raise TypeError(f"the env's action spec must be bounded and continuous. Received {type(spec).__name__}.")
-    low_l = [float(v) for v in spec.space.low.flatten()]
-    high_l = [float(v) for v in spec.space.high.flatten()]
-    return obs_dim, len(low_l), low_l, high_l
+_bounds = env_bounds
 
 
 def _fit_normalizer(env: Any, norm: Any, frames: int) -> None:
@@ -335,20 +330,8 @@ def _episode_stats(data: Any) -> dict[str, float]:
     return row
 
 
-def _bar(total: int, progress: bool, desc: str) -> Any:
-    import sys
-
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, desc=desc, unit="frame", disable=not progress, file=sys.stderr, leave=False)
-
-
-def _log(log: Any, row: Mapping[str, float], frames: int) -> None:
-    if log is None:
-        return
-    for key, value in row.items():
-        if key != "frames" and math.isfinite(value):
-            log.log_scalar(key, value, step=frames)
+_bar = progress_bar
+_log = log_row
 
 
 def _train_ppo(env: Any, cfg: PPOConfig, seed: int, progress: bool, log: Any) -> tuple[Any, list[dict], int]:
