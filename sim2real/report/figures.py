@@ -241,10 +241,9 @@ def _sysid_figure(fit: Any, page: int) -> Any:
             if text not in labels:
                 handles.append(one)
                 labels.append(text)
-    fig.legend(handles, labels, loc="outside upper center", ncols=len(labels), fontsize=8)
-    fig.suptitle(
-        f"system identification: channels {chosen[0] + 1}-{chosen[-1] + 1} of {count} (page {page + 1} of {pages})",
-        fontsize=10,
+    title = f"system identification: channels {chosen[0] + 1}-{chosen[-1] + 1} of {count} (page {page + 1} of {pages})"
+    fig.legend(
+        handles, labels, loc="outside upper center", ncols=len(labels), fontsize=8, title=title, title_fontsize=9
     )
     return fig
 

@@ -54,7 +54,10 @@ def signed(e: Estimate, digits: int = 3) -> str:
     """A difference with explicit signs: ``+29 [-10, +68]``."""
 
     def one(v: float) -> str:
-        return f"{v:+.{digits}g}" if math.isfinite(v) else "n/a"
+        if not math.isfinite(v):
+            return "n/a"
+        text = f"{v:+.{digits}g}"
+        return "0" if float(text) == 0.0 else text  # no "-0" or "+0" for an end that rounds to zero
 
     return f"{one(e.value)} [{one(e.low)}, {one(e.high)}]"
 

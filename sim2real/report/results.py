@@ -220,7 +220,8 @@ class Prediction:
             target return is within 1.3% of its return in ``simulator``, at the report's confidence); NaN when a
             relative gap is undefined.
         differ: the policies whose gap interval excludes 0 (the simulator mispredicts them).
-        worst: the policy with the largest ``|relative gap|`` point estimate ("" when none).
+        worst: the policy with the largest ``|relative gap|`` point estimate among the mispredicted ones (among all
+            when none is; "" when no relative gap is defined).
     """
 
     simulator: str

@@ -221,7 +221,8 @@ def predictions(gaps: Sequence[GapStats], simulators: Sequence[str], target: str
         ends = [max(abs(g.relative.low), abs(g.relative.high)) for g in rows]
         within = max(ends) if all(math.isfinite(v) for v in ends) else math.nan
         differ = tuple(g.policy for g in rows if g.absolute.low > 0.0 or g.absolute.high < 0.0)
-        finite = [g for g in rows if math.isfinite(g.relative.value)]
+        # the worst of the mispredicted policies (of all, when none is)
+        finite = [g for g in rows if math.isfinite(g.relative.value) and (g.policy in differ or not differ)]
         worst = max(finite, key=lambda g: abs(g.relative.value)).policy if finite else ""
         out.append(Prediction(sim, str(target), tuple(g.policy for g in rows), within, differ, worst))
     return tuple(out)

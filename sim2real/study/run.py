@@ -142,7 +142,7 @@ def _run(
     from sim2real.spec import load_spec
     from sim2real.study.fitting import best_fit, calibrated_effects, record_twin
     from sim2real.study.policies import ROLES, TrainJob, effects_yaml, shipped, train_one
-    from sim2real.study.summary import study_summary
+    from sim2real.study.summary import DISPLAY_CONDITIONS, DISPLAY_POLICIES, TRAINING, study_summary
 
     def dispatch(fn: Callable[[Any], Any], items: list[Any], desc: str) -> list:
         return _dispatch(fn, items, backend, workers, desc)
@@ -216,7 +216,12 @@ def _run(
             rng=seed,
             title=f"sim2real study: {profile.task}",
             notes=(*(f"{role} policy: {text}" for role, text in sources.items()), f"budget {budget.name}, seed {seed}"),
+            training=TRAINING,  # each policy's robustness radii keep a fraction of its return in its own sim
+            control_timestep=float(trajectory.meta["control_timestep"]),  # latencies shown in ms
+            policy_labels=DISPLAY_POLICIES,
+            condition_labels={k: v for k, v in DISPLAY_CONDITIONS.items() if k in {c.name for c in spec.conditions}},
         )
+        report = report.with_lead(study_summary(report))  # the paragraph is part of report.md/html/json
         report.write(staging)
         return report
 
@@ -224,7 +229,7 @@ def _run(
     return StudyResult(
         out=staging,
         report=staging / "report.html",
-        summary=study_summary(report, evaluation),
+        summary=report.summary(),  # the lead paragraph, the headline and the small-budget warnings
         seconds=dict(stages.seconds),
         policies=dict(sources),
         evaluation=evaluation,

@@ -1,60 +1,68 @@
-"""The study's one-paragraph summary (printed, and at the top of the report)."""
+"""The study's one-paragraph summary: printed by ``sim2real study`` and the lead of its report (HTML, Markdown, JSON).
+
+Every claim is read from the :class:`~sim2real.report.GapReport` it opens, with that report's intervals: each
+policy's gap between two named ends, worded by the sign of its point estimate (the nominal policy from the nominal
+sim, the randomised policy from its randomised sim, the calibrated policy from its calibrated sim); the paired
+calibrated-vs-randomised difference on the twin and whether it is significant; whether each sim predicts the twin
+for every policy; the scripted baseline.
+"""
 
 from __future__ import annotations
 
-import warnings
 from typing import Any
 
-__all__ = ["study_summary"]
+from sim2real.report.findings import cell, gap_phrase, prediction_sentence, versus
 
+__all__ = ["DISPLAY_CONDITIONS", "DISPLAY_POLICIES", "TRAINING", "study_summary"]
 
-def _fmt(e: Any, percent: bool = False) -> str:
-    if percent:
-        return f"{100 * e.value:.0f}% [{100 * e.low:.0f}%, {100 * e.high:.0f}%]"
-    return f"{e.value:.0f} [{e.low:.0f}, {e.high:.0f}]"
+#: The sim each study policy was trained in (the scripted baseline was tuned in the nominal sim).
+TRAINING = {"nominal": "sim", "randomized": "randomized", "calibrated": "calibrated", "scripted": "sim"}
+#: Display names of the study's policies, apart from its conditions (figures and tables).
+DISPLAY_POLICIES = {
+    "nominal": "trained: nominal",
+    "randomized": "trained: randomised",
+    "calibrated": "trained: calibrated",
+    "scripted": "scripted baseline",
+}
+#: Display names of the study's non-sweep conditions.
+DISPLAY_CONDITIONS = {
+    "sim": "sim: nominal",
+    "randomized": "sim: randomised",
+    "calibrated": "sim: calibrated",
+    "real": "real twin",
+}
 
 
 def study_summary(report: Any, evaluation: Any = None) -> str:
-    """The study's one-paragraph summary: the sim-to-real gap before calibration (the nominal and the randomised
-    policy, from the nominal sim) and after it (the calibrated policy, whose own sim is the calibrated one; needs
-    the ``evaluation``), with intervals."""
+    """The study's paragraph (see the module docstring), from ``report`` alone; ``evaluation`` is not needed
+    (kept for callers of the old signature). Falls back to ``report.summary()`` when a study role is missing."""
+    del evaluation
     try:
         parts = []
-        conf = report.stats_for("nominal", "sim").mean.confidence
-        nominal_sim, nominal_real = report.stats_for("nominal", "sim").mean, report.stats_for("nominal", "real").mean
+        sim, real = report.stats_for("nominal", "sim").mean, report.stats_for("nominal", "real").mean
         parts.append(
-            f"Before calibration, the nominal policy returns {_fmt(nominal_sim)} in sim and {_fmt(nominal_real)} on the "
-            f"real twin: it loses {_fmt(report.gap('nominal').relative, True)} of its sim return."
+            f"Before calibration, the nominal policy returns {cell(sim, 3)} in sim and {cell(real, 3)} on the real "
+            f"twin: it {gap_phrase(report.gap('nominal', 'sim', 'real'))}."
         )
-        randomized_real = report.stats_for("randomized", "real").mean
         parts.append(
-            f"Domain randomisation chosen without data gives {_fmt(randomized_real)} on the twin "
-            f"(loss {_fmt(report.gap('randomized').relative, True)})."
+            f"The policy trained under domain randomisation chosen without data returns "
+            f"{cell(report.stats_for('randomized', 'real').mean, 3)} on the twin: it "
+            f"{gap_phrase(report.gap('randomized', 'randomized', 'real'))}."
         )
-        calibrated_real = report.stats_for("calibrated", "real").mean
-        text = (
+        parts.append(
             f"After system identification, the policy trained on the calibrated, randomised sim returns "
-            f"{_fmt(calibrated_real)} on the twin"
+            f"{cell(report.stats_for('calibrated', 'real').mean, 3)} on the twin and "
+            f"{cell(report.stats_for('calibrated', 'calibrated').mean, 3)} in the calibrated sim it was trained on: "
+            f"it {gap_phrase(report.gap('calibrated', 'calibrated', 'real'))}."
         )
-        if evaluation is not None:
-            from sim2real import metrics
-
-            with warnings.catch_warnings():  # the report lists the few-samples warnings already
-                warnings.simplefilter("ignore", metrics.FewSamplesWarning)
-                own = metrics.gap(
-                    evaluation.table("calibrated", ["calibrated", "real"]),
-                    paired=True,
-                    rng=report.rng_seed,
-                    num_resamples=report.num_resamples,
-                )
-            text += (
-                f" and {_fmt(report.stats_for('calibrated', 'calibrated').mean)} in the calibrated sim it was trained "
-                f"on, so it loses {_fmt(own.relative, True)} from its own sim to the twin"
-            )
-        parts.append(text + ".")
-        scripted = report.stats_for("scripted", "real").mean
-        parts.append(f"The scripted baseline returns {_fmt(scripted)} on the twin.")
-        parts.append(f"Intervals: {100 * conf:.0f}% stratified bootstrap over {nominal_sim.n} episodes per condition.")
+        parts.append(versus(report, "calibrated", "randomized", "the twin"))
+        for p in report.predictions:
+            parts.append(prediction_sentence(report, p))
+        parts.append(f"The scripted baseline returns {cell(report.stats_for('scripted', 'real').mean, 3)} on the twin.")
+        parts.append(
+            f"Intervals: {report.confidence:.0%} stratified bootstrap over {sim.n} episodes per condition "
+            "(paired where the conditions share initial states)."
+        )
         return " ".join(parts)
     except KeyError:
-        return report.summary()
+        return str(report.summary())
