@@ -55,7 +55,7 @@ from sysid._solver import COST_ATOL, Progress, State, fd_steps, lm
 from sysid.covariance import combine, hac_covariance, identifiability
 from sysid.logs import LogError, TrajectoryLog, load_log, validate_log
 from sysid.params import ModelPool, ParameterSpace
-from sysid.quality import assess, pooled_ljung_box
+from sysid.quality import INFORMATIVE_SHARE, assess, pooled_ljung_box
 from sysid.result import FitResult
 from sysid.shooting import divergence_curve, divergence_horizon
 
@@ -465,6 +465,13 @@ def fit(
         q, _ = np.linalg.qr(jac[:, p:])
         jp = jp - q @ (q.T @ jp)
     fisher = jp.T @ jp
+    # Share of each parameter's information that each channel carries: whiteness is judged where it matters.
+    per_channel = np.zeros((len(final.channels), p))
+    np.add.at(per_channel, final.channel_of_residual(), jp**2)
+    share = per_channel / np.maximum(np.diag(fisher), 1e-300)
+    informative = tuple(
+        name for c, name in enumerate(final.channels) if p == 0 or float(share[c].max()) >= INFORMATIVE_SHARE
+    )
     cov_unit, cond, warns = identifiability(space.addresses, fisher, st.theta, lower, upper)
     n_res = int(r.size)
     dof = max(1, n_res - unknowns)
@@ -555,6 +562,7 @@ def fit(
         dict(zip(space.addresses, inflation.tolist(), strict=True)),
         0 if fixed_horizon is None else int(fixed_horizon),
         seg_final.count,
+        informative,
     )
     all_rows = np.unique(np.concatenate(rows))
     index = {int(r_): k for k, r_ in enumerate(all_rows)}

@@ -28,6 +28,7 @@ from scipy import stats
 __all__ = [
     "EXACT_FIT_PERCENT",
     "INFLATION_LIMIT",
+    "INFORMATIVE_SHARE",
     "MIN_FIT_PERCENT",
     "NOT_WHITE_P",
     "VALIDATION_RATIO_LIMIT",
@@ -42,6 +43,8 @@ __all__ = [
 MIN_FIT_PERCENT = 50.0
 #: Fit percent from which a channel counts as reproduced exactly (its residual whiteness is not tested).
 EXACT_FIT_PERCENT = 99.9
+#: Share of some parameter's Fisher information from which a channel counts as informative (whiteness is tested).
+INFORMATIVE_SHARE = 0.01
 #: Family-wise Ljung–Box level: residuals are far from white when a channel's p is below this over the channels.
 NOT_WHITE_P = 1e-3
 #: Held-out RMS error over in-fit RMS error (both in noise SDs) above which the model does not generalise.
@@ -82,6 +85,9 @@ class FitQuality:
             standard error (1 = the Gauss–Newton error stood).
         horizon: control steps per shooting segment (0 = whole episodes).
         segments: shooting segments in the fit.
+        informative_channels: channels carrying at least :data:`INFORMATIVE_SHARE` of some parameter's
+            information; only their whiteness counts (a free ball bouncing beside an arm says nothing about the
+            arm's damping). Empty: every channel counts.
         reasons: one sentence per failed check; empty when the fit is ok.
     """
 
@@ -94,6 +100,7 @@ class FitQuality:
     se_inflation: Mapping[str, float] = field(default_factory=dict)
     horizon: int = 0
     segments: int = 0
+    informative_channels: tuple[str, ...] = ()
     reasons: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
@@ -106,6 +113,7 @@ class FitQuality:
         object.__setattr__(self, "identifiable", bool(self.identifiable))
         object.__setattr__(self, "at_bounds", tuple(str(a) for a in self.at_bounds))
         object.__setattr__(self, "reasons", tuple(str(r) for r in self.reasons))
+        object.__setattr__(self, "informative_channels", tuple(str(c) for c in self.informative_channels))
 
     @property
     def ok(self) -> bool:
@@ -145,6 +153,7 @@ class FitQuality:
             "se_inflation": {k: num(v) for k, v in self.se_inflation.items()},
             "horizon": self.horizon,
             "segments": self.segments,
+            "informative_channels": list(self.informative_channels),
             "reasons": list(self.reasons),
         }
 
@@ -165,6 +174,7 @@ class FitQuality:
             se_inflation={k: val(v) for k, v in data.get("se_inflation", {}).items()},
             horizon=int(data.get("horizon", 0)),
             segments=int(data.get("segments", 0)),
+            informative_channels=tuple(data.get("informative_channels", ())),
             reasons=tuple(data.get("reasons", ())),
         )
 
@@ -236,6 +246,7 @@ def assess(
     se_inflation: Mapping[str, float],
     horizon: int,
     segments: int,
+    informative_channels: tuple[str, ...] = (),
 ) -> FitQuality:
     """Runs every check and returns the :class:`FitQuality` with a reason per failure.
 
@@ -255,7 +266,11 @@ def assess(
             f"the model does not reproduce the log: median held-out fit {float(np.median(fits)):.1f}% "
             f"(< {MIN_FIT_PERCENT:g}%; worst {worst} {fit_percent[worst]:.1f}%)"
         )
-    pvals = {k: v for k, v in whiteness_pvalue.items() if math.isfinite(v)}
+    pvals = {
+        k: v
+        for k, v in whiteness_pvalue.items()
+        if math.isfinite(v) and (not informative_channels or k in informative_channels)
+    }
     # Bonferroni over channels: a right model trips this in about NOT_WHITE_P of fits. A channel reproduced to
     # within 0.1% (a noise-free log) has residuals at rounding level, white or not: it is not held against the fit.
     coloured = sorted(
@@ -292,5 +307,6 @@ def assess(
         se_inflation=se_inflation,
         horizon=horizon,
         segments=segments,
+        informative_channels=informative_channels,
         reasons=tuple(reasons),
     )

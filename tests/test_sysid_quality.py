@@ -83,6 +83,7 @@ def test_right_model_is_ok_and_exports(log_and_truth) -> None:
     q = result.quality
     assert q.horizon == 0 and q.segments == 1  # servos track: the open-loop replay never drifts, whole episodes
     assert q.at_bounds == () and q.identifiable
+    assert set(q.informative_channels) <= set(result.channels) and len(q.informative_channels) >= 6
     assert 0.8 < q.validation_ratio < 1.25
     assert min(q.fit_percent.values()) > 90.0
     assert set(q.se_inflation) == set(result.addresses) and min(q.se_inflation.values()) >= 1.0
@@ -105,6 +106,10 @@ def test_assess_reasons_name_the_failure() -> None:
     # one channel at p = 1e-4 among 12 is not enough (family-wise 1.2e-3); 1e-5 is
     assert assess({}, {f"c{i}": 1e-4 if i == 0 else 0.5 for i in range(12)}, (), 1, True, 1, {}, 0, 1).ok
     assert not assess({}, {f"c{i}": 1e-5 if i == 0 else 0.5 for i in range(12)}, (), 1, True, 1, {}, 0, 1).ok
+    # only channels that inform the parameters count (a free ball beside the arm says nothing about its damping)
+    pvals = {"qpos[ball]": 1e-20, "qpos[elbow]": 0.4}
+    assert assess({}, pvals, (), 1, True, 1, {}, 0, 1, informative_channels=("qpos[elbow]",)).ok
+    assert not assess({}, pvals, (), 1, True, 1, {}, 0, 1, informative_channels=("qpos[ball]", "qpos[elbow]")).ok
     # a channel reproduced to 99.95% (noise-free log) is exempt
     assert assess({"c": 99.95}, {"c": 1e-30}, (), 1, True, 1, {}, 0, 1).ok
     gen = assess({}, {}, (), 1.0, True, 2.0, {}, 0, 1)
@@ -157,6 +162,7 @@ def test_quality_round_trips_through_json(
         se_inflation={"dof_damping[a]": inflation},
         horizon=horizon,
         segments=segments,
+        informative_channels=tuple(whiteness)[:2],
         reasons=tuple(reasons),
     )
     result = dataclasses.replace(FitResult.from_estimates({"dof_damping[a]": (1.0, 0.1)}), quality=quality)
