@@ -43,8 +43,9 @@ class Gap:
 
     Attributes:
         absolute: ``stat(reference) - stat(target)``; positive when the target does worse.
-        relative: ``absolute / |stat(reference)|``; NaN when ``stat(reference)`` is 0 (resamples where it is 0 are
-            left out of the interval).
+        relative: ``absolute / |stat(reference)|``; NaN when ``stat(reference)`` is 0. Resamples where it is 0 are
+            left out of the interval; when they are more than the interval's tail, ``(1 - confidence) / 2``, the
+            interval is NaN (undefined) rather than conditional on the rest.
         reference: Column index of the reference condition.
         target: Column index of the target condition.
         paired: Whether runs were resampled jointly (row ``i`` of both columns is one paired run).
@@ -131,6 +132,10 @@ def _gap(
     with np.errstate(divide="ignore", invalid="ignore"):
         relative = absolute / abs(points[0]) if points[0] != 0 else math.nan
         rel_boots = np.where(boots[:, 0] != 0, abs_boots / np.abs(boots[:, 0]), np.nan)
+    if np.mean(boots[:, 0] == 0) > (1.0 - confidence) / 2.0:
+        # the reference is 0 in more resamples than the interval may cut off: the interval of the rest would be a
+        # conditional one (e.g. 16.9% [16.9%, 16.9%] from 4 episodes, 3 of them 0), so there is none
+        rel_boots = np.full_like(rel_boots, np.nan)
     return Gap(
         absolute=_estimate(absolute, abs_boots, confidence, n),
         relative=_estimate(relative, rel_boots, confidence, n),

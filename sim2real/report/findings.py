@@ -80,6 +80,12 @@ def gap_phrase(g: GapStats) -> str:
             f"{verb} {cell(size)} {where} (absolute; the relative gap is undefined: the {g.reference} "
             f"{g.statistic} return is 0; {pairing})"
         )
+    if not math.isfinite(rel.low):
+        verb = "loses" if rel.value > 0 else "gains" if rel.value < 0 else "keeps"
+        return (
+            f"{verb} {pct(abs(rel.value))} {where} (no interval for the relative gap: the {g.reference} "
+            f"{g.statistic} return is 0 in too many resamples; gap {cell(ab)}, {pairing})"
+        )
     if rel.value > 0:
         amount = f"loses {pct(rel.value)} [{pct(rel.low)}, {pct(rel.high)}]"
     elif rel.value < 0:

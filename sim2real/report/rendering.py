@@ -337,9 +337,7 @@ def document(report: GapReport) -> list[_Block]:
                     lab(g.reference),
                     lab(g.target),
                     _cell(g.absolute),
-                    _pct(g.relative)
-                    if math.isfinite(g.relative.value)
-                    else f"undefined: the {g.reference} return is 0",
+                    _relative_cell(g),
                     _reads(g),
                     "yes" if g.paired else "no",
                     f"{g.n_reference} / {g.n_target}",
@@ -654,6 +652,14 @@ def _pct1(value: float) -> str:
 
 def _gap_phrase(g: GapStats) -> str:
     return findings.gap_phrase(g)
+
+
+def _relative_cell(g: GapStats) -> str:
+    if not math.isfinite(g.relative.value):
+        return f"undefined: the {g.reference} return is 0"
+    if not math.isfinite(g.relative.low):
+        return f"{_pct1(g.relative.value)} (no interval: the {g.reference} return is 0 in too many resamples)"
+    return _pct(g.relative)
 
 
 def _reads(g: GapStats) -> str:
