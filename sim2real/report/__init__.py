@@ -24,7 +24,7 @@ The package's modules, by role: :mod:`~sim2real.report.results` (the frozen resu
 :mod:`~sim2real.report.statistics` (checking the arguments) and :mod:`~sim2real.report.computing` (computing the
 numbers), :mod:`~sim2real.report.findings` (the headline in sentences), :mod:`~sim2real.report.labels` (display
 names and units), :mod:`~sim2real.report.figures` (deterministic PNGs), :mod:`~sim2real.report.rendering` (summary,
-JSON, Markdown, HTML) with :mod:`~sim2real.report.markup`, :mod:`~sim2real.report.files` (writing a report
+Markdown, HTML) with :mod:`~sim2real.report.markup`, :mod:`~sim2real.report.serialize` (JSON), :mod:`~sim2real.report.files` (writing a report
 atomically) and :mod:`~sim2real.report.gap_report` (:class:`GapReport`, which ties them together).
 
 Example:
