@@ -54,7 +54,8 @@ def parse_set(text: str) -> Effect:
     return effect_for(*parse_assignment(text))
 
 
-def _limits(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
+def control_limits(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
+    """(low, high) of every actuator's control: its ``ctrlrange`` where limited, else [-1, 1]."""
     low = np.where(model.actuator_ctrllimited.astype(bool), model.actuator_ctrlrange[:, 0], -1.0)
     high = np.where(model.actuator_ctrllimited.astype(bool), model.actuator_ctrlrange[:, 1], 1.0)
     return low, high
@@ -175,7 +176,7 @@ def record(
     excitation_meta: dict[str, Any] = {"policy": policy, "amplitude": float(amplitude), "gravity_comp": gravity_comp}
     try:
         if chosen == "current":
-            excitation = sysid.make_excitation(policy, _limits(model), amplitude=amplitude, seed=seed)
+            excitation = sysid.make_excitation(policy, control_limits(model), amplitude=amplitude, seed=seed)
             ctrl = np.stack([excitation.signal(steps, dt, t0=e * steps * dt) for e in range(episodes)])
             excitation_meta.update(home="current", notes=[])
         else:

@@ -90,7 +90,7 @@ def record_condition(
     import gymnasium as gym
 
     import sysid
-    from sim2real.recording import RecordTrajectory
+    from sim2real.recording import RecordTrajectory, control_limits
 
     for name, value, minimum in (("episodes", episodes, 1), ("steps", steps, 2)):
         if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
@@ -100,8 +100,7 @@ def record_condition(
     recorder = RecordTrajectory(env, task=task)
     try:
         model = recorder.handle.model
-        low = np.where(model.actuator_ctrllimited.astype(bool), model.actuator_ctrlrange[:, 0], -1.0)
-        high = np.where(model.actuator_ctrllimited.astype(bool), model.actuator_ctrlrange[:, 1], 1.0)
+        low, high = control_limits(model)
         space = recorder.action_space
         if not (
             isinstance(space, gym.spaces.Box)

@@ -100,23 +100,11 @@ class StudyProfile:
         nominal sim, the randomised sim, ``simulators`` (e.g. ``{"calibrated": path}``), the twin, the sweeps
         (thinned to ``budget.sweep_points``) and the grid (``budget.grid_points`` per axis)."""
         from randomizers import dump_config
-        from sim2real.conditions import axis_values
 
-        sweeps = []
-        for item in self.sweeps:
-            spec = dict(item)
-            spec["values"] = _thin(axis_values(spec), _nominal(spec), budget.sweep_points)
-            spec.pop("low", None), spec.pop("high", None), spec.pop("num", None)
-            sweeps.append(spec)
+        sweeps = [_thinned(item, budget.sweep_points) for item in self.sweeps]
         grids = []
         if self.grid is not None:
-            axes = {}
-            for key in ("x", "y"):
-                spec = dict(self.grid[key])
-                spec["values"] = _thin(axis_values(spec), _nominal(spec), budget.grid_points)
-                spec.pop("low", None), spec.pop("high", None), spec.pop("num", None)
-                axes[key] = spec
-            grids.append(axes)
+            grids.append({key: _thinned(self.grid[key], budget.grid_points) for key in ("x", "y")})
         config: dict[str, Any] = {
             "task": self.task,
             "seed": seed,
@@ -133,6 +121,15 @@ class StudyProfile:
         if simulators:
             config["simulators"] = dict(simulators)
         return config
+
+
+def _thinned(item: Mapping[str, Any], keep: int | None) -> dict[str, Any]:
+    """A sweep or grid axis with its grid as explicit ``values``, at most ``keep`` of them (see :func:`_thin`)."""
+    from sim2real.conditions import axis_values
+
+    spec = {k: v for k, v in item.items() if k not in ("low", "high", "num")}
+    spec["values"] = _thin(axis_values(item), _nominal(item), keep)
+    return spec
 
 
 def _nominal(spec: Mapping[str, Any]) -> float:
