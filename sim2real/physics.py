@@ -278,6 +278,34 @@ def _attribute(obj: Any, name: str) -> Any:
         return None
 
 
+def _holds(obj: Any, model: mujoco.MjModel) -> bool:
+    """Whether ``obj`` keeps ``model`` itself (an instance attribute or a property of its class), not through a
+    ``__getattr__`` that forwards to an env it wraps."""
+    if "model" in getattr(obj, "__dict__", {}):
+        return obj.__dict__["model"] is model
+    return isinstance(getattr(type(obj), "model", None), property) and _attribute(obj, "model") is model
+
+
+def _holder(obj: Any, model: mujoco.MjModel) -> Any:
+    """The object that owns ``model`` below ``obj``: the env whose ``frame_skip`` is the control period's and whose
+    stepping method :meth:`PhysicsHandle.intercept_step` patches. A TorchRL ``GymWrapper`` forwards ``model`` and
+    ``data`` to the env it wraps but answers ``frame_skip`` (its own action repeat, 1 by default) itself."""
+    queue = [obj]
+    seen: set[int] = set()
+    while queue:
+        current = queue.pop(0)
+        if current is None or id(current) in seen:
+            continue
+        seen.add(id(current))
+        if _holds(current, model):
+            return current
+        for name in _CHILD_ATTRIBUTES:
+            child = _attribute(current, name)
+            if child is not None and child is not current:
+                queue.append(child)
+    return obj
+
+
 def find_physics(env: Any) -> PhysicsHandle | None:
     """The MuJoCo model and data inside ``env``, or None when there is none.
 
@@ -298,7 +326,7 @@ def find_physics(env: Any) -> PhysicsHandle | None:
         model = _attribute(obj, "model")
         data = _attribute(obj, "data")
         if isinstance(model, mujoco.MjModel) and isinstance(data, mujoco.MjData):
-            return PhysicsHandle(model, data, "gymnasium", obj)
+            return PhysicsHandle(model, data, "gymnasium", _holder(obj, model))
         for name in _CHILD_ATTRIBUTES:
             child = _attribute(obj, name)
             if child is not None and child is not obj:

@@ -230,12 +230,7 @@ def open_source(source: Source) -> tuple[Any, Any]:
     from sim2real.physics import find_physics
 
     obj = source._build({})
-    handle = find_physics(obj)
-    inner = getattr(obj, "_env", None)
-    if handle is not None and handle.owner is obj and inner is not None and not isinstance(obj, gym.Env):
-        # A TorchRL wrapper forwards `model`/`data` to the env it wraps but answers `frame_skip` (its own action
-        # repeat, 1 by default) itself: ask the wrapped env, whose substeps are the control period's.
-        handle = find_physics(inner) or handle
+    handle = find_physics(obj)  # owner: the env that holds the model, under any TorchRL wrapper
     if handle is None:
         close_quietly(obj)
         raise SourceError(
