@@ -129,8 +129,12 @@ def _run_job(job: _Job) -> list[_JobResult]:
     """Runs ``job.count`` episodes of every policy on each of the job's conditions, all envs stepped together."""
     from sim2real.agents.policy import as_policy
 
+    from sim2real.tasks import headless_options
+
     n = job.count
-    base = [job.conditions[0].base_env(job.task, **job.options) for _ in range(n)]
+    # Nothing here renders: build headless where the physics is the same (reacher's skybox was most of a build).
+    options = headless_options(job.task, job.options, [cond.effects for cond in job.conditions])
+    base = [job.conditions[0].base_env(job.task, **options) for _ in range(n)]
     seeds = [episode_seed(job.seed, job.first + i) for i in range(n)]
     policies = [(name, as_policy(source, task=job.task)) for name, source in job.policies]
     meter = None if job.safety is None else job.safety.meter(_physics(base[0]).model, n)

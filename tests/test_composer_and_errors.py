@@ -226,7 +226,7 @@ def test_add_that_would_go_negative_is_rejected_at_wrap() -> None:
         (
             lambda: s2r.make("dmc/reacher-easy", colour="red"),
             TypeError,
-            "`options` for 'dmc/reacher-easy' must be among ['flatten', 'render_mode', 'width', 'height', 'camera', 'time_limit']. Received unknown ['colour'].",
+            "`options` for 'dmc/reacher-easy' must be among ['flatten', 'render_mode', 'width', 'height', 'camera', 'time_limit', 'textures']. Received unknown ['colour'].",
         ),
         (
             lambda: s2r.make("gym/NoSuchEnv-v0"),

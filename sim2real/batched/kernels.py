@@ -83,7 +83,7 @@ class ReacherKernel(Kernel):
     reset (the task writes the target's size in its ``initialize_episode``).
     """
 
-    options = ("time_limit",)
+    options = ("time_limit", "textures")
     obs_dim = 6
     fields = ("geom_xpos",)
 
@@ -112,7 +112,7 @@ class ArmReachKernel(Kernel):
     over 10 substeps then ``mj_forward``; observation ``[ee, target, qpos, qvel]``, reward ``-|ee - target|``,
     terminated (and ``is_success``) when the distance is below the success threshold."""
 
-    options = ("max_episode_steps", "success_threshold")
+    options = ("max_episode_steps", "success_threshold", "textures")
     obs_dim = 16
     fields = ("site_xpos",)
     scheme = "forward"
@@ -165,7 +165,7 @@ class ManipulatorKernel(Kernel):
     dm-control's own ``rewards.tolerance`` on ``(N,)`` arrays; never terminates. Names are resolved once, so no
     step goes through dm-control's named indexer."""
 
-    options = ("time_limit",)
+    options = ("time_limit", "textures")
     obs_dim = 44
     fields = ("xpos", "xquat", "site_xpos", "sensordata")
 

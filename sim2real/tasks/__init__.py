@@ -16,28 +16,27 @@ Received 'dmc/reacher-eazy'. Close matches: 'dmc/reacher-easy', 'dmc/reacher-har
 from __future__ import annotations
 
 import difflib
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Any
 
 import gymnasium as gym
 
-if TYPE_CHECKING:
-    import numpy as np
-
-__all__ = ["TASKS", "Task", "make", "task_ids"]
+__all__ = ["TASKS", "Task", "headless_options", "make", "task_ids"]
 
 
 @dataclass(frozen=True)
 class Task:
-    """A registered task: id, one-line description and the factory behind it."""
+    """A registered task: id, one-line description, the factory behind it and whether it takes ``textures``."""
 
     id: str
     description: str
     factory: Callable[..., gym.Env]
+    headless: bool = False
 
 
-_DM_OPTIONS = ("flatten", "render_mode", "width", "height", "camera", "time_limit")
+_DM_OPTIONS = ("flatten", "render_mode", "width", "height", "camera", "time_limit", "textures")
+_COMPOSER_OPTIONS = ("flatten", "render_mode", "width", "height", "camera")
 
 
 def _check_options(task_id: str, options: dict[str, Any], allowed: tuple[str, ...]) -> None:
@@ -56,113 +55,16 @@ def _split(options: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
     return adapter, env_kwargs
 
 
-#: Pristine suite environments, one per (domain, task, time limit), that new instances are copied from.
-_SUITE_TEMPLATES: dict[tuple[str, str, Any], Any] = {}
-
-
-def _suite_env(domain: str, task: str, env_kwargs: dict[str, Any]) -> Any:
-    """A new suite environment. The first one of a kind is loaded from XML and kept as a template; later
-    ones copy its compiled model (about 10x faster than compiling: reacher's procedural skybox alone costs
-    a quarter of a second) and deep-copy its task, with fresh entropy in the task's ``RandomState``.
-    The copies step bitwise like ``suite.load`` (tested)."""
-    import copy
-
-    import numpy as np
-    from dm_control import suite
-    from dm_control.rl import control
-
-    key = (domain, task, env_kwargs.get("time_limit"))
-    template = _SUITE_TEMPLATES.get(key)
-    if template is None:
-        template = _SUITE_TEMPLATES[key] = suite.load(domain, task, task_kwargs=env_kwargs or None)
-    physics = template.physics.copy(share_model=False)
-    if domain == "reacher":
-        physics.__class__ = _fast_reacher_physics()  # same state, cached geom ids (bitwise-identical values)
-    new_task = copy.deepcopy(template.task)
-    if domain == "reacher":
-        new_task.__class__ = _fast_reacher_task()
-    new_task._random = np.random.RandomState()
-    return control.Environment(
-        physics,
-        new_task,
-        time_limit=template._step_limit * template.control_timestep(),
-        n_sub_steps=template._n_sub_steps,
-        flat_observation=template._flat_observation,
-    )
-
-
-class _FastReacherPhysics(Protocol):
-    """What FastReacher's reward reads from the physics class :func:`_fast_reacher_physics` builds."""
-
-    model: Any
-
-    def _geom_ids(self) -> tuple[int, int]: ...
-
-    def finger_to_target_dist(self) -> np.floating[Any]: ...
-
-
-# Built on first use (dm-control imports lazily); one class each, so instances share it.
-_FAST_REACHER_PHYSICS: list[type[_FastReacherPhysics]] = []
-_FAST_REACHER_TASK: list[type] = []
-
-
-def _fast_reacher_physics() -> type[_FastReacherPhysics]:
-    """dm-control's reacher Physics with ``finger_to_target`` reading the geoms by cached index instead of by
-    name: the named indexer parses its key on every call, and reward plus observation call it twice per step
-    (a quarter of the step's time). The values are the same arrays, bitwise (tested)."""
-    if not _FAST_REACHER_PHYSICS:
-        import numpy as np
-        from dm_control.suite import reacher
-
-        class FastReacherPhysics(reacher.Physics):
-            def _geom_ids(self) -> tuple[int, int]:
-                ids = self.__dict__.get("_sim2real_geom_ids")
-                if ids is None:
-                    ids = (self.model.name2id("target", "geom"), self.model.name2id("finger", "geom"))
-                    self.__dict__["_sim2real_geom_ids"] = ids
-                return ids
-
-            def finger_to_target(self) -> np.ndarray:
-                target, finger = self._geom_ids()
-                xpos = self.data.geom_xpos
-                return xpos[target, :2] - xpos[finger, :2]
-
-            def finger_to_target_dist(self) -> np.floating[Any]:
-                return np.linalg.norm(self.finger_to_target())
-
-        _FAST_REACHER_PHYSICS.append(FastReacherPhysics)
-    return _FAST_REACHER_PHYSICS[0]
-
-
-def _fast_reacher_task() -> type:
-    """dm-control's Reacher task with the reward's radii read by cached geom index (the named indexer parses
-    ``['target', 'finger']`` every step); the same sum of the same two floats, so the reward is bitwise equal."""
-    if not _FAST_REACHER_TASK:
-        from dm_control.suite import reacher
-        from dm_control.utils import rewards
-
-        physics_cls = _fast_reacher_physics()
-
-        class FastReacher(reacher.Reacher):
-            def get_reward(self, physics: Any) -> float:
-                if not isinstance(physics, physics_cls):
-                    return super().get_reward(physics)
-                target, finger = physics._geom_ids()
-                size = physics.model.geom_size
-                radii = size[target, 0] + size[finger, 0]
-                return rewards.tolerance(physics.finger_to_target_dist(), (0, radii))
-
-        _FAST_REACHER_TASK.append(FastReacher)
-    return _FAST_REACHER_TASK[0]
-
-
 def _suite(domain: str, task: str) -> Callable[..., gym.Env]:
     def factory(task_id: str, **options: Any) -> gym.Env:
         from sim2real.adapters import DmEnvToGym
+        from sim2real.tasks.models import check_textures
+        from sim2real.tasks.suite import suite_env
 
         _check_options(task_id, options, _DM_OPTIONS)
+        textures = check_textures(options.pop("textures", True), options.get("render_mode"))
         adapter, env_kwargs = _split(options)
-        return DmEnvToGym(_suite_env(domain, task, env_kwargs), **adapter)
+        return DmEnvToGym(suite_env(domain, task, env_kwargs.get("time_limit"), textures=textures), **adapter)
 
     return factory
 
@@ -173,7 +75,7 @@ def _composer(name: str) -> Callable[..., gym.Env]:
 
         from sim2real.adapters import DmEnvToGym
 
-        _check_options(task_id, options, _DM_OPTIONS[:-1])
+        _check_options(task_id, options, _COMPOSER_OPTIONS)
         adapter, _ = _split(options)
         return DmEnvToGym(manipulation.load(name), **adapter)
 
@@ -183,7 +85,9 @@ def _composer(name: str) -> Callable[..., gym.Env]:
 def _arm_reach(task_id: str, **options: Any) -> gym.Env:
     from sim2real.tasks.arm_reach import ArmReachEnv
 
-    _check_options(task_id, options, ("render_mode", "width", "height", "max_episode_steps", "success_threshold"))
+    _check_options(
+        task_id, options, ("render_mode", "width", "height", "max_episode_steps", "success_threshold", "textures")
+    )
     return ArmReachEnv(**options)
 
 
@@ -199,30 +103,40 @@ TASKS: dict[str, Task] = {
     t.id: t
     for t in (
         Task(
-            "dmc/reacher-easy", "dm-control suite: 2-link planar arm reaches a large target.", _suite("reacher", "easy")
+            "dmc/reacher-easy",
+            "dm-control suite: 2-link planar arm reaches a large target.",
+            _suite("reacher", "easy"),
+            True,
         ),
         Task(
-            "dmc/reacher-hard", "dm-control suite: 2-link planar arm reaches a small target.", _suite("reacher", "hard")
+            "dmc/reacher-hard",
+            "dm-control suite: 2-link planar arm reaches a small target.",
+            _suite("reacher", "hard"),
+            True,
         ),
         Task(
             "dmc/manipulator-bring_ball",
             "dm-control suite: planar manipulator brings a ball to a target.",
             _suite("manipulator", "bring_ball"),
+            True,
         ),
         Task(
             "dmc/manipulator-bring_peg",
             "dm-control suite: planar manipulator brings a peg to a target pose.",
             _suite("manipulator", "bring_peg"),
+            True,
         ),
         Task(
             "dmc/manipulator-insert_ball",
             "dm-control suite: planar manipulator drops a ball into a basket.",
             _suite("manipulator", "insert_ball"),
+            True,
         ),
         Task(
             "dmc/manipulator-insert_peg",
             "dm-control suite: planar manipulator inserts a peg into a slot.",
             _suite("manipulator", "insert_peg"),
+            True,
         ),
         Task(
             "dmc/jaco-reach_site",
@@ -238,6 +152,7 @@ TASKS: dict[str, Task] = {
             "sim2real/arm-reach",
             "sim2real: 5-joint arm, end-effector delta-xyz actions through damped-least-squares IK.",
             _arm_reach,
+            True,
         ),
         Task("gym/Reacher-v5", "gymnasium MuJoCo: 2-link planar reacher (any other gym/<id> works too).", _gym),
         Task("gym/Pusher-v5", "gymnasium MuJoCo: 7-DoF arm pushes an object to a goal.", _gym),
@@ -248,6 +163,36 @@ TASKS: dict[str, Task] = {
 def task_ids() -> list[str]:
     """Every registered task id (``gym/<id>`` accepts any gymnasium id besides those listed)."""
     return list(TASKS)
+
+
+def headless_options(task_id: str, options: Mapping[str, Any], effects: Iterable[Any] = ()) -> dict[str, Any]:
+    """``options`` with ``textures=False`` added where that builds the same physics faster: the task can be built
+    headless, ``options`` neither render nor choose ``textures`` themselves, and no effect among ``effects``
+    (lists and ADR controllers included) edits textures. For envs that are never rendered (evaluation).
+
+    Example:
+        >>> headless_options("dmc/reacher-easy", {"time_limit": 2.0})
+        {'time_limit': 2.0, 'textures': False}
+        >>> headless_options("gym/Reacher-v5", {})
+        {}
+    """
+    from randomizers import ADR, Texture
+
+    out = dict(options)
+    task = TASKS.get(task_id)
+    if task is None or not task.headless or {"textures", "render_mode", "pixels"} & set(out):
+        return out
+    stack = list(effects)
+    while stack:
+        item = stack.pop()
+        if isinstance(item, (list, tuple)):
+            stack.extend(item)
+        elif isinstance(item, ADR):
+            stack.extend(item.effects)
+        elif isinstance(item, Texture):
+            return out
+    out["textures"] = False
+    return out
 
 
 def make(task_id: str, *, pixels: bool = False, params: Any = None, **options: Any) -> gym.Env:
@@ -262,9 +207,13 @@ def make(task_id: str, *, pixels: bool = False, params: Any = None, **options: A
         params: a calibration: a :class:`sysid.FitResult` or ``{address: value}``, written into the model
             (it becomes the nominal model that later randomisation is relative to).
         **options: for ``dmc/*``: ``flatten`` (default True), ``render_mode``, ``width``, ``height``,
-            ``camera`` and (suite only) ``time_limit`` in seconds; for ``gym/*``: anything
+            ``camera`` and (suite only) ``time_limit`` in seconds and ``textures``; for ``gym/*``: anything
             ``gymnasium.make`` takes; for ``sim2real/arm-reach``: the
-            :class:`~sim2real.tasks.arm_reach.ArmReachEnv` arguments.
+            :class:`~sim2real.tasks.arm_reach.ArmReachEnv` arguments. ``textures=False`` (``dmc/reacher-*``,
+            ``dmc/manipulator-*``, ``sim2real/arm-reach``) builds a headless env for one that is never
+            rendered: the model is compiled without textures, the physics is bitwise the same, and building
+            it is several times faster (:mod:`sim2real.tasks.models`). Every env owns its model copy (each
+            task's model is compiled once per process).
 
     Raises:
         ValueError: unknown task id (close matches listed).
@@ -279,6 +228,8 @@ def make(task_id: str, *, pixels: bool = False, params: Any = None, **options: A
 
     if not isinstance(pixels, bool):
         raise TypeError(f"`pixels` must be a bool. Received {pixels!r}.")
+    if pixels and options.get("textures", True) is not True:
+        raise ValueError(f"`textures` must be True with pixels=True. Received {options['textures']!r}.")
     if not pixels:
         if "size" in options or "pixels_only" in options:
             raise TypeError(f"`size` and `pixels_only` apply with pixels=True only. Received {sorted(options)}.")

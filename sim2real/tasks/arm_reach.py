@@ -148,6 +148,8 @@ class ArmReachEnv(gym.Env[np.ndarray, np.ndarray]):
         height: Height in pixels of rendered frames.
         max_episode_steps: Number of steps after which an episode is truncated.
         success_threshold: Distance in metres below which the target counts as reached.
+        textures: False builds the env headless (no textures; it cannot render, the physics is bitwise the
+            same). The model is compiled once per process either way; each env owns its copy.
 
     Raises:
         ValueError: If an argument is outside its allowed values.
@@ -196,9 +198,13 @@ class ArmReachEnv(gym.Env[np.ndarray, np.ndarray]):
         height: int = 480,
         max_episode_steps: int = 200,
         success_threshold: float = 0.05,
+        textures: bool = True,
     ) -> None:
+        from sim2real.tasks.models import check_textures, compiled_model
+
         if render_mode not in _RENDER_MODES:
             raise ValueError(f"`render_mode` must be one of {list(_RENDER_MODES)}. Received {render_mode!r}.")
+        check_textures(textures, render_mode)
         _check_positive_int("width", width)
         _check_positive_int("height", height)
         _check_positive_int("max_episode_steps", max_episode_steps)
@@ -216,7 +222,7 @@ class ArmReachEnv(gym.Env[np.ndarray, np.ndarray]):
         self.max_episode_steps = int(max_episode_steps)
         self.success_threshold = float(success_threshold)
 
-        self.model = mujoco.MjModel.from_xml_string(ARM_REACH_XML)
+        self.model = compiled_model(ARM_REACH_XML, textures=textures)
         # The offscreen framebuffer bounds the renderer, so grow it to the requested size
         # instead of rejecting large frames.
         self.model.vis.global_.offwidth = max(self.model.vis.global_.offwidth, self.width)
