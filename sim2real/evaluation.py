@@ -128,7 +128,6 @@ def _release(env: Any, base: Any) -> None:
 def _run_job(job: _Job) -> list[_JobResult]:
     """Runs ``job.count`` episodes of every policy on each of the job's conditions, all envs stepped together."""
     from sim2real.agents.policy import as_policy
-
     from sim2real.tasks import headless_options
 
     n = job.count
