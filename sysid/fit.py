@@ -53,6 +53,7 @@ from noise_models.timing import convert_time
 from sysid._problem import Problem, make_segments
 from sysid._solver import COST_ATOL, Progress, State, fd_steps, lm
 from sysid.covariance import combine, hac_covariance, identifiability
+from sysid.events import contact_rows, split_ranges
 from sysid.logs import LogError, TrajectoryLog, load_log, validate_log
 from sysid.params import ModelPool, ParameterSpace
 from sysid.quality import INFORMATIVE_SHARE, assess, pooled_ljung_box
@@ -198,6 +199,7 @@ def fit(
     substep_latency: bool = True,
     signals: Sequence[str] | None = None,
     horizon: int | Literal["auto"] | None = "auto",
+    contacts: Literal["cut", "keep"] = "cut",
     anchor: Literal["auto", "fit", "logged"] = "auto",
     noise_std: Mapping[str, float] | None = None,
     validation: float = 0.2,
@@ -228,6 +230,10 @@ def fit(
             number of steps the model (after the global stage) stays within a few noise levels of the log when
             simulated open loop from logged states (:func:`sysid.shooting.divergence_horizon`), whole episodes
             when it never drifts away; None: whole episodes.
+        contacts: ``"cut"`` (default) leaves out the rows where a contact touches a body the parameters move
+            (a hand hitting the floor or an object; :mod:`sysid.events`), so no shooting segment crosses a
+            contact event; contacts elsewhere, or when a parameter acts only through contacts, are kept.
+            ``"keep"`` fits every row.
         anchor: ``"fit"`` estimates each segment's initial state, ``"logged"`` starts from the logged state,
             ``"auto"`` fits them when there are at most 1200 such unknowns.
         noise_std: known noise sigma per channel name (others are estimated).
@@ -283,6 +289,7 @@ def fit(
             or (isinstance(horizon, int) and not isinstance(horizon, bool) and horizon >= 1),
         ),
         ("anchor", anchor, anchor in ("auto", "fit", "logged")),
+        ("contacts", contacts, contacts in ("cut", "keep")),
         ("n_starts", n_starts, isinstance(n_starts, int) and n_starts >= 0),
         ("max_iter", max_iter, isinstance(max_iter, int) and max_iter >= 0),
         ("fd_step", fd_step, isinstance(fd_step, float) and 0 < fd_step < 0.1),
@@ -292,6 +299,7 @@ def fit(
                 "validation": "a number in [0, 1)",
                 "horizon": "'auto', None or an int >= 1",
                 "anchor": "'auto', 'fit' or 'logged'",
+                "contacts": "'cut' or 'keep'",
                 "n_starts": "an int >= 0",
                 "max_iter": "an int >= 0",
                 "fd_step": "a float in (0, 0.1)",
@@ -318,6 +326,15 @@ def fit(
     if not fit_ranges:
         raise LogError("the log has no rows left to fit after the validation split. Received too short a log.")
     pool = ModelPool(model, space)
+    contact_count = 0
+    if contacts == "cut":
+        flagged = contact_rows(log, model, space, pool, theta0)
+        cut_fit, cut_val = split_ranges(fit_ranges, flagged), split_ranges(val_ranges, flagged)
+        if cut_fit != fit_ranges:
+            fit_ranges = cut_fit
+            contact_count = int(flagged.sum())
+        if cut_val != val_ranges and cut_val:
+            val_ranges = cut_val
     nx = model.nq + model.nv
     auto_horizon = horizon == "auto"
     fixed_horizon: int | None = None if isinstance(horizon, str) else horizon
@@ -563,6 +580,7 @@ def fit(
         0 if fixed_horizon is None else int(fixed_horizon),
         seg_final.count,
         informative,
+        contact_count,
     )
     all_rows = np.unique(np.concatenate(rows))
     index = {int(r_): k for k, r_ in enumerate(all_rows)}

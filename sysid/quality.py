@@ -88,6 +88,8 @@ class FitQuality:
         informative_channels: channels carrying at least :data:`INFORMATIVE_SHARE` of some parameter's
             information; only their whiteness counts (a free ball bouncing beside an arm says nothing about the
             arm's damping). Empty: every channel counts.
+        contact_rows: log rows left out of the fit because a contact touched a body the parameters move
+            (``fit(contacts="cut")``; 0 when none were).
         reasons: one sentence per failed check; empty when the fit is ok.
     """
 
@@ -101,6 +103,7 @@ class FitQuality:
     horizon: int = 0
     segments: int = 0
     informative_channels: tuple[str, ...] = ()
+    contact_rows: int = 0
     reasons: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
@@ -108,7 +111,7 @@ class FitQuality:
             object.__setattr__(self, name, _floats(getattr(self, name)))
         for name in ("condition_number", "validation_ratio"):
             object.__setattr__(self, name, float(getattr(self, name)))
-        for name in ("horizon", "segments"):
+        for name in ("horizon", "segments", "contact_rows"):
             object.__setattr__(self, name, int(getattr(self, name)))
         object.__setattr__(self, "identifiable", bool(self.identifiable))
         object.__setattr__(self, "at_bounds", tuple(str(a) for a in self.at_bounds))
@@ -154,6 +157,7 @@ class FitQuality:
             "horizon": self.horizon,
             "segments": self.segments,
             "informative_channels": list(self.informative_channels),
+            "contact_rows": self.contact_rows,
             "reasons": list(self.reasons),
         }
 
@@ -175,6 +179,7 @@ class FitQuality:
             horizon=int(data.get("horizon", 0)),
             segments=int(data.get("segments", 0)),
             informative_channels=tuple(data.get("informative_channels", ())),
+            contact_rows=int(data.get("contact_rows", 0)),
             reasons=tuple(data.get("reasons", ())),
         )
 
@@ -247,6 +252,7 @@ def assess(
     horizon: int,
     segments: int,
     informative_channels: tuple[str, ...] = (),
+    contact_rows: int = 0,
 ) -> FitQuality:
     """Runs every check and returns the :class:`FitQuality` with a reason per failure.
 
@@ -313,5 +319,6 @@ def assess(
         horizon=horizon,
         segments=segments,
         informative_channels=informative_channels,
+        contact_rows=contact_rows,
         reasons=tuple(reasons),
     )

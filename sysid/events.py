@@ -1,0 +1,157 @@
+"""Contact events in a log: rows the fit leaves out (internal to :func:`sysid.fit`).
+
+A contact that touches the part of the robot the parameters move (a finger brushing the floor, the hand hitting a
+ball) makes the open-loop prediction hinge on when and how hard the contact happens. Its sensitivity to the
+parameters is then mostly contact timing: the linearisation behind the standard errors fails there, and on
+``dmc/manipulator-bring_ball`` the few fits whose multisine drove the hand into the floor or the ball landed up to
+16 Cramér–Rao SDs off with intervals a third of the right width. :func:`contact_rows` finds, from the logged
+states, the rows where such a contact is active; :func:`split_ranges` cuts the fitted row ranges around them, so
+no shooting segment crosses a contact event and the rows in contact do not enter the residual.
+
+Contacts between parts the parameters do not move (a ball rolling on the floor beside an arm whose dampings are
+fitted) are kept: they carry no information on the parameters and cannot bias them. When some parameter acts only
+through contacts (a friction coefficient, contact softness), every contact row is information and nothing is cut.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from sysid.logs import TrajectoryLog
+from sysid.params import ModelPool, ParameterSpace
+
+__all__ = ["CONTACT_MARGIN_ROWS", "MIN_KEPT_SHARE", "MIN_RANGE_ROWS", "contact_rows", "split_ranges"]
+
+#: Rows on either side of a row with a contact that are also left out: a contact can begin or end between two
+#: logged rows, and a noisy logged state can miss it by a row.
+CONTACT_MARGIN_ROWS = 2
+#: Shortest piece of log kept between two contact events (rows).
+MIN_RANGE_ROWS = 6
+#: Share of the fitted rows that must remain after cutting out contact events; below it the contacts are kept
+#: (a walking robot is in contact all the time).
+MIN_KEPT_SHARE = 0.5
+_SAMPLE_ROWS = 40
+_REL_STEP = 1e-3
+
+
+def _contact_pairs(model: mujoco.MjModel, data: mujoco.MjData) -> list[tuple[int, int]]:
+    """Kinematic trees of the two bodies of each active contact (-1 for the world)."""
+    trees = model.body_treeid
+    bodies = model.geom_bodyid
+    return [
+        (int(trees[bodies[data.contact[i].geom1]]), int(trees[bodies[data.contact[i].geom2]])) for i in range(data.ncon)
+    ]
+
+
+def _set_row(log: TrajectoryLog, model: mujoco.MjModel, data: mujoco.MjData, row: int) -> None:
+    data.qpos[:] = log.qpos[row]
+    data.qvel[:] = log.qvel[row]
+    data.ctrl[:] = log.ctrl[row]
+    if model.na and log.act is not None:
+        data.act[:] = log.act[row]
+
+
+def _moved_trees(
+    log: TrajectoryLog,
+    model: mujoco.MjModel,
+    space: ParameterSpace,
+    pool: ModelPool,
+    theta: np.ndarray,
+    rows: np.ndarray,
+) -> set[int] | None:
+    """Trees whose accelerations change with some parameter at contact-free ``rows``; None when some parameter
+    changes nothing there (it acts through contacts, or the rows do not excite it)."""
+    steps = _REL_STEP * np.maximum(np.abs(theta), 1e-3 * (space.upper - space.lower))
+    table = np.vstack([theta, theta + np.diag(steps)])
+    models = pool.models_for(table)
+    datas = [mujoco.MjData(m) for m in models]
+    moved = np.zeros((space.size, model.nv), dtype=bool)
+    for row in rows:
+        acc = []
+        for m, d in zip(models, datas, strict=True):
+            _set_row(log, m, d, int(row))
+            mujoco.mj_forward(m, d)
+            acc.append(d.qacc.copy())
+        base = acc[0]
+        for p in range(space.size):
+            moved[p] |= np.abs(acc[p + 1] - base) > 1e-9 * (1.0 + np.abs(base))
+    if not moved.any(axis=1).all():
+        return None
+    return {int(t) for t in model.dof_treeid[moved.any(axis=0)]}
+
+
+def contact_rows(
+    log: TrajectoryLog,
+    model: mujoco.MjModel,
+    space: ParameterSpace,
+    pool: ModelPool,
+    theta: np.ndarray,
+) -> np.ndarray:
+    """(T,) bool: rows with a contact on a kinematic tree the parameters move (dilated by
+    :data:`CONTACT_MARGIN_ROWS`); all False when the parameters act through contacts or there are none.
+
+    Args:
+        log: the trajectory log.
+        model: the model being fitted (not modified).
+        space: the fitted parameters.
+        pool: model copies for ``space`` (written here).
+        theta: parameter values at which the trees are found.
+    """
+    rows = log.qpos.shape[0]
+    data = mujoco.MjData(model)
+    pairs: list[list[tuple[int, int]]] = []
+    for row in range(rows):
+        data.qpos[:] = log.qpos[row]
+        mujoco.mj_fwdPosition(model, data)
+        pairs.append(_contact_pairs(model, data))
+    flagged = np.zeros(rows, dtype=bool)
+    if not any(pairs) or space.size == 0:
+        return flagged
+    # Rows where no contact couples two bodies that move: the parameters' reach is read there without a contact
+    # spreading it from one tree to another.
+    free = np.array([all(a == -1 or b == -1 or a == b for a, b in p) for p in pairs])
+    candidates = np.flatnonzero(free)
+    if candidates.size == 0:
+        return flagged
+    sample = candidates[np.linspace(0, candidates.size - 1, min(_SAMPLE_ROWS, candidates.size)).round().astype(int)]
+    trees = _moved_trees(log, model, space, pool, theta, np.unique(sample))
+    if trees is None:
+        return flagged
+    for row, p in enumerate(pairs):
+        if any(a in trees or b in trees for a, b in p):
+            flagged[row] = True
+    if flagged.any() and CONTACT_MARGIN_ROWS:
+        kernel = np.ones(2 * CONTACT_MARGIN_ROWS + 1)
+        flagged = np.convolve(flagged.astype(float), kernel, mode="same") > 0
+    return flagged
+
+
+def split_ranges(ranges: list[tuple[int, int, int, int]], flagged: np.ndarray) -> list[tuple[int, int, int, int]]:
+    """Cuts row ranges ``(first, stop, episode_start, episode_stop)`` around ``flagged`` rows.
+
+    Pieces shorter than :data:`MIN_RANGE_ROWS` are dropped; each piece keeps its episode's bounds (the commands
+    before it are still the episode's). Returns ``ranges`` unchanged when nothing is flagged inside them or when
+    fewer than :data:`MIN_KEPT_SHARE` of their rows would remain.
+
+    Example:
+        >>> flagged = np.zeros(40, dtype=bool)
+        >>> flagged[15:20] = True
+        >>> split_ranges([(2, 40, 0, 40)], flagged)
+        [(2, 15, 0, 40), (20, 40, 0, 40)]
+        >>> split_ranges([(2, 40, 0, 40)], np.ones(40, dtype=bool))
+        [(2, 40, 0, 40)]
+    """
+    out: list[tuple[int, int, int, int]] = []
+    total = kept = 0
+    for first, stop, e0, e1 in ranges:
+        total += stop - first
+        keep = ~flagged[first:stop]
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], keep.astype(np.int8), [0]])))
+        for lo, hi in zip(edges[::2], edges[1::2], strict=True):
+            if hi - lo >= MIN_RANGE_ROWS:
+                out.append((first + int(lo), first + int(hi), e0, e1))
+                kept += int(hi - lo)
+    if kept == total or kept < MIN_KEPT_SHARE * total:
+        return list(ranges)
+    return out
