@@ -58,6 +58,7 @@ __all__ = [
     "SafetyTable",
     "SafetyViolation",
     "load_limits",
+    "physics_substeps",
 ]
 
 #: Unit of each quantity, as the report prints it.
@@ -236,6 +237,24 @@ def load_limits(source: str | os.PathLike[str] | Mapping[str, Any]) -> SafetyLim
 # ------------------------------------------------------------------------------------------------ aggregation
 
 
+def physics_substeps(env: Any) -> int | None:
+    """Physics steps per control step of ``env`` (its ``control_timestep`` over the model's ``opt.timestep``),
+    or None when either is unknown: how many physics steps a once-per-control-step safety sample covers.
+
+    Example:
+        >>> import sim2real
+        >>> physics_substeps(sim2real.make("dmc/reacher-easy"))
+        1
+    """
+    from sim2real.physics import find_physics
+
+    handle = find_physics(env)
+    control = getattr(getattr(env, "unwrapped", env), "control_timestep", None)
+    if handle is None or not isinstance(control, (int, float)) or not control > 0:
+        return None
+    return max(1, round(float(control) / float(handle.model.opt.timestep)))
+
+
 def cvar_upper(values: np.ndarray, alpha: float) -> float:
     """Mean of the worst (largest) ``ceil(alpha * n)`` values: CVaR of a quantity where larger is worse.
 
@@ -316,11 +335,14 @@ class SafetyTable:
         limits: the envelope checked.
         rows: one :class:`SafetyRow` per (policy, condition or sweep, measured quantity), in evaluation order.
         violations: the limits exceeded (on conditions; a sweep row is marked when one of its points is).
+        substeps: physics steps per control step of the task (the quantities are sampled once per control step,
+            so with 1 every physics step is seen; with more, a peak inside the substeps is not), or None (unknown).
     """
 
     limits: SafetyLimits
     rows: tuple[SafetyRow, ...]
     violations: tuple[SafetyViolation, ...]
+    substeps: int | None = None
 
     @property
     def passed(self) -> bool:
@@ -328,12 +350,15 @@ class SafetyTable:
         return not self.violations
 
     @classmethod
-    def build(cls, evaluation: Any, limits: SafetyLimits) -> SafetyTable:
-        """Aggregates ``evaluation.safety`` (from :func:`~sim2real.evaluation.evaluate` with ``safety=limits``).
+    def build(cls, evaluation: Any, limits: SafetyLimits, *, substeps: int | None = None) -> SafetyTable:
+        """Aggregates ``evaluation.safety`` (from :func:`~sim2real.evaluation.evaluate` with ``safety=limits``);
+        ``substeps`` (physics steps per control step, :func:`physics_substeps`) says what the sampling sees.
 
         Raises:
-            ValueError: the evaluation carries no safety measurements.
+            ValueError: the evaluation carries no safety measurements, or ``substeps`` is not an int >= 1.
         """
+        if substeps is not None and (isinstance(substeps, bool) or not isinstance(substeps, int) or substeps < 1):
+            raise ValueError(f"`substeps` must be None or an int >= 1. Received {substeps!r}.")
         safety: Mapping[str, Mapping[str, Mapping[str, np.ndarray]]] = evaluation.safety
         if not safety:
             raise ValueError("`evaluation` has no safety measurements: run evaluate(..., safety=limits).")
@@ -360,7 +385,7 @@ class SafetyTable:
                     if row is not None:
                         rows.append(row)
                         violations.extend(found)
-        return cls(limits, tuple(rows), tuple(violations))
+        return cls(limits, tuple(rows), tuple(violations), substeps)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: the limits, every row (non-finite numbers as None) and the violation lines."""
@@ -389,6 +414,7 @@ class SafetyTable:
                 for r in self.rows
             ],
             "violations": [v.message for v in self.violations],
+            **({} if self.substeps is None else {"physics_steps_per_sample": self.substeps}),
         }
 
 

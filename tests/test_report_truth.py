@@ -69,8 +69,11 @@ def _study_like(episodes: int, seed: int = 0) -> Evaluation:
 
 def _build(evaluation: Evaluation, **kwargs: object) -> GapReport:
     report = GapReport.build(
-        evaluation, num_resamples=1000, rng=0, training=TRAINING, control_timestep=0.02,
-        policy_labels=DISPLAY_POLICIES, condition_labels=DISPLAY_CONDITIONS, **kwargs,  # type: ignore[arg-type]
+        evaluation, num_resamples=1000, rng=0, control_timestep=0.02,
+        training={p: c for p, c in TRAINING.items() if p in evaluation.policies},  # the study's table may name more
+        policy_labels={p: n for p, n in DISPLAY_POLICIES.items() if p in evaluation.policies},
+        condition_labels={c: n for c, n in DISPLAY_CONDITIONS.items() if c in {x.name for x in evaluation.conditions}},
+        **kwargs,  # type: ignore[arg-type]
     )  # fmt: skip
     return report.with_lead(study_summary(report))
 

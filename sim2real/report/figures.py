@@ -126,10 +126,8 @@ def _returns_figure(report: GapReport) -> Any:
 def _robustness_figure(report: GapReport, sweep: str) -> Any:
     from matplotlib.figure import Figure
 
-    from sim2real.report.labels import axis_label
-
     curves = [c for c in report.robustness if c.sweep == sweep]
-    axis = axis_label(curves[0].axis, report.control_timestep)
+    axis = report.axis_label(curves[0].axis)
     fig = Figure(figsize=(8.4, 4.0))
     fig.set_layout_engine("constrained")
     ax = fig.subplots()
@@ -157,8 +155,6 @@ def _heatmap_figure(report: GapReport, grid: str) -> Any:
     from matplotlib.figure import Figure
     from matplotlib.patches import Rectangle
 
-    from sim2real.report.labels import axis_label
-
     maps = [g for g in report.grids if g.grid == grid]
     cols = min(3, len(maps))
     rows = math.ceil(len(maps) / cols)
@@ -170,7 +166,7 @@ def _heatmap_figure(report: GapReport, grid: str) -> Any:
     vmin, vmax = (float(every.min()), float(every.max())) if every.size else (0.0, 1.0)
     image = None
     for ax, g in zip(axes.ravel(), maps, strict=False):
-        ax_x, ax_y = axis_label(g.axes[0], report.control_timestep), axis_label(g.axes[1], report.control_timestep)
+        ax_x, ax_y = report.axis_label(g.axes[0]), report.axis_label(g.axes[1])
         m = np.asarray(g.values, dtype=np.float64)
         # x across, y up (largest at the top): the layout of the report's grid tables
         image = ax.imshow(m.T, origin="lower", aspect="auto", vmin=vmin, vmax=vmax, cmap="viridis")
@@ -195,8 +191,8 @@ def _heatmap_figure(report: GapReport, grid: str) -> Any:
         ax.set_axis_off()
     if image is not None:
         fig.colorbar(image, ax=axes.ravel().tolist(), label=f"{report.statistic} episode return")
-    names = f"{axis_label(maps[0].axes[0], report.control_timestep).text} × "
-    names += axis_label(maps[0].axes[1], report.control_timestep).text
+    names = f"{report.axis_label(maps[0].axes[0]).text} × "
+    names += report.axis_label(maps[0].axes[1]).text
     fig.suptitle(_tex(f"{report.statistic} return over {names} (unperturbed point boxed in red)"), fontsize=10)
     return fig
 

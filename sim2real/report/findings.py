@@ -32,7 +32,19 @@ from sim2real.report.results import GapStats, Prediction
 if TYPE_CHECKING:
     from sim2real.report.gap_report import GapReport
 
-__all__ = ["budget_warnings", "cell", "findings", "gap_phrase", "num", "pct", "prediction_sentence", "signed", "versus"]
+__all__ = [
+    "budget_warnings",
+    "cell",
+    "episode_target_sentence",
+    "episodes_text",
+    "findings",
+    "gap_phrase",
+    "num",
+    "pct",
+    "prediction_sentence",
+    "signed",
+    "versus",
+]
 
 
 def num(value: float, digits: int = 4) -> str:
@@ -80,11 +92,12 @@ def gap_phrase(g: GapStats) -> str:
             f"{verb} {cell(size)} {where} (absolute; the relative gap is undefined: the {g.reference} "
             f"{g.statistic} return is 0; {pairing})"
         )
-    if not math.isfinite(rel.low):
-        verb = "loses" if rel.value > 0 else "gains" if rel.value < 0 else "keeps"
+    if not math.isfinite(rel.low):  # the claim is the absolute gap, which has an interval; the % is a side note
+        verb = "loses" if ab.value > 0 else "gains" if ab.value < 0 else "keeps"
+        size = ab if ab.value >= 0 else Estimate(-ab.value, -ab.high, -ab.low, ab.confidence, ab.n, ab.method)
         return (
-            f"{verb} {pct(abs(rel.value))} {where} (no interval for the relative gap: the {g.reference} "
-            f"{g.statistic} return is 0 in too many resamples; gap {cell(ab)}, {pairing})"
+            f"{verb} {cell(size)} {where} (absolute; {pct(abs(rel.value))} relative, without an interval: the "
+            f"{g.reference} {g.statistic} return is 0 in too many resamples; {pairing})"
         )
     if rel.value > 0:
         amount = f"loses {pct(rel.value)} [{pct(rel.low)}, {pct(rel.high)}]"
@@ -164,10 +177,59 @@ def versus(report: GapReport, x: str, y: str, where: str) -> str:
     return text + "."
 
 
+def episodes_text(report: GapReport) -> str:
+    """``"32 episode(s) per simulated condition"``, naming the conditions run with other counts:
+    ``"32 episode(s) per simulated condition (160 on real)"``; a condition whose policies ran different counts
+    gives the range (``"32-160 on real"``)."""
+    others = []
+    for condition, counts in report.episode_counts().items():
+        if counts != (report.episodes,):
+            n = str(counts[0]) if len(counts) == 1 else f"{counts[0]}-{counts[-1]}"
+            others.append(f"{n} on {condition}")
+    extra = f" ({', '.join(others)})" if others else ""
+    return f"{report.episodes} episode(s) per simulated condition{extra}"
+
+
+def episode_target_sentence(report: GapReport) -> str:
+    """How the episodes on the target were chosen (:class:`~sim2real.report.results.EpisodeTarget`) and whether
+    the interval's half-width reached the goal; ``""`` when the report has no episode target."""
+    t = report.episode_target
+    if t is None:
+        return ""
+    what = f"the {t.confidence:.0%} interval of {t.x!r} - {t.y!r} on {t.condition}"
+    if t.needed is None or not math.isfinite(t.goal):
+        return (
+            f"Episodes on {t.condition}: {t.episodes}; no precision goal for {what}: the reference return of "
+            f"{t.reference_policy!r} on {t.reference_condition!r} is {num(t.reference_return)}, so {t.fraction:.0%} "
+            "of it is no width."
+        )
+    ask = (
+        f"the pilot's {t.pilot_episodes} episodes put the standard deviation of the paired differences at "
+        f"{num(t.pilot_sd, 3)}, asking for about {t.needed}"
+    )
+    if t.capped:
+        ask += f"; the budget caps it at {t.cap}"
+    verdict = "goal met" if t.met else f"goal not met (about {t.needed} episodes would meet it)"
+    return (
+        f"Episodes on {t.condition}: {t.episodes}, chosen so that {what} is at most +-{num(t.goal, 3)} "
+        f"({t.fraction:.0%} of {t.reference_policy!r}'s {num(t.reference_return)} on {t.reference_condition!r}): "
+        f"{ask}. Achieved +-{num(t.half_width, 3)}: {verdict}."
+    )
+
+
 def budget_warnings(report: GapReport) -> tuple[str, ...]:
-    """Warnings about the budget: too few episodes (or resamples) for the interval asked, with the minimum."""
+    """Warnings about the budget: too few episodes (or resamples) for the interval asked, with the minimum, and a
+    precision goal on the target's episodes that was not met."""
     need = minimum_runs(report.confidence)
     out = []
+    t = report.episode_target
+    if t is not None and math.isfinite(t.goal) and not t.met:
+        out.append(
+            f"Precision goal not met: {t.x!r} - {t.y!r} on {t.condition} has a {t.confidence:.0%} half-width of "
+            f"{num(t.half_width, 3)} at {t.episodes} episodes, above the goal {num(t.goal, 3)} ({t.fraction:.0%} of "
+            f"{t.reference_policy!r}'s return on {t.reference_condition!r})"
+            + (f"; about {t.needed} episodes would meet it." if t.needed is not None else ".")
+        )
     counts = sorted({s.n for s in report.stats})
     if counts and counts[0] < need:
         out.append(

@@ -25,6 +25,7 @@ from sim2real.report.results import (
     Agreement,
     ConditionInfo,
     ConditionStats,
+    EpisodeTarget,
     FitParameter,
     GapStats,
     GridMeans,
@@ -96,6 +97,11 @@ class GapReport:
         contact_sheet: the contact sheet image (not compared, not serialised).
         safety: a :class:`sim2real.safety.SafetyTable` (``evaluate --safety``): the Safety section and the
             ``"safety"`` entry of the JSON; None leaves both out.
+        episode_target: how the episodes on the target were chosen (:class:`EpisodeTarget`, set by the study with
+            :meth:`with_episode_target`), or None.
+        observation_unit: the unit of the observation channels a sensor-noise sweep perturbs (e.g. ``"rad
+            (position), m (to_target), rad/s (velocity)"``, :func:`sim2real.report.labels.observation_unit`), or
+            None (shown as "observation units").
     """
 
     title: str
@@ -139,6 +145,8 @@ class GapReport:
     fit: FitResult | None = field(default=None, compare=False, repr=False)
     contact_sheet: np.ndarray | None = field(default=None, compare=False, repr=False)
     safety: SafetyTable | None = None  # the Safety section (sim2real.report.safety); set with dataclasses.replace
+    episode_target: EpisodeTarget | None = None
+    observation_unit: str | None = None
 
     # -------------------------------------------------------------------------------------------- build
 
@@ -165,6 +173,7 @@ class GapReport:
         policy_labels: Mapping[str, str] | None = None,
         condition_labels: Mapping[str, str] | None = None,
         lead: str = "",
+        observation_unit: str | None = None,
     ) -> GapReport:
         """Computes every number of the report from an evaluation.
 
@@ -192,6 +201,9 @@ class GapReport:
             policy_labels: policy -> display name (default ``"policy: <name>"``).
             condition_labels: condition -> display name (default by kind: ``"sim: nominal"``, ``"real twin"``).
             lead: an opening paragraph for the summary (e.g. the study's).
+            observation_unit: the unit of the observation channels, for a sensor-noise sweep's axis (e.g. ``"rad"``
+                or ``"rad (position), rad/s (velocity)"``; :func:`sim2real.report.labels.observation_unit` reads it
+                from an env); None shows "observation units".
 
         Raises:
             TypeError: an argument of the wrong type.
@@ -219,6 +231,7 @@ class GapReport:
                 policy_labels=policy_labels,
                 condition_labels=condition_labels,
                 lead=lead,
+                observation_unit=observation_unit,
             )
         )
 
@@ -228,6 +241,34 @@ class GapReport:
         if not isinstance(lead, str):
             raise TypeError(f"`lead` must be a string. Received {type(lead).__name__}.")
         return dataclasses.replace(self, lead=lead)
+
+    def with_episode_target(self, target: EpisodeTarget) -> GapReport:
+        """A copy of this report that says how its target's episodes were chosen, with ``target.half_width`` read
+        from this report's own interval of ``stat(target.x) - stat(target.y)`` on ``target.condition``.
+
+        Raises:
+            KeyError: the report has no difference between ``target.x`` and ``target.y``.
+        """
+        if not isinstance(target, EpisodeTarget):
+            raise TypeError(f"`target` must be an EpisodeTarget. Received {type(target).__name__}.")
+        e = self.difference(target.x, target.y).difference
+        half = (e.high - e.low) / 2.0
+        return dataclasses.replace(self, episode_target=dataclasses.replace(target, half_width=float(half)))
+
+    def episode_counts(self) -> dict[str, tuple[int, ...]]:
+        """Condition -> the distinct episode counts of its policies (non-sweep conditions; sweep and grid points
+        run :attr:`episodes` each)."""
+        out: dict[str, set[int]] = {}
+        for s in self.stats:
+            out.setdefault(s.condition, set()).add(s.n)
+        return {c: tuple(sorted(n)) for c, n in out.items()}
+
+    def axis_label(self, axis: str) -> Any:
+        """:func:`sim2real.report.labels.axis_label` of a sweep axis with this report's control timestep (latencies
+        in ms) and observation unit (sensor noise)."""
+        from sim2real.report.labels import axis_label
+
+        return axis_label(axis, self.control_timestep, observation_unit=self.observation_unit)
 
     def label(self, name: str, role: str = "policy") -> str:
         """The display name of a policy (``role="policy"``) or a condition (``role="condition"``)."""

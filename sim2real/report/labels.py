@@ -3,14 +3,18 @@
 Policies and conditions often share names (a policy ``randomized`` trained in the condition ``randomized``), so the
 report shows them apart: policies as ``"policy: <name>"`` and conditions by kind (``"sim: nominal"``,
 ``"sim: <name>"``, ``"real twin"``, ``"real: <name>"``) unless the caller names them. A sweep axis such as
-``ObservationNoise.processes.0.std`` is shown as ``"sensor noise std (observation units)"``; latencies counted in
-control steps are shown in milliseconds, converted by :func:`noise_models.timing.convert_time` (the one converter).
+``ObservationNoise.processes.0.std`` is shown in the observation's physical units when the caller knows them
+(:func:`observation_unit` reads them from an env: ``"sensor noise std (rad (position), m (to_target), rad/s
+(velocity))"``) and as ``"sensor noise std (observation units)"`` otherwise; latencies counted in control steps are
+shown in milliseconds, converted by :func:`noise_models.timing.convert_time` (the one converter).
 
 Example:
     >>> axis_label("ActionLatency.steps", control_timestep=0.02)
-    AxisLabel(text='action latency (ms)', factor=20.0)
+    AxisLabel(text='action latency (ms)', factor=20.0, unit='ms')
     >>> axis_label("ObservationNoise.processes.0.std").text
     'sensor noise std (observation units)'
+    >>> axis_label("ObservationNoise.processes.0.std", observation_unit="rad").text
+    'sensor noise std (rad)'
     >>> condition_label("sim", "nominal", simulated=True), condition_label("real", "real", simulated=True)
     ('sim: nominal', 'real twin')
     >>> channel_unit("qvel[shoulder]"), parameter_unit("dof_damping[elbow]")
@@ -24,7 +28,15 @@ from dataclasses import dataclass
 
 from noise_models.timing import convert_time
 
-__all__ = ["AxisLabel", "axis_label", "channel_unit", "condition_label", "parameter_unit", "policy_label"]
+__all__ = [
+    "AxisLabel",
+    "axis_label",
+    "channel_unit",
+    "condition_label",
+    "observation_unit",
+    "parameter_unit",
+    "policy_label",
+]
 
 
 @dataclass(frozen=True)
@@ -34,10 +46,13 @@ class AxisLabel:
     Attributes:
         text: the axis label with its unit, e.g. ``"action latency (ms)"``.
         factor: multiply the sweep's values by this to get the label's unit (1 unless a unit was converted).
+        unit: the unit a value on this axis is written with (``"ms"``, ``"rad"``; ``""`` for a factor of nominal
+            or an unknown unit; ``"in each channel's unit"`` for noise on channels of different units).
     """
 
     text: str
     factor: float
+    unit: str = ""
 
 
 # effect type -> what it perturbs, in words (the field's unit follows from the field name)
@@ -70,12 +85,14 @@ _PARAMETER_UNITS = (
 _CHANNEL_UNITS = (("qpos", "rad"), ("qvel", "rad/s"), ("qacc", "rad/s²"), ("ctrl", "ctrl units"))
 
 
-def axis_label(axis: str, control_timestep: float | None = None) -> AxisLabel:
+def axis_label(axis: str, control_timestep: float | None = None, *, observation_unit: str | None = None) -> AxisLabel:
     """The human label of a sweep axis ``"<Effect>.<field path>"`` (``Condition.axes``).
 
     Args:
         axis: the axis as the conditions name it, e.g. ``"Damping.scale"``.
         control_timestep: seconds per control step; latencies in steps are then shown in ms.
+        observation_unit: the unit of the observation channels (:func:`observation_unit`), for sensor noise; None
+            says "observation units".
 
     Returns:
         An :class:`AxisLabel`; an unknown axis keeps its name (with ``factor`` 1).
@@ -94,16 +111,83 @@ def axis_label(axis: str, control_timestep: float | None = None) -> AxisLabel:
     if last in _TIME_FIELDS:
         unit = _TIME_FIELDS[last]
         if unit == "control_steps" and control_timestep is None:
-            return AxisLabel(f"{what} (control steps)", 1.0)
+            return AxisLabel(f"{what} (control steps)", 1.0, "control steps")
         if unit == "physics_steps":
-            return AxisLabel(f"{what} (physics steps)", 1.0)
+            return AxisLabel(f"{what} (physics steps)", 1.0, "physics steps")
         seconds = convert_time(1.0, unit, "seconds", timestep=control_timestep or 1.0, substeps=1)
-        return AxisLabel(f"{what} (ms)", round(1000.0 * seconds, 12))
+        return AxisLabel(f"{what} (ms)", round(1000.0 * seconds, 12), "ms")
+    if last == "std" and "sensor" in what:
+        if not observation_unit:
+            return AxisLabel(f"{what} std (observation units)", 1.0, "observation units")
+        single = "(" not in observation_unit  # one unit for every channel, e.g. "rad"
+        return AxisLabel(f"{what} std ({observation_unit})", 1.0, observation_unit if single else "in each channel's unit")
     if last == "std":
-        return AxisLabel(f"{what} std (observation units)" if "sensor" in what else f"{what} std (ctrl units)", 1.0)
+        return AxisLabel(f"{what} std (ctrl units)", 1.0, "ctrl units")
     if last in ("offset", "add"):
         return AxisLabel(f"{what} offset", 1.0)
     return AxisLabel(f"{what} {last}", 1.0)
+
+
+# dm-control observation key -> (unit on hinge joints, unit on slide joints); keys that name a distance are metres
+_OBSERVATION_KEYS = {
+    "position": ("rad", "m"),
+    "joint_angles": ("rad", "m"),
+    "velocity": ("rad/s", "m/s"),
+    "joint_velocities": ("rad/s", "m/s"),
+    "to_target": ("m", "m"),
+    "finger_to_target": ("m", "m"),
+    "target_position": ("m", "m"),
+    "height": ("m", "m"),
+}
+
+
+def observation_unit(keys: object, *, angular: bool = True) -> str | None:
+    """The unit of a flat observation made of dm-control keys, or None when one of the keys is unknown.
+
+    Args:
+        keys: the observation's keys in order (e.g. ``("position", "to_target", "velocity")``), or an env whose
+            unwrapped adapter has an ``observation_layout`` (``(key, slice, shape)`` triples) and a MuJoCo model
+            (``angular`` is then True when every joint of the model is a hinge).
+        angular: joint positions and velocities are angles (rad, rad/s), not lengths (m, m/s).
+
+    Returns:
+        One unit when every channel has it (``"rad"``), else each key's unit in order, e.g.
+        ``"rad (position), m (to_target), rad/s (velocity)"``; None when a key's unit is not known (the caller
+        then says "observation units" rather than guess).
+
+    Example:
+        >>> observation_unit(("position", "to_target", "velocity"))
+        'rad (position), m (to_target), rad/s (velocity)'
+        >>> observation_unit(("position",)), observation_unit(("position", "pixels")) is None
+        ('rad', True)
+    """
+    names: tuple[str, ...]
+    if isinstance(keys, (list, tuple)):
+        names = tuple(str(k) for k in keys)
+    else:
+        layout = getattr(getattr(keys, "unwrapped", keys), "observation_layout", None)
+        if not layout:
+            return None
+        names = tuple(str(item[0]) for item in layout)
+        angular = _all_hinges(keys)
+    if not names or any(n not in _OBSERVATION_KEYS for n in names):
+        return None
+    units = [_OBSERVATION_KEYS[n][0 if angular else 1] for n in names]
+    if len(set(units)) == 1:
+        return units[0]
+    return ", ".join(f"{u} ({n})" for u, n in zip(units, names, strict=True))
+
+
+def _all_hinges(env: object) -> bool:
+    """True when every joint of the MuJoCo model inside ``env`` is a hinge (and it has one)."""
+    import mujoco
+
+    from sim2real.physics import find_physics
+
+    handle = find_physics(env)
+    if handle is None or handle.model.njnt == 0:
+        return False
+    return bool((handle.model.jnt_type == int(mujoco.mjtJoint.mjJNT_HINGE)).all())
 
 
 def policy_label(name: str) -> str:

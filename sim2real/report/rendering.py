@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 from sim2real.metrics import Estimate
 from sim2real.report import findings
 from sim2real.report.figures import plan
-from sim2real.report.labels import axis_label, parameter_unit
+from sim2real.report.labels import parameter_unit
 from sim2real.report.markup import _e, _html_table, _md, _md_table, html_page
 from sim2real.report.results import ConditionInfo, GapStats, ParameterDraws, RobustnessCurve
 from sim2real.report.serialize import json_text, to_dict
@@ -60,9 +60,10 @@ def summary(report: GapReport) -> str:
     lines = [report.lead] if report.lead else []
     lines.append(
         f"{len(report.policies)} polic{'y' if len(report.policies) == 1 else 'ies'} evaluated on {report.task} under "
-        f"{len(report.conditions)} condition(s), {report.episodes} episode(s) per simulated condition (seed "
-        f"{report.seed})."
+        f"{len(report.conditions)} condition(s), {findings.episodes_text(report)} (seed {report.seed})."
     )
+    if report.episode_target is not None and findings.episode_target_sentence(report) not in report.lead:
+        lines.append(findings.episode_target_sentence(report))
     lines += [f for f in findings.findings(report) if f not in report.lead]  # the lead may say it already
     for policy in report.policies[:8]:
         parts = [_gap_phrase(g) for g in report.gaps if g.policy == policy and g.target == report.target]
@@ -88,10 +89,16 @@ def document(report: GapReport) -> list[_Block]:
         _Block("p", report.summary(), style="summary"),
         _Block(
             "p",
-            f"Task {report.task}, {report.episodes} episode(s) per simulated condition, seed {report.seed}, "
+            f"Task {report.task}, {findings.episodes_text(report)}, seed {report.seed}, "
             f"{report.env_steps} environment steps. {conf} intervals from a stratified bootstrap "
             f"({report.num_resamples} resamples, rng seed {report.rng_seed}); success rates with Wilson intervals. "
-            "Simulated conditions share initial states episode by episode, so gaps between them are paired.",
+            "Simulated conditions share initial states episode by episode, so gaps between them are paired"
+            + (
+                "; a gap between conditions that ran different numbers of episodes uses all of them and is "
+                "unpaired (resampled independently: usually wider than a paired interval would be)."
+                if len({n for counts in report.episode_counts().values() for n in counts} | {report.episodes}) > 1
+                else "."
+            ),
             style="muted",
         ),
     ]
@@ -219,15 +226,15 @@ def document(report: GapReport) -> list[_Block]:
             figure(
                 "robustness",
                 sweep,
-                f"robustness to {axis_label(axis, report.control_timestep).text} (sweep {sweep}; {conf} bands)",
+                f"robustness to {report.axis_label(axis).text} (sweep {sweep}; {conf} bands)",
             )
     if report.grids:
         doc.append(_Block("h2", "Parameter grids"))
         for grid in dict.fromkeys(g.grid for g in report.grids):
             figure("heatmap", grid, f"{stat} return over {grid}")
         for g in report.grids:
-            ax = axis_label(g.axes[0], report.control_timestep)
-            ay = axis_label(g.axes[1], report.control_timestep)
+            ax = report.axis_label(g.axes[0])
+            ay = report.axis_label(g.axes[1])
             doc.append(
                 _Block("p", f"{lab(g.policy, 'policy')}, {stat} return over {ax.text} × {ay.text} (grid {g.grid}):")
             )
@@ -468,9 +475,8 @@ def _reads(g: GapStats) -> str:
 
 
 def _radius_row(report: GapReport, c: RobustnessCurve) -> list[str]:
-    label = axis_label(c.axis, report.control_timestep)
-    unit = label.text[label.text.rfind("(") + 1 : -1] if label.text.endswith(")") else ""
-    unit = "" if unit.startswith("×") else f" {unit}"
+    label = report.axis_label(c.axis)
+    unit = f" {label.unit}" if label.unit else ""
     policy, sweep = report.label(c.policy, "policy"), label.text
     nominal = f"{c.nominal * label.factor:g}"
     if c.radius is None:

@@ -20,6 +20,7 @@ __all__ = [
     "Agreement",
     "ConditionInfo",
     "ConditionStats",
+    "EpisodeTarget",
     "FitParameter",
     "GapStats",
     "GridMeans",
@@ -293,6 +294,59 @@ class ConditionInfo:
     draws: tuple[ParameterDraws, ...]
     sweep: str | None = None
     value: tuple[float, ...] = ()
+
+
+@dataclass(frozen=True)
+class EpisodeTarget:
+    """How many episodes were run on one condition to resolve a paired policy difference to a chosen precision.
+
+    The goal is a half-width of the difference's interval of at most ``fraction`` of a reference return. A pilot
+    (the first ``pilot_episodes``) estimates the standard deviation of the per-episode differences; with the normal
+    approximation a ``confidence`` interval of ``n`` episodes has half-width ``z * sd / sqrt(n)``, so
+    ``needed = ceil((z * sd / goal) ** 2)``; the episodes run are that, at least the pilot and at most ``cap``.
+    ``half_width`` is then read from the report's own interval of the difference (NaN until it is).
+
+    Attributes:
+        condition: where the difference is taken (e.g. the real twin).
+        x, y: the policies; the difference is ``stat(x) - stat(y)``.
+        reference_policy, reference_condition: whose return the goal is a fraction of.
+        reference_return: that return (the point estimate).
+        fraction: the goal as a fraction of ``|reference_return|`` (e.g. 0.05).
+        goal: ``fraction * |reference_return|``, the half-width asked for (NaN when the reference return is 0).
+        pilot_episodes: episodes the standard deviation was estimated from.
+        pilot_sd: standard deviation of the paired per-episode differences in the pilot.
+        needed: episodes the pilot says reach the goal, or None when there is no goal (a reference return of 0).
+        cap: the most episodes the budget allows on ``condition``.
+        episodes: episodes run on ``condition``.
+        half_width: ``(high - low) / 2`` of the report's interval of the difference at ``episodes``.
+        confidence: the interval's coverage.
+    """
+
+    condition: str
+    x: str
+    y: str
+    reference_policy: str
+    reference_condition: str
+    reference_return: float
+    fraction: float
+    goal: float
+    pilot_episodes: int
+    pilot_sd: float
+    needed: int | None
+    cap: int
+    episodes: int
+    half_width: float
+    confidence: float
+
+    @property
+    def met(self) -> bool:
+        """True when the achieved half-width is at most the goal."""
+        return bool(self.half_width <= self.goal)
+
+    @property
+    def capped(self) -> bool:
+        """True when the budget's cap stopped the episodes short of what the pilot asked for."""
+        return self.needed is not None and self.needed > self.episodes
 
 
 @dataclass(frozen=True)

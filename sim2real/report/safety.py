@@ -54,6 +54,17 @@ def _cell(row: SafetyRow) -> str:
     return text
 
 
+def _sampling(substeps: int | None) -> str:
+    """What a once-per-control-step sample sees, given the physics steps per control step."""
+    if substeps is None:
+        return "Sampled once per control step (a peak between two samples, inside the physics substeps, is not seen)."
+    if substeps == 1:
+        return "Sampled once per control step, which is every physics step here (1 physics step per control step)."
+    return (
+        f"Sampled once per control step, every {substeps} physics steps: a peak inside the substeps is not seen."
+    )
+
+
 def safety_blocks(table: SafetyTable) -> list[dict[str, Any]]:
     """The Safety section: heading, an explanation with the limits, the table and the violations (if any)."""
     limits = table.limits
@@ -62,8 +73,9 @@ def safety_blocks(table: SafetyTable) -> list[dict[str, Any]]:
     gate = "the worst episode" if limits.statistic == "worst" else f"CVaR {limits.alpha:g}"
     text = (
         f"Per policy and condition: worst episode / CVaR {limits.alpha:g} (mean of the worst {limits.alpha:.0%} of "
-        "episodes); a sweep row pools every point of the sweep. Diverged: diverged episodes / episodes. Sampled once "
-        "per control step. "
+        "episodes); a sweep row pools every point of the sweep. Diverged: diverged episodes / episodes. "
+        + _sampling(table.substeps)
+        + " "
         + (
             f"Declared limits (checked on {gate}; divergences on the count): {'; '.join(declared)}."
             if declared

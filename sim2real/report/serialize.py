@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 
 from sim2real.metrics import Estimate
 from sim2real.report import findings
-from sim2real.report.results import ConditionInfo, ParameterDraws
+from sim2real.report.results import ConditionInfo, EpisodeTarget, ParameterDraws
 
 if TYPE_CHECKING:
     from sim2real.report.gap_report import GapReport
@@ -36,6 +36,9 @@ def to_dict(report: GapReport) -> dict[str, Any]:
         return out
 
     hidden = [c for c in report.conditions if c.hidden]
+    # conditions run with another number of episodes than report.episodes (e.g. more on the target)
+    counts = {c: list(n) for c, n in report.episode_counts().items()}
+    uneven = any(n != [report.episodes] for n in counts.values())
     return {
         "title": report.title,
         "summary": report.summary(),
@@ -73,6 +76,7 @@ def to_dict(report: GapReport) -> dict[str, Any]:
             "task": report.task,
             "seed": report.seed,
             "episodes": report.episodes,
+            **({"episodes_by_condition": counts} if uneven else {}),
             "max_steps": report.max_steps,
             "env_steps": report.env_steps,
             "policies": list(report.policies),
@@ -196,6 +200,8 @@ def to_dict(report: GapReport) -> dict[str, Any]:
             "fit_truth": {p.address: _finite(p.truth) for p in report.fit_parameters if p.truth is not None},
         },
         **({} if report.safety is None else {"safety": report.safety.to_dict()}),  # sim2real.report.safety
+        **({} if report.episode_target is None else {"episode_target": _target_dict(report.episode_target)}),
+        **({} if report.observation_unit is None else {"observation_unit": report.observation_unit}),
     }
 
 
@@ -218,6 +224,27 @@ def _estimate_dict(e: Estimate | None) -> dict[str, Any] | None:
         "confidence": e.confidence,
         "n": e.n,
         "method": e.method,
+    }
+
+
+def _target_dict(t: EpisodeTarget) -> dict[str, Any]:
+    return {
+        "condition": t.condition,
+        "x": t.x,
+        "y": t.y,
+        "reference": {"policy": t.reference_policy, "condition": t.reference_condition},
+        "reference_return": _finite(t.reference_return),
+        "fraction": t.fraction,
+        "goal_half_width": _finite(t.goal),
+        "pilot_episodes": t.pilot_episodes,
+        "pilot_sd": _finite(t.pilot_sd),
+        "needed": t.needed,
+        "cap": t.cap,
+        "episodes": t.episodes,
+        "half_width": _finite(t.half_width),
+        "confidence": t.confidence,
+        "met": t.met,
+        "capped": t.capped,
     }
 
 

@@ -67,6 +67,7 @@ def report_fields(
     policy_labels: Mapping[str, str] | None = None,
     condition_labels: Mapping[str, str] | None = None,
     lead: str = "",
+    observation_unit: str | None = None,
 ) -> dict[str, Any]:
     """Every field of a :class:`~sim2real.report.GapReport`, by name; the arguments are those of
     :meth:`GapReport.build <sim2real.report.GapReport.build>` (see there).
@@ -115,6 +116,8 @@ def report_fields(
         or control_timestep <= 0
     ):
         raise ValueError(f"`control_timestep` must be a number of seconds > 0 or None. Received {control_timestep!r}.")
+    if observation_unit is not None and (not isinstance(observation_unit, str) or not observation_unit):
+        raise ValueError(f"`observation_unit` must be a non-empty string or None. Received {observation_unit!r}.")
     if not isinstance(lead, str):
         raise TypeError(f"`lead` must be a string. Received {type(lead).__name__}.")
     plabels = _labels("policy_labels", policy_labels, evaluation.policies, labels.policy_label)
@@ -172,6 +175,7 @@ def report_fields(
         policy_labels=tuple(plabels.items()),
         condition_labels=tuple(clabels.items()),
         lead=lead,
+        observation_unit=observation_unit,
         fit_parameters=fit_parameters,
         fit_warnings=fit_warnings,
         fit_percent=fit_percent,
