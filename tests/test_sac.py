@@ -120,8 +120,9 @@ def test_replay_buffer_is_a_ring_and_samples_from_its_seed() -> None:
         again.add(np.full(2, i), np.full(1, -i), float(i), np.full(2, i + 1), i == 5)
     first, second = buf.sample(16), again.sample(16)
     assert all(torch.equal(a, b) for a, b in zip(first, second, strict=True))
-    obs, act, rew, nxt, _ = first
+    obs, act, rew, nxt, _, steps = first
     assert torch.equal(obs[:, 0], rew) and torch.equal(nxt[:, 0], rew + 1) and torch.equal(act[:, 0], -rew)
+    assert torch.equal(steps, torch.ones(16))  # one-step transitions unless an NStepWriter says otherwise
 
 
 def test_train_sac_is_bitwise_deterministic() -> None:

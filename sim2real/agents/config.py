@@ -84,6 +84,9 @@ def _activation(value: Any) -> None:
 @dataclass(frozen=True)
 class _ConfigBase:
     algo: ClassVar[str] = ""
+    #: Fields left out of :meth:`to_dict` while at their default, so configs that do not use a newer option keep
+    #: the form checkpoints and manifests stored before it existed.
+    _omit_default: ClassVar[frozenset[str]] = frozenset({"adr"})
 
     def __post_init__(self) -> None:
         # YAML and JSON give lists; a tuple keeps the dataclass hashable and comparable.
@@ -110,8 +113,8 @@ class _ConfigBase:
         out: dict[str, Any] = {"algo": self.algo}
         for f in fields(self):
             value = getattr(self, f.name)
-            if f.name == "adr" and value is None:
-                continue  # configs without ADR keep the form checkpoints and manifests stored before ADR existed
+            if f.name in self._omit_default and value == f.default:
+                continue
             out[f.name] = list(value) if isinstance(value, tuple) else value
         return out
 
@@ -279,7 +282,11 @@ class SACConfig(_ConfigBase):
         lr: Adam learning rate of actor, critics and temperature.
         gamma: discount.
         tau: soft target-update rate.
-        alpha_init: initial entropy temperature (learned towards ``-act_dim`` target entropy).
+        alpha_init: initial entropy temperature (learned towards ``target_entropy``).
+        target_entropy: entropy the temperature is tuned towards, in nats of the policy in the normalised action
+            box; None means ``-act_dim``. Higher keeps more exploration late in training.
+        n_step: environment steps summed into each stored transition's return (``sum_k gamma^k r_k``, bootstrapped
+            with ``gamma^n``; shorter at an episode's end); 1 is plain one-step SAC.
         hidden_sizes: hidden widths of the actor and Q MLPs.
         activation: one of :data:`ACTIVATIONS`.
         init_log_std: initial log standard deviation of the (pre-tanh) Gaussian policy.
@@ -309,11 +316,18 @@ class SACConfig(_ConfigBase):
     reward_scale: float = 1.0
     obs_norm_frames: int = 2_000
     adr: str | None = None
+    target_entropy: float | None = None
+    n_step: int = 1
+
+    _omit_default: ClassVar[frozenset[str]] = frozenset({"adr", "target_entropy", "n_step"})
 
     def _validate(self) -> None:
         _positive_int("frames", self.frames)
         _positive_int("frames_per_batch", self.frames_per_batch)
         _nonnegative_int("init_random_frames", self.init_random_frames)
+        _positive_int("n_step", self.n_step)
+        if self.target_entropy is not None and not _is_real(self.target_entropy):
+            raise ValueError(f"`target_entropy` must be None or a finite number. Received {self.target_entropy!r}.")
         _positive_int("buffer_size", self.buffer_size)
         _positive_int("batch_size", self.batch_size)
         _positive("utd_ratio", self.utd_ratio)

@@ -9,8 +9,9 @@ and :func:`~sim2real.agents.nets.build_qvalue` make, so checkpoints (the actor's
 The maths (Haarnoja et al. 2018, twin critics, learned temperature), with ``a = tanh(u)`` the action in the
 normalised box ``[-1, 1]`` and ``u ~ N(loc, scale)``:
 
-- critic: ``0.5 * sum_i mean((Q_i(o, a) - y)^2)``, ``y = r + gamma (1 - terminated) (min_i Q'_i(o2, a2) -
-  alpha log pi(a2 | o2))`` with ``a2 ~ pi(. | o2)`` and the target critics ``Q'``;
+- critic: ``0.5 * sum_i mean((Q_i(o, a) - y)^2)``, ``y = r + gamma^m (1 - terminated) (min_i Q'_i(o2, a2) -
+  alpha log pi(a2 | o2))`` with ``a2 ~ pi(. | o2)`` and the target critics ``Q'``; ``m`` is the number of env steps
+  the transition spans (1, or up to ``n`` for an n-step return ``r = sum_k gamma^k r_k`` ending at ``o2``);
 - actor: ``mean(alpha log pi(a | o) - min_i Q_i(o, a))`` through the critics' weights detached;
 - temperature: ``-log_alpha * mean(log pi(a | o) + target_entropy)``, ``target_entropy = -act_dim``;
 - one Adam step on the sum, then Polyak averaging of the target critics with rate ``tau``.
@@ -39,6 +40,7 @@ from __future__ import annotations
 
 import copy
 import math
+from collections import deque
 from collections.abc import Sequence
 from typing import Any
 
@@ -47,7 +49,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-__all__ = ["LOSS_KEYS", "ReplayBuffer", "SACUpdate"]
+__all__ = ["LOSS_KEYS", "NStepWriter", "ReplayBuffer", "SACUpdate"]
 
 #: Names of the four values :meth:`SACUpdate.step` returns, in order.
 LOSS_KEYS: tuple[str, ...] = ("loss_actor", "loss_qvalue", "loss_alpha", "alpha")
@@ -147,6 +149,7 @@ class SACUpdate:
         reward: torch.Tensor,
         next_obs: torch.Tensor,
         terminated: torch.Tensor,
+        steps: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """One gradient step on a batch.
 
@@ -156,6 +159,8 @@ class SACUpdate:
             reward: ``(B,)`` rewards (already scaled).
             next_obs: ``(B, obs_dim)`` next observations.
             terminated: ``(B,)`` 1.0 where the episode ended in a terminal state (no bootstrap), else 0.0.
+            steps: ``(B,)`` env steps each transition spans (its bootstrap is discounted by ``gamma ** steps``);
+                None means 1 for all (one-step transitions).
 
         Returns:
             ``(4,)`` tensor of :data:`LOSS_KEYS` values (detached).
@@ -168,7 +173,8 @@ class SACUpdate:
             next_a, next_logp = self._policy(next_n)
             next_in = torch.cat((next_n, next_a), -1)
             next_q = torch.min(torch.stack([t(next_in) for t in self.targets]), 0).values.squeeze(-1)
-            target = reward + self.gamma * (1.0 - terminated) * (next_q - alpha * next_logp)
+            discount = self.gamma if steps is None else torch.pow(self.gamma, steps)
+            target = reward + discount * (1.0 - terminated) * (next_q - alpha * next_logp)
         q_in = torch.cat((obs_n, action), -1)
         loss_q = 0.5 * torch.stack([F.mse_loss(m(q_in).squeeze(-1), target) for m in self.q_mlps]).sum()
         new_a, logp = self._policy(obs_n)
@@ -195,6 +201,7 @@ def _detached(mlp: nn.Module, x: torch.Tensor) -> torch.Tensor:
 class ReplayBuffer:
     """A uniform replay buffer of preallocated float32 arrays (a ring once full), sampled with its own seeded
     ``torch.Generator``. Rows are written through numpy views of the same memory the sampled tensors index.
+    Each row also keeps the number of env steps it spans (1, or up to ``n`` for an n-step transition).
 
     Args:
         capacity: transitions kept.
@@ -210,7 +217,10 @@ class ReplayBuffer:
         self.action = torch.zeros(self.capacity, act_dim)
         self.reward = torch.zeros(self.capacity)
         self.terminated = torch.zeros(self.capacity)
-        self._np = [t.numpy() for t in (self.obs, self.action, self.reward, self.next_obs, self.terminated)]
+        self.steps = torch.ones(self.capacity)
+        self._np = [
+            t.numpy() for t in (self.obs, self.action, self.reward, self.next_obs, self.terminated, self.steps)
+        ]
         self.generator = torch.Generator().manual_seed(int(seed))
         self._next = 0
         self._size = 0
@@ -218,21 +228,33 @@ class ReplayBuffer:
     def __len__(self) -> int:
         return self._size
 
-    def add(self, obs: np.ndarray, action: np.ndarray, reward: float, next_obs: np.ndarray, terminated: bool) -> None:
-        """Stores one transition (overwriting the oldest once full)."""
+    def add(
+        self,
+        obs: np.ndarray,
+        action: np.ndarray,
+        reward: float,
+        next_obs: np.ndarray,
+        terminated: bool,
+        steps: int = 1,
+    ) -> None:
+        """Stores one transition (overwriting the oldest once full); ``steps`` env steps lead from ``obs`` to
+        ``next_obs`` and ``reward`` is their discounted sum."""
         i = self._next
-        o, a, r, n, t = self._np
+        o, a, r, n, t, m = self._np
         o[i] = obs
         a[i] = action
         r[i] = reward
         n[i] = next_obs
         t[i] = float(terminated)
+        m[i] = steps
         self._next = (i + 1) % self.capacity
         self._size = min(self._size + 1, self.capacity)
 
-    def sample(self, batch_size: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        """``(obs, action, reward, next_obs, terminated)`` of ``batch_size`` transitions drawn uniformly with
-        replacement."""
+    def sample(
+        self, batch_size: int
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``(obs, action, reward, next_obs, terminated, steps)`` of ``batch_size`` transitions drawn uniformly
+        with replacement (the arguments of :meth:`SACUpdate.step`, in order)."""
         idx = torch.randint(0, self._size, (batch_size,), generator=self.generator)
         return (
             self.obs.index_select(0, idx),
@@ -240,4 +262,72 @@ class ReplayBuffer:
             self.reward.index_select(0, idx),
             self.next_obs.index_select(0, idx),
             self.terminated.index_select(0, idx),
+            self.steps.index_select(0, idx),
         )
+
+
+class NStepWriter:
+    """Turns one-step transitions into n-step ones on their way into a :class:`ReplayBuffer`.
+
+    The transition stored for the step taken in ``o_t`` carries ``R = sum_{k<m} gamma^k r_{t+k}``, the observation
+    ``o_{t+m}`` it bootstraps from and ``m`` (the buffer's ``steps``): ``m = n`` inside an episode; at an episode's
+    end every pending step is written with the steps left (``m < n``), ``terminated`` if the episode ended in a
+    terminal state. With ``n = 1`` it stores each transition as it comes.
+
+    Args:
+        buffer: where transitions go.
+        n: steps per return (>= 1).
+        gamma: discount.
+
+    Raises:
+        ValueError: ``n`` is not a positive int.
+
+    Example:
+        >>> import numpy as np
+        >>> buffer = ReplayBuffer(10, 1, 1, seed=0)
+        >>> writer = NStepWriter(buffer, n=2, gamma=0.5)
+        >>> o, a = np.zeros(1), np.zeros(1)
+        >>> for t, r in enumerate([1.0, 2.0, 4.0]):
+        ...     writer.add(o + t, a, r, o + t + 1, terminated=t == 2, truncated=False)
+        >>> buffer.reward[:3].tolist(), buffer.next_obs[:3, 0].tolist(), buffer.steps[:3].tolist()
+        ([2.0, 4.0, 4.0], [2.0, 3.0, 3.0], [2.0, 2.0, 1.0])
+        >>> buffer.terminated[:3].tolist()
+        [0.0, 1.0, 1.0]
+    """
+
+    def __init__(self, buffer: ReplayBuffer, n: int, gamma: float) -> None:
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise ValueError(f"`n` must be a positive int. Received {n!r}.")
+        self.buffer = buffer
+        self.n = n
+        self._powers = [float(gamma) ** k for k in range(n)]
+        self._pending: deque[tuple[np.ndarray, np.ndarray, float]] = deque()
+
+    def add(
+        self,
+        obs: np.ndarray,
+        action: np.ndarray,
+        reward: float,
+        next_obs: np.ndarray,
+        terminated: bool,
+        truncated: bool,
+    ) -> None:
+        """Takes the step ``obs --action--> (reward, next_obs)``; writes the transitions it completes."""
+        if self.n == 1:
+            self.buffer.add(obs, action, reward, next_obs, terminated)
+            return
+        pending = self._pending
+        pending.append((obs.copy(), action, reward))  # an env may hand out one reused array
+        if terminated or truncated:
+            while pending:
+                self._write(next_obs, terminated)
+        elif len(pending) == self.n:
+            self._write(next_obs, False)
+
+    def _write(self, next_obs: np.ndarray, terminated: bool) -> None:
+        pending = self._pending
+        ret = 0.0
+        for power, (_, _, r) in zip(self._powers, pending, strict=False):
+            ret += power * r
+        obs, action, _ = pending.popleft()
+        self.buffer.add(obs, action, ret, next_obs, terminated, len(pending) + 1)

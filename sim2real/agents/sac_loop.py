@@ -26,7 +26,7 @@ import torch
 
 from sim2real.agents.config import SACConfig
 from sim2real.agents.loop_utils import env_bounds, log_row, progress_bar
-from sim2real.agents.sac import LOSS_KEYS, ReplayBuffer, SACUpdate
+from sim2real.agents.sac import LOSS_KEYS, NStepWriter, ReplayBuffer, SACUpdate
 
 __all__ = ["train_sac"]
 
@@ -137,8 +137,10 @@ def train_sac(
         norm = actor_normalizer(actor)
         _fit_normalizer(steps, norm, cfg.obs_norm_frames, act_dim)
         qvalues = [build_qvalue(steps.obs_dim, act_dim, cfg.hidden_sizes, cfg.activation, norm) for _ in range(2)]
-        update = SACUpdate(actor, qvalues, lr=cfg.lr, gamma=cfg.gamma, tau=cfg.tau, alpha_init=cfg.alpha_init)
+        update = SACUpdate(actor, qvalues, lr=cfg.lr, gamma=cfg.gamma, tau=cfg.tau, alpha_init=cfg.alpha_init,
+                           target_entropy=cfg.target_entropy)  # fmt: skip
         buffer = ReplayBuffer(min(cfg.buffer_size, cfg.frames), steps.obs_dim, act_dim, seed)
+        writer = NStepWriter(buffer, cfg.n_step, cfg.gamma)
         explore = _explorer(update, act_dim)
         mid = (np.asarray(steps.high) + np.asarray(steps.low)) / 2
         half = (np.asarray(steps.high) - np.asarray(steps.low)) / 2
@@ -156,7 +158,7 @@ def train_sac(
                     a_n = torch.rand(act_dim) * 2.0 - 1.0 if frames + i < cfg.init_random_frames else explore(obs)
                     a_np = a_n.numpy()
                     next_obs, reward, terminated, truncated = steps.step(mid + half * a_np)
-                    buffer.add(obs, a_np, reward * cfg.reward_scale, next_obs, terminated)
+                    writer.add(obs, a_np, reward * cfg.reward_scale, next_obs, terminated, truncated)
                     rewards[i] = reward
                     episode_return += reward
                     if terminated or truncated:
