@@ -21,6 +21,8 @@ count. Usage::
     .venv/bin/python benchmarks/bench_eval.py --torchrl             # issue 6 (goal: batched / rollout >= 10)
     .venv/bin/python benchmarks/bench_eval.py --torchrl --quick     # smoke test
     .venv/bin/python benchmarks/bench_eval.py [--quick]             # issue 15's P4 (below)
+    .venv/bin/python benchmarks/bench_eval.py --make [--before DIR] # issue 15: make x 64, before/after
+    .venv/bin/python benchmarks/bench_eval.py --make-vec            # issue 15: make_vec / SyncVectorEnv
 """
 
 from __future__ import annotations
@@ -369,10 +371,142 @@ def main(argv: list[str] | None = None) -> None:
         )
 
 
+# ------------------------------------------------------------------------------------------ issue 15: make x N
+#
+# Building N envs with sim2real.make, each arm in a fresh process (so each pays its own first compile), arms
+# alternating: this checkout with textures (make's default), this checkout headless (textures=False: what the
+# batched engine and evaluate use), and optionally an older checkout (--before DIR: a directory holding its
+# sim2real/randomizers/noise_models/sysid packages, e.g. from `git archive <commit> | tar -x -C DIR`).
+
+_MAKE_SNIPPET = """
+import os, sys, time
+os.environ.setdefault("MUJOCO_GL", "egl")
+import sim2real as s2r
+task, n, kw = sys.argv[1], int(sys.argv[2]), eval(sys.argv[3])
+start = time.perf_counter()
+first = s2r.make(task, **kw)
+one = time.perf_counter() - start
+start = time.perf_counter()
+envs = [s2r.make(task, **kw) for _ in range(n)]
+print(one, time.perf_counter() - start)
+"""
+
+
+def _make_arm(task: str, n: int, textures: bool, path: str) -> tuple[float, float]:
+    """(seconds for the first env, seconds for ``n`` more) in a fresh process importing sim2real from ``path``."""
+    import subprocess
+    import sys
+
+    kw = "{}" if textures else "{'textures': False}"
+    env = {**os.environ, "PYTHONPATH": path}
+    out = subprocess.run([sys.executable, "-c", _MAKE_SNIPPET, task, str(n), kw], env=env, check=True,
+                         capture_output=True, text=True, cwd=path).stdout.split()  # fmt: skip
+    return float(out[-2]), float(out[-1])
+
+
+def main_make(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description="issue 15: sim2real.make x N, before/after side by side")
+    parser.add_argument("--samples", type=int, default=64, help="envs built after the first")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--before", default=None, help="directory with an older checkout's packages")
+    args = parser.parse_args(argv)
+    here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    arms: dict[str, tuple[bool, str]] = {"textures": (True, here), "headless": (False, here)}
+    if args.before:
+        arms = {"before": (True, os.path.abspath(args.before)), **arms}
+    print(f"# bench_eval --make  python {platform.python_version()}  mujoco {mujoco.__version__}  {os.cpu_count()} "
+          f"CPUs; {args.samples} envs after the first, {args.repeats} repeats, fresh process per arm")  # fmt: skip
+    for task in ("dmc/reacher-easy", "dmc/manipulator-bring_ball", "sim2real/arm-reach"):
+        firsts: dict[str, list[float]] = {k: [] for k in arms}
+        totals: dict[str, list[float]] = {k: [] for k in arms}
+        for r in range(args.repeats):
+            for arm in list(arms) if r % 2 == 0 else list(arms)[::-1]:
+                textures, path = arms[arm]
+                if arm == "before" or textures or task in _HEADLESS:
+                    one, many = _make_arm(task, args.samples, textures, path)
+                    firsts[arm].append(one)
+                    totals[arm].append(many)
+        print(f"\n## {task}: make x {args.samples}")
+        med = {k: statistics.median(v) for k, v in totals.items() if v}
+        for arm, seconds in med.items():
+            runs = ", ".join(f"{x:.2f}" for x in totals[arm])
+            print(f"{arm:9s} {seconds:7.2f} s ({1e3 * seconds / args.samples:6.1f} ms/env; first env "
+                  f"{statistics.median(firsts[arm]):.2f} s)  runs: {runs}")  # fmt: skip
+        ref = med.get("before", med["textures"])
+        print("RESULT " + task + ": " + ", ".join(f"{k} {ref / v:.1f}x" for k, v in med.items() if k != "before")
+              + (" faster than before" if "before" in med else " faster than with textures"))  # fmt: skip
+
+
+_HEADLESS = ("dmc/reacher-easy", "dmc/manipulator-bring_ball", "sim2real/arm-reach")
+
+
+# ------------------------------------------------------------------------------------------ issue 15: make_vec
+#
+# make_vec against plain gymnasium SyncVectorEnvs, stepping only (construction excluded), arms alternating:
+# with the three physics effects vs a SyncVectorEnv of make(task) envs with the same DR written by hand
+# (_hand_dr_env) and vs a SyncVectorEnv of the same sim2real-wrapped envs reporting on every step (make_vec
+# before draws were reported at reset only); without effects vs a SyncVectorEnv of bare make(task) envs.
+
+
+def _vec_rate(envs: Any, steps: int) -> float:
+    import numpy as np
+
+    actions = np.random.default_rng(0).uniform(-1, 1, (steps, *envs.action_space.shape)).astype(np.float32)
+    envs.reset(seed=0)
+    start = time.perf_counter()
+    for t in range(steps):
+        envs.step(actions[t])
+    rate = envs.num_envs * steps / (time.perf_counter() - start)
+    envs.close()
+    return rate
+
+
+def main_make_vec(argv: list[str] | None = None) -> None:
+    import gymnasium as gym
+
+    parser = argparse.ArgumentParser(description="issue 15: make_vec over plain SyncVectorEnvs")
+    parser.add_argument("--samples", type=int, default=64, help="sub-envs")
+    parser.add_argument("--steps", type=int, default=300)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--task", default="dmc/reacher-easy")
+    args = parser.parse_args(argv)
+    n, task = args.samples, args.task
+    arms: dict[str, Any] = {
+        "make_vec": lambda: s2r.make_vec(task, n, *effects(), seed=0),
+        "hand": lambda: gym.vector.SyncVectorEnv([lambda i=i: _hand_dr_env(task, i, 0) for i in range(n)]),
+        "every_step": lambda: gym.vector.SyncVectorEnv(
+            [lambda i=i: s2r.wrap(s2r.make(task), *effects(), seed=(0, i)) for i in range(n)]
+        ),
+        "make_vec_raw": lambda: s2r.make_vec(task, n, seed=0),
+        "bare": lambda: gym.vector.SyncVectorEnv([lambda: s2r.make(task) for _ in range(n)]),
+    }
+    print(f"# bench_eval --make-vec  python {platform.python_version()}  gymnasium {gym.__version__}  "
+          f"{os.cpu_count()} CPUs; {task}, {n} sub-envs x {args.steps} steps, {args.repeats} repeats")  # fmt: skip
+    rates: dict[str, list[float]] = {k: [] for k in arms}
+    for r in range(args.repeats):
+        for arm in list(arms) if r % 2 == 0 else list(arms)[::-1]:
+            rates[arm].append(_vec_rate(arms[arm](), args.steps))
+    med = {k: statistics.median(v) for k, v in rates.items()}
+    for arm, label in (("make_vec", "make_vec, 3 physics effects"),
+                       ("hand", "SyncVectorEnv, make(task) + hand-written DR"),
+                       ("every_step", "SyncVectorEnv, same wrapped envs, report every step"),
+                       ("make_vec_raw", "make_vec, no effects"),
+                       ("bare", "SyncVectorEnv, bare make(task)")):  # fmt: skip
+        runs = ", ".join(f"{x:.0f}" for x in rates[arm])
+        print(f"{label:52s} {med[arm]:9.0f} steps/s  (runs: {runs})")
+    print(f"RESULT make_vec / SyncVectorEnv+hand DR = {med['make_vec'] / med['hand']:.2f}; make_vec (no effects) / "
+          f"bare SyncVectorEnv = {med['make_vec_raw'] / med['bare']:.2f} (goal >= 0.95); make_vec / the same "
+          f"wrapped envs reporting every step = {med['make_vec'] / med['every_step']:.2f}")  # fmt: skip
+
+
 if __name__ == "__main__":
     import sys
 
     if "--torchrl" in sys.argv:
         main_torchrl([a for a in sys.argv[1:] if a != "--torchrl"])
+    elif "--make-vec" in sys.argv:
+        main_make_vec([a for a in sys.argv[1:] if a != "--make-vec"])
+    elif "--make" in sys.argv:
+        main_make([a for a in sys.argv[1:] if a != "--make"])
     else:
         main()

@@ -179,6 +179,13 @@ def make_vec(
     streams rooted at ``(seed, i)``, so every sub-env gets independent draws even with
     ``reset(seed=None)``.
 
+    Draws are reported when they are made: ``info["sim2real"]`` (address -> ``(num_envs,)`` values, as gymnasium
+    merges sub-env infos) comes with ``reset`` and with every step in which a sub-env autoresets (its new
+    episode's draws), and with any step in which a sub-env's physics diverged; other steps carry no
+    ``"sim2real"`` key. Gymnasium merges every sub-env's nested info dict on every step it is present, which cost
+    a quarter of a vector step. Effects that change the model during an episode (``Push``, ``Interval``
+    schedules) and ``ControlJitter`` (substeps drawn per step) keep the report on every step.
+
     With ``adr``, every sub-env draws from the one controller's ranges and pins its own boundaries (its boundary
     stream is rooted at ``(seed, i)`` too); finished episodes reach the controller in the order they end, which
     for ``"sync"`` is: step by step, sub-env 0 first. ``"async"`` would give each process a copy of the
@@ -206,7 +213,36 @@ def make_vec(
             f"it into every worker). Received {vectorization!r}."
         )
     root = 0 if seed is None else seed
-    fns = [(lambda i=i: wrap(make(task_id, **options), *effects, adr=adr, seed=(root, i))) for i in range(num_envs)]
+    every_step = _reports_every_step([*effects, *(adr.effects if adr is not None else ())])
+
+    def build(i: int) -> gym.Env:
+        env = wrap(make(task_id, **options), *effects, adr=adr, seed=(root, i))
+        return env if every_step else _ReportAtReset(env)
+
+    fns = [(lambda i=i: build(i)) for i in range(num_envs)]
     if vectorization == "sync":
         return gym.vector.SyncVectorEnv(fns)
     return gym.vector.AsyncVectorEnv(fns)
+
+
+def _reports_every_step(effects: Iterable[Any]) -> bool:
+    """Whether the env's report changes during an episode (pushes, interval schedules, per-step jitter)."""
+    from noise_models.timing import ControlJitter
+    from randomizers import Interval, Push
+
+    return any(
+        isinstance(e, (Push, ControlJitter)) or isinstance(getattr(e, "schedule", None), Interval)
+        for e in _flatten(effects)
+    )
+
+
+class _ReportAtReset(gym.Wrapper):
+    """A :func:`make_vec` sub-env whose ``info["sim2real"]`` comes with resets and with steps whose physics
+    diverged only (its draws are fixed for the episode; see :func:`make_vec`)."""
+
+    def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        report = info.get("sim2real")
+        if report is not None and not report["diverged"]:
+            del info["sim2real"]
+        return obs, reward, terminated, truncated, info
