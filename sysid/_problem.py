@@ -297,6 +297,17 @@ class Problem:
             row.append(np.repeat(self.y_row, self.n_sens_ch))
         return np.concatenate(seg), np.concatenate(row)
 
+    def segment_rows(self) -> list[np.ndarray]:
+        """Per shooting segment, the indices of its entries in the weighted residual vector (cached)."""
+        cached: list[np.ndarray] | None = getattr(self, "_segment_rows", None)
+        if cached is None:
+            seg = self.residual_keys()[0]
+            order = np.argsort(seg, kind="stable")
+            cuts = np.searchsorted(seg[order], np.arange(1, self.seg.count))
+            cached = list(np.split(order, cuts))
+            self._segment_rows = cached
+        return cached
+
     def channel_errors(self, r_state: np.ndarray, r_sens: np.ndarray) -> list[np.ndarray]:
         """Per channel, the unweighted errors of one parameter set, in row order."""
         out = [r_state[0, :, c] for c in range(self.n_state_ch)]
