@@ -128,7 +128,7 @@ def test_cli_fit_bad_log_exits_2(tmp_path, capsys) -> None:  # type: ignore[no-u
     assert capsys.readouterr().err.startswith("sim2real sysid: error: ")
 
 
-def test_cli_fit_that_is_not_ok_exits_3_and_is_not_exported(tmp_path, capsys, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+def test_cli_fit_that_is_not_ok_exits_4_and_is_not_exported(tmp_path, capsys, monkeypatch) -> None:  # type: ignore[no-untyped-def]
     quality = pytest.importorskip("sysid.quality")  # FitResult.ok comes with issue 17 part A's quality checks
     import dataclasses
 
@@ -145,7 +145,7 @@ def test_cli_fit_that_is_not_ok_exits_3_and_is_not_exported(tmp_path, capsys, mo
     fit = ["sysid", "fit", str(log), "--task", "dmc/reacher-easy", "--params", "dof_damping[*]", "--quiet"]
     out, effects = tmp_path / "fit.json", tmp_path / "effects.yaml"
     capsys.readouterr()
-    assert main([*fit, "--out", str(out), "--export", str(effects)]) == 3
+    assert main([*fit, "--out", str(out), "--export", str(effects)]) == 4  # not 3: that is evaluate --safety's
     assert capsys.readouterr().err == (
         f"sim2real sysid fit: the fit is not ok: {reason}; {effects} was not written (pass --force to export it "
         "anyway)\n"

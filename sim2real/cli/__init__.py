@@ -41,9 +41,10 @@ def main(argv: list[str] | None = None) -> int:
         argv: arguments without the program name (default ``sys.argv[1:]``).
 
     Returns:
-        The exit code: 0 on success, 2 on a usage error or bad input, 3 when ``sysid fit`` finds that the fitted
-        model cannot reproduce the log (the fit is written but not exported) or when ``evaluate --safety`` finds a
-        declared safety limit exceeded (the report is written; one line per violation on stderr).
+        The exit code: 0 on success, 2 on a usage error or bad input, 3 when ``evaluate --safety`` finds a
+        declared safety limit exceeded (the report is written; one line per violation on stderr), 4 when
+        ``sysid fit`` finds that the fitted model cannot reproduce the log (the fit is written but not exported;
+        one line with the reasons on stderr).
     """
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["train"]:

@@ -28,7 +28,11 @@ from typing import Any, TextIO
 from sim2real.cli._common import UsageError, check_outputs, source_of, writing
 from sim2real.sources import Source, SourceError, open_source
 
-__all__ = ["cmd_record", "cmd_sysid"]
+__all__ = ["EXIT_FIT_NOT_OK", "cmd_record", "cmd_sysid"]
+
+#: Exit code of ``sysid fit`` when the fit is not ok (``FitResult.ok`` is False) and nothing was exported; distinct
+#: from ``evaluate --safety``'s 3 (a safety limit exceeded), so a pipeline running both knows which gate failed.
+EXIT_FIT_NOT_OK = 4
 
 
 def cmd_record(args: argparse.Namespace, out: TextIO) -> int:
@@ -183,5 +187,5 @@ def cmd_sysid(args: argparse.Namespace, out: TextIO) -> int:
             else (f"; {args.export} was not written (pass --force to export it anyway)" if args.export else "")
         )
         print(f"sim2real sysid fit: the fit is not ok: {reasons}{forced}", file=sys.stderr)
-        return 0 if effects is not None else 3
+        return 0 if effects is not None else EXIT_FIT_NOT_OK
     return 0
