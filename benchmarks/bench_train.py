@@ -28,6 +28,14 @@ Usage:
 
 The last line printed is ``RESULT ...`` with each task's ratio against the goal.
 
+``--arm batched`` measures PPO collection through the batched engine (issue #15, P5), side by side in one run,
+alternating after a warm-up of each: *single* (``engine="per-env"``: one TorchRL env, today's collector), *batched*
+(``engine="auto"``, ``num_envs`` worlds, no effects) and *batched-stack* (the batched engine under the stack
+without ``ActionLatency``, which the engine does not batch: ``train`` would collect that run per env, and the run
+says so). Ratios, medians of per-repeat pairs: batched/single (goal >= 3) and batched-stack/batched (goal >= 0.95).
+
+    .venv/bin/python benchmarks/bench_train.py --arm batched [--num-envs 16 --repeats 3]
+
 ``--algo sac`` measures instead the SAC update (issue #14): updates/s of :class:`sim2real.agents.sac.SACUpdate`
 (what :func:`train` runs, batches sampled from its replay buffer) against a minimal plain-PyTorch SAC update
 (``benchmarks/sac_reference.py``: actor + twin critics + targets + temperature, one Adam) and, for the record,
@@ -55,8 +63,10 @@ from bench_overhead import cpu_model, make_stack_physics  # benchmarks/ is on sy
 import sim2real as s2r
 from noise_models import ActionLatency, ActionNoise, Bias, Drift, Gaussian, ObservationLatency, ObservationNoise
 from sim2real.agents import PPOConfig, train
+from sim2real.agents.config import replace
 
 RATIO_GOAL = 0.95
+BATCHED_GOAL = 3.0
 DEFAULT_TASKS = ("dmc/reacher-easy",)
 
 
@@ -84,6 +94,70 @@ def fps(task: str, config: PPOConfig, effects: list[Any], seed: int) -> tuple[fl
     result = train(task, config, effects=effects, seed=seed, progress=False, logger=None)
     cpu = time.process_time() - cpu
     return result.frames / result.wall_time, result.frames / cpu
+
+
+def bench_batched(task: str, config: PPOConfig, warmup: PPOConfig, repeats: int, stack: list[Any]) -> dict[str, Any]:
+    """``--arm batched``: single-env collection vs the batched engine, plain and under the batched stack."""
+    from sim2real.agents.collect import choose_collection
+
+    batched_stack = [e for e in stack if not isinstance(e, ActionLatency)]
+    print(f"  full stack with ActionLatency: {choose_collection(task, stack, config)}")
+    print(f"  batched-stack arm:             {choose_collection(task, batched_stack, config)}")
+    arms: dict[str, tuple[PPOConfig, PPOConfig, list[Any]]] = {
+        "single": (replace(config, engine="per-env"), replace(warmup, engine="per-env"), []),
+        "batched": (config, warmup, []),
+        "batched-stack": (config, warmup, batched_stack),
+    }
+    for _, warm, effects in arms.values():
+        fps(task, warm, effects, seed=10_000)  # untimed warm-up of each arm
+    wall: dict[str, list[float]] = {arm: [] for arm in arms}
+    cpu: dict[str, list[float]] = {arm: [] for arm in arms}
+    for rep in range(repeats):
+        for arm, (cfg, _, effects) in arms.items():
+            w, c = fps(task, cfg, effects, seed=rep)
+            wall[arm].append(w)
+            cpu[arm].append(c)
+        print(
+            f"  {task:<20} repeat {rep + 1}/{repeats}: "
+            + "  ".join(f"{arm} wall {wall[arm][-1]:7.1f} cpu {cpu[arm][-1]:7.1f}" for arm in arms)
+            + f" frames/s  [{load()}]",
+            flush=True,
+        )
+    out: dict[str, Any] = {}
+    for name, rates in (("wall", wall), ("cpu", cpu)):
+        pairs = {
+            "batched/single": [b / s for b, s in zip(rates["batched"], rates["single"], strict=True)],
+            "stack/plain": [b / s for b, s in zip(rates["batched-stack"], rates["batched"], strict=True)],
+        }
+        out[name] = {arm: statistics.median(r) for arm, r in rates.items()}
+        out[name].update({key: statistics.median(r) for key, r in pairs.items()})
+        out[name].update({f"{key} range": (min(r), max(r)) for key, r in pairs.items()})
+    return out
+
+
+def report_batched(results: dict[str, Any]) -> None:
+    print(
+        f"\n{'task':<22}{'clock':>6}{'single':>9}{'batched':>9}{'b-stack':>9}{'batched/single':>16}{'(min-max)':>13}"
+        f"{'stack/plain':>13}{'(min-max)':>13}"
+    )
+    for task, by_clock in results.items():
+        for clock, r in by_clock.items():
+            spans = [f"{lo:.2f}-{hi:.2f}" for lo, hi in (r["batched/single range"], r["stack/plain range"])]
+            print(
+                f"{task:<22}{clock:>6}{r['single']:>9.1f}{r['batched']:>9.1f}{r['batched-stack']:>9.1f}"
+                f"{r['batched/single']:>16.2f}{spans[0]:>13}{r['stack/plain']:>13.3f}{spans[1]:>13}"
+            )
+    print("(frames/s medians over repeats; ratios = medians of the per-repeat paired ratios)")
+    for clock in ("wall", "cpu"):
+        fast = all(r[clock]["batched/single"] >= BATCHED_GOAL for r in results.values())
+        lean = all(r[clock]["stack/plain"] >= RATIO_GOAL for r in results.values())
+        text = " ".join(
+            f"{task}=({r[clock]['batched/single']:.2f}, {r[clock]['stack/plain']:.3f})" for task, r in results.items()
+        )
+        print(
+            f"RESULT {clock} (batched_over_single, batched_stack_over_plain): {text} (goals: >={BATCHED_GOAL}: "
+            f"{'MET' if fast else 'MISSED'}; >={RATIO_GOAL}: {'MET' if lean else 'MISSED'})"
+        )
 
 
 def bench_task(task: str, config: PPOConfig, warmup: PPOConfig, repeats: int, stack: list[Any]) -> dict[str, Any]:
@@ -132,6 +206,9 @@ def main() -> None:
     parser.add_argument("--algo", choices=("ppo", "sac"), default="ppo",
                         help="ppo: stack-over-plain training fps; sac: SAC updates/s against plain PyTorch")
     parser.add_argument("--updates", type=int, default=60, help="--algo sac: updates per timed block")
+    parser.add_argument("--arm", choices=("stack", "batched"), default="stack",
+                        help="ppo: stack = stack over plain on today's path; batched = issue-15 batched engine arms")
+    parser.add_argument("--num-envs", type=int, default=PPOConfig().num_envs, help="--arm batched: PPOConfig.num_envs")
     args = parser.parse_args()
     if args.algo == "sac":
         from bench_sac import main as sac_main
@@ -142,8 +219,9 @@ def main() -> None:
     frames, repeats, warmup_frames = args.frames, args.repeats, args.warmup_frames
     if args.quick:
         frames, repeats, warmup_frames = 1_000, 1, 500
-    config = PPOConfig(frames=frames)
-    warmup = PPOConfig(frames=warmup_frames, frames_per_batch=min(warmup_frames, config.frames_per_batch))
+    config = PPOConfig(frames=frames, num_envs=args.num_envs)
+    warmup = PPOConfig(frames=warmup_frames, frames_per_batch=min(warmup_frames, config.frames_per_batch),
+                       num_envs=args.num_envs)  # fmt: skip
     stack = make_stack(args.obs_latency, args.action_latency)
     if args.threads > 0:
         torch.set_num_threads(args.threads)
@@ -156,6 +234,10 @@ def main() -> None:
     print(f"frames={frames} repeats={repeats} warmup_frames={warmup_frames} tasks={args.tasks}")
     print(f"config: {config}")
     print("stack:", ", ".join(repr(e) for e in stack))
+    if args.arm == "batched":
+        print("arms alternate single, batched, batched-stack, ...; wall = frames / wall time, cpu = frames / CPU time\n")
+        report_batched({task: bench_batched(task, config, warmup, repeats, stack) for task in args.tasks})
+        return
     print("arms alternate plain, stack, plain, stack, ...; wall = frames / wall time, cpu = frames / CPU time\n")
 
     results = {task: bench_task(task, config, warmup, repeats, stack) for task in args.tasks}

@@ -161,6 +161,8 @@ def cli_train(argv: Sequence[str] | None = None, out: TextIO | None = None) -> i
         file=out,
     )
     print(f"episode return (batch mean): first {first}, last {last}", file=out)
+    if result.collection is not None:
+        print(f"collection: {result.collection}", file=out)
     if result.adr is not None:
         from randomizers import ADR
 

@@ -28,10 +28,13 @@ from typing import Any, ClassVar, TypeVar
 
 import yaml
 
-__all__ = ["ACTIVATIONS", "AgentConfig", "PPOConfig", "SACConfig", "load_agent_config"]
+__all__ = ["ACTIVATIONS", "ENGINES", "AgentConfig", "PPOConfig", "SACConfig", "load_agent_config"]
 
 #: Activation names accepted by ``activation``.
 ACTIVATIONS: tuple[str, ...] = ("tanh", "relu", "elu")
+
+#: Collection engines accepted by ``PPOConfig.engine`` (the values ``evaluate(engine=...)`` takes).
+ENGINES: tuple[str, ...] = ("auto", "per-env")
 
 _C = TypeVar("_C", bound="_ConfigBase")
 
@@ -207,6 +210,11 @@ class PPOConfig(_ConfigBase):
         adr: automatic domain randomisation for the run: YAML of an ADR config (``effects`` with Uniform or
             LogUniform hard limits, ``delta``, ``t_low``, ``t_high``, optional ``p_boundary``, ``m``, ``metric``,
             ``initial``; see :meth:`randomizers.ADR.from_config`), stored canonicalised; None for none.
+        engine: one of :data:`ENGINES`. ``"auto"`` collects from ``num_envs`` worlds of the batched engine
+            (:mod:`sim2real.batched`) when it supports the task and effects, else from one env as ``"per-env"``
+            does (:func:`sim2real.agents.collect.choose_collection`; ``TrainResult.collection`` says which ran).
+        num_envs: most batched worlds collected from at once; a run uses the largest count up to this that
+            divides ``frames_per_batch`` (each world then takes ``frames_per_batch / worlds`` steps per batch).
     """
 
     algo: ClassVar[str] = "ppo"
@@ -231,11 +239,18 @@ class PPOConfig(_ConfigBase):
     bc_frames: int = 0
     bc_epochs: int = 20
     adr: str | None = None
+    engine: str = "auto"
+    num_envs: int = 20
+
+    _omit_default: ClassVar[frozenset[str]] = frozenset({"adr", "engine", "num_envs"})
 
     def _validate(self) -> None:
         _positive_int("frames", self.frames)
         _positive_int("frames_per_batch", self.frames_per_batch)
         _positive_int("epochs", self.epochs)
+        if self.engine not in ENGINES:
+            raise ValueError(f"`engine` must be one of {list(ENGINES)}. Received {self.engine!r}.")
+        _positive_int("num_envs", self.num_envs)
         from sim2real.agents.baselines import BASELINES
 
         names = sorted({cls.__name__ for cls in BASELINES.values()})

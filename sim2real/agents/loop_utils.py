@@ -27,8 +27,10 @@ def env_bounds(env: Any) -> tuple[int, int, list[float], list[float]]:
     low = getattr(getattr(spec, "space", None), "low", None)
     if low is None:
         raise TypeError(f"the env's action spec must be bounded and continuous. Received {type(spec).__name__}.")
-    low_l = [float(v) for v in spec.space.low.flatten()]
-    high_l = [float(v) for v in spec.space.high.flatten()]
+    # One world's bounds: a batched env's spec leads with its batch_size (the same box in every world).
+    world = (0,) * len(getattr(env, "batch_size", ()))
+    low_l = [float(v) for v in spec.space.low[world].flatten()]
+    high_l = [float(v) for v in spec.space.high[world].flatten()]
     return obs_dim, len(low_l), low_l, high_l
 
 

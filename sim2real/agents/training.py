@@ -3,8 +3,12 @@
 Determinism: every draw comes from torch's CPU generator seeded with ``seed`` inside
 ``torch.random.fork_rng`` (so the caller's global torch RNG state is restored afterwards), minibatch
 orders from a dedicated ``torch.Generator``, the environment from ``env.set_seed(seed)`` and the
-effects from ``sim2real.wrap(..., seed=seed)``. The same seed, thread count and versions give the same
-weights; torch does not promise identical float reductions across thread counts or machines.
+effects from ``sim2real.wrap(..., seed=seed)`` (on the batched engine world ``i`` from ``seed=(seed, i)``).
+The same seed, thread count and versions give the same weights; torch does not promise identical float
+reductions across thread counts or machines.
+
+Collection: PPO collects from ``PPOConfig.num_envs`` worlds of the batched engine when it supports the task and
+effects, else from one TorchRL env (:mod:`sim2real.agents.collect`); ``TrainResult.collection`` records which.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
+from sim2real.agents.collect import Collection, choose_collection, make_collection_env
 from sim2real.agents.config import PPOConfig, SACConfig
 from sim2real.agents.loop_utils import env_bounds, log_row, progress_bar
 
@@ -48,6 +53,7 @@ class TrainResult:
         effects: the randomisation trained under, as YAML (:func:`sim2real.dump_config`); None without effects.
         adr: the ADR controller's final state as JSON (:meth:`randomizers.ADR.to_json`; its ``history`` has the
             ranges and entropy vs frames), None without ADR.
+        collection: how the frames were collected (batched engine and its world count, or per env and why).
     """
 
     policy: Any
@@ -61,6 +67,7 @@ class TrainResult:
     log_dir: Path | None = field(default=None)
     effects: str | None = None
     adr: str | None = None
+    collection: Collection | None = None
 
     def save(self, path: str | os.PathLike[str]) -> None:
         """Writes a checkpoint (see :func:`~sim2real.agents.save_checkpoint`)."""
@@ -201,15 +208,25 @@ def train(
         raise ValueError(f"`seed` must be an int >= 0. Received {seed!r}.")
     task = _task_id(task_or_env)
     run_id = _run_id(config.algo, task, seed)
-    log = _make_logger(logger, log_dir, run_id)
-    if log is not None:
-        log.log_hparams({**config.to_dict(), "seed": seed, "task": task or "", "run_id": run_id})
     if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
         raise ValueError(f"`threads` must be an int >= 1. Received {threads!r}.")
     from sim2real.agents.adr_training import log_adr, with_adr
 
     plain, adr = with_adr(effects, config)  # an ADR in effects, or config.adr; logged with every batch
-    effects, log = [*plain, adr] if adr is not None else plain, log_adr(log, adr)
+    effects = [*plain, adr] if adr is not None else plain
+    collection = (
+        choose_collection(task_or_env, effects, config)
+        if isinstance(config, PPOConfig)
+        else Collection("per-env", 1, "SAC steps one env (its run is update-bound; see sim2real.agents.collect)")
+    )
+    log = _make_logger(logger, log_dir, run_id)
+    if log is not None:
+        log.log_hparams(
+            {**config.to_dict(), "seed": seed, "task": task or "", "run_id": run_id,
+             "collection": str(collection), "collection_engine": collection.engine,
+             "collection_num_envs": collection.num_envs}
+        )  # fmt: skip
+    log = log_adr(log, adr)
     start = time.perf_counter()
     previous_threads = torch.get_num_threads()
     torch.set_num_threads(threads)
@@ -224,7 +241,7 @@ def train(
             source = task_or_env if steps_directly(task_or_env) else make_train_env(task_or_env, effects, seed)
             policy, rows, frames = train_sac(source, config, effects=effects, seed=seed, progress=progress, log=log)
         else:
-            env = make_train_env(task_or_env, effects, seed)
+            env = make_collection_env(task_or_env, effects, seed, collection)
             try:
                 policy, rows, frames = _train_ppo(env, config, seed, progress, log)
             finally:
@@ -244,6 +261,7 @@ def train(
         log_dir=_logger_dir(log),
         effects=_effects_text(plain),
         adr=None if adr is None else adr.to_json(),
+        collection=collection,
     )
 
 
@@ -267,8 +285,8 @@ def _fit_normalizer(env: Any, norm: Any, frames: int) -> None:
     if frames <= 0:
         return
     # Uniform random actions (drawn from torch's forked, seeded generator); the env is reset again by the
-    # collector afterwards, so these steps only fix the input statistics.
-    rollout = env.rollout(frames, break_when_any_done=False)
+    # collector afterwards, so these steps only fix the input statistics. N batched worlds take frames / N each.
+    rollout = env.rollout(_steps_per_world(env, frames), break_when_any_done=False)
     obs = rollout["observation"].reshape(-1, rollout["observation"].shape[-1]).to(torch.float32)
     norm.set_stats(obs.mean(0), obs.std(0).clamp_min(0.01))
 
@@ -291,7 +309,7 @@ def _behaviour_cloning(env: Any, actor: Any, cfg: PPOConfig, low: list[float], h
         td["action"] = torch.as_tensor(np.asarray(teacher(obs), dtype=np.float32))
         return td
 
-    data = env.rollout(cfg.bc_frames, act, break_when_any_done=False)
+    data = env.rollout(_steps_per_world(env, cfg.bc_frames), act, break_when_any_done=False)
     obs = data["observation"].reshape(-1, data["observation"].shape[-1]).to(torch.float32)
     lo, hi = torch.as_tensor(low), torch.as_tensor(high)
     mid, half = (hi + lo) / 2, (hi - lo) / 2
@@ -311,6 +329,11 @@ def _behaviour_cloning(env: Any, actor: Any, cfg: PPOConfig, low: list[float], h
                 optim.zero_grad()
                 loss.backward()
                 optim.step()
+
+
+def _steps_per_world(env: Any, frames: int) -> int:
+    """Steps of ``env`` that give at least ``frames`` frames (one per world of a batched env)."""
+    return -(-frames // max(1, int(env.batch_size.numel())))
 
 
 def _td(obs: Any) -> Any:
@@ -373,7 +396,7 @@ def _train_ppo(env: Any, cfg: PPOConfig, seed: int, progress: bool, log: Any) ->
     try:
         with _bar(cfg.frames, progress, "ppo") as bar:
             for data in collector:
-                data = data.reshape(-1)
+                # A batched env gives (N, T): GAE runs along each world's own time axis, minibatches over all.
                 n = data.numel()
                 frames += n
                 row = {"frames": float(frames), **_episode_stats(data)}
@@ -384,9 +407,10 @@ def _train_ppo(env: Any, cfg: PPOConfig, seed: int, progress: bool, log: Any) ->
                 for _ in range(cfg.epochs):
                     with torch.no_grad():
                         advantage(data)
+                    flat = data.reshape(-1)
                     order = torch.randperm(n, generator=shuffle)
                     for start in range(0, n - cfg.minibatch_size + 1, cfg.minibatch_size):
-                        batch = data[order[start : start + cfg.minibatch_size]]
+                        batch = flat[order[start : start + cfg.minibatch_size]]
                         out = loss_module(batch)
                         total = out["loss_objective"] + out["loss_critic"]
                         if "loss_entropy" in out.keys():  # noqa: SIM118 - TensorDict has no `in`

@@ -1,0 +1,147 @@
+"""Where training collects its frames: N worlds of the batched engine, or one env (today's TorchRL path).
+
+:func:`choose_collection` decides from the task, the effects and the config, and says why when it falls back;
+:func:`make_collection_env` builds the TorchRL env to collect from. On the batched path that env is one
+:class:`~sim2real.batched.torchrl_env.BatchedTorchRLEnv` with ``batch_size=[N]`` (plus ``RewardSum``): one
+policy forward and one engine step per N frames instead of N TorchRL env steps, and world ``i`` is the single env
+``sim2real.wrap(sim2real.make(task), *effects, seed=(seed, i))``, so the keyed-stream promise holds per world.
+The engine's observations and rewards are float32 already, so there is no ``DoubleToFloat`` on this path.
+
+What falls back to one env (``Collection.reason`` says which): ``engine="per-env"``, an env object instead of a
+task id, an ADR controller (it scores each episode from the env's own ``step``, which the engine bypasses, and
+pins one boundary per episode), and whatever :func:`sim2real.batched.supports` refuses (tasks without a batched
+kernel, per-step effects, visual effects, signal models it does not batch such as ``ActionLatency``).
+
+SAC keeps collecting one env step at a time (:mod:`sim2real.agents.sac_loop`): its runs are update-bound.
+
+Example:
+    >>> import sim2real as s2r
+    >>> from sim2real.agents import PPOConfig
+    >>> choose_collection("dmc/reacher-easy", [s2r.Damping(scale=s2r.Uniform(0.5, 2.0))], PPOConfig())
+    Collection(engine='batched', num_envs=20, reason=None)
+    >>> print(choose_collection("dmc/reacher-easy", [], PPOConfig(frames_per_batch=1000)))
+    batched engine, 20 worlds x 50 steps per batch
+    >>> print(choose_collection("dmc/jaco-reach_site", [], PPOConfig()))
+    per-env (one TorchRL env): no batched kernel for task 'dmc/jaco-reach_site'
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = ["Collection", "choose_collection", "make_collection_env", "worlds_for"]
+
+BATCHED = "batched"
+PER_ENV = "per-env"
+
+
+@dataclass(frozen=True)
+class Collection:
+    """How a training run collects its frames.
+
+    Attributes:
+        engine: ``"batched"`` (N worlds of :mod:`sim2real.batched` in one TorchRL env) or ``"per-env"`` (one env).
+        num_envs: worlds stepped together (1 on the per-env path).
+        reason: why the run collects per env (None on the batched engine).
+        steps_per_batch: each world's steps per collected batch (``frames_per_batch / num_envs``); 0 when not
+            tied to a batch (SAC).
+    """
+
+    engine: str
+    num_envs: int
+    reason: str | None = None
+    steps_per_batch: int = 0
+
+    def __repr__(self) -> str:
+        return f"Collection(engine={self.engine!r}, num_envs={self.num_envs}, reason={self.reason!r})"
+
+    def __str__(self) -> str:
+        if self.engine == BATCHED:
+            per = f" x {self.steps_per_batch} steps per batch" if self.steps_per_batch else ""
+            return f"batched engine, {self.num_envs} worlds{per}"
+        return f"per-env (one TorchRL env): {self.reason}"
+
+
+def worlds_for(frames_per_batch: int, num_envs: int) -> int:
+    """The largest world count ``<= num_envs`` that divides ``frames_per_batch`` (so a batch holds exactly
+    ``frames_per_batch`` frames, ``frames_per_batch / worlds`` from each world).
+
+    Example:
+        >>> worlds_for(1000, 16), worlds_for(4000, 16), worlds_for(200, 16), worlds_for(97, 16)
+        (10, 16, 10, 1)
+    """
+    n = max(1, min(int(num_envs), int(frames_per_batch)))
+    while frames_per_batch % n:
+        n -= 1
+    return n
+
+
+def _per_env(reason: str) -> Collection:
+    return Collection(PER_ENV, 1, reason)
+
+
+def choose_collection(task_or_env: Any, effects: Sequence[Any], config: Any) -> Collection:
+    """The collection path :func:`~sim2real.agents.train` takes for ``task_or_env`` under ``effects``.
+
+    Args:
+        task_or_env: what ``train`` was given (a task id, a gymnasium env or a TorchRL env).
+        effects: the run's effects, its ADR controller included.
+        config: a :class:`~sim2real.agents.PPOConfig` (its ``engine``, ``num_envs`` and ``frames_per_batch``).
+
+    Returns:
+        A :class:`Collection`: batched when ``config.engine`` is ``"auto"`` and the engine supports the task and
+        effects, else per-env with the reason.
+    """
+    from randomizers import ADR
+    from sim2real.batched import supports
+    from sim2real.wrapping import _flatten
+
+    if getattr(config, "engine", PER_ENV) == PER_ENV:
+        return _per_env("engine='per-env' was asked for")
+    if not isinstance(task_or_env, str):
+        return _per_env(
+            f"an env object ({type(task_or_env).__name__}) was given; the batched engine builds its worlds from a "
+            "task id"
+        )
+    flat = _flatten(effects)
+    if any(isinstance(e, ADR) for e in flat):
+        return _per_env(
+            "ADR scores each episode from the env's own step and pins one boundary per episode; the batched "
+            "engine steps the worlds below it"
+        )
+    reason = supports(task_or_env, *flat)
+    if reason is not None:
+        return _per_env(reason)
+    n = worlds_for(config.frames_per_batch, config.num_envs)
+    return Collection(BATCHED, n, None, config.frames_per_batch // n)
+
+
+def make_collection_env(task_or_env: Any, effects: Sequence[Any], seed: int, collection: Collection) -> Any:
+    """The TorchRL env to collect from on ``collection``'s path, seeded with ``seed``.
+
+    Per env: :func:`~sim2real.agents.make_train_env`. Batched: ``BatchedTorchRLEnv(task, N, *effects, seed=seed)``
+    with ``RewardSum`` (the episode return under ``"episode_reward"``); its first full reset seeds world ``i``
+    with ``seed + i`` (gymnasium's vector convention), later resets continue each world's own streams.
+
+    Example:
+        >>> env = make_collection_env("dmc/reacher-easy", [], 0, Collection("batched", 2, None, 5))
+        >>> td = env.rollout(3)
+        >>> td.batch_size, td["next", "episode_reward"].shape
+        (torch.Size([2, 3]), torch.Size([2, 3, 1]))
+        >>> env.close()
+    """
+    if collection.engine != BATCHED:
+        from sim2real.agents.training import make_train_env
+
+        return make_train_env(task_or_env, effects, seed)
+    from torchrl.envs import RewardSum, TransformedEnv
+
+    from sim2real.batched.torchrl_env import BatchedTorchRLEnv
+    from sim2real.wrapping import _flatten
+
+    base = BatchedTorchRLEnv(task_or_env, collection.num_envs, *_flatten(effects), seed=seed)
+    env = TransformedEnv(base, RewardSum(), auto_unwrap=False)
+    env.set_seed(seed)
+    return env
