@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -47,7 +48,7 @@ from noise_models.timing import (
 )
 from noise_models.values import Layout, draw, selection_repr
 
-__all__ = ["ActionNoise", "ObservationNoise", "SignalCorruptor", "SignalModel"]
+__all__ = ["ActionNoise", "NoiseBlock", "ObservationNoise", "SignalCorruptor", "SignalModel"]
 
 SignalModel = ObservationNoise | ActionNoise | ObservationLatency | ActionLatency | SampleAndHold | ControlJitter
 _MODEL_NAMES = "ObservationNoise, ActionNoise, ObservationLatency, ActionLatency, SampleAndHold, ControlJitter"
@@ -211,6 +212,30 @@ class _Pipeline:
             _clip(w, low, high, out=w)
             return
         np.copyto(w, _clip(w, low, high), where=(x >= low) & (x <= high))
+
+
+@dataclass(frozen=True)
+class NoiseBlock:
+    """One noise pipeline fused into one affine stage, as of its current block, for code that runs many pipelines
+    at once (``sim2real.batched``): step ``t`` maps ``x`` to ``x * gain + offsets[row + t]`` (``gain`` None: 1.0),
+    then :meth:`clip`; ``row == BLOCK``: spent, :meth:`SignalCorruptor.next_noise_block` draws the next block.
+    ``offsets`` (``(BLOCK, size)``, read only) and ``gain`` are in the signal's dtype; ``low``/``high`` are the
+    clip bounds (None: none); ``guard``: clip only entries whose clean value lies inside them (observations)."""
+
+    offsets: np.ndarray
+    gain: np.ndarray | None
+    row: int
+    low: np.ndarray | None
+    high: np.ndarray | None
+    guard: bool
+
+    def clip(self, x: np.ndarray, w: np.ndarray) -> None:
+        """Clips the noisy ``w`` in place as the pipeline does (``x``: the clean signal; any leading batch axes)."""
+        if self.low is not None:
+            if self.guard:
+                np.copyto(w, _clip(w, self.low, self.high), where=(x >= self.low) & (x <= self.high))
+            else:
+                _clip(w, self.low, self.high, out=w)
 
 
 class SignalCorruptor:
@@ -467,6 +492,42 @@ class SignalCorruptor:
         self._substep_draws = 0
         self._last_obs_time = 0
         self._last_out: Any = None
+
+    def _pipes(self, side: str) -> list[_Pipeline]:
+        if side not in ("observation", "action"):
+            raise ValueError(f"`side` must be one of ['observation', 'action']. Received {side!r}.")
+        return self._obs_pipes if side == "observation" else self._action_pipes
+
+    def noise_blocks(self, side: str) -> tuple[NoiseBlock, ...]:
+        """Each ``side`` (``"observation"`` or ``"action"``) pipeline's :class:`NoiseBlock`, in order.
+
+        Raises:
+            ValueError: a pipeline that is not one affine stage (e.g. Quantize, Dropout; see NoiseBlock).
+        """
+        return tuple(self._block(pipe) for pipe in self._pipes(side))
+
+    def next_noise_block(self, side: str, k: int) -> NoiseBlock:
+        """Draws the next block of the ``k``-th ``side`` pipeline from its own stream (as its step would when
+        its block is spent) and returns it."""
+        pipe = self._pipes(side)[k]
+        pipe._refill()
+        return self._block(pipe)
+
+    @staticmethod
+    def _block(pipe: _Pipeline) -> NoiseBlock:
+        if len(pipe.stages) != 1 or not isinstance(pipe.stages[0], _Affine):
+            raise ValueError(f"`{pipe.names[0]}`: the pipeline is not one affine stage (see NoiseBlock).")
+        stage = pipe.stages[0]
+        return NoiseBlock(stage.F, stage.G, pipe.r, pipe.low, pipe.high, pipe.guard)
+
+    def pipeline_sizes(self, side: str) -> tuple[int, ...]:
+        """Signal length of each ``side`` pipeline (after :meth:`bind`)."""
+        return tuple(pipe.layout.size for pipe in self._pipes(side))
+
+    @property
+    def observation_lag(self) -> int | None:
+        """This episode's observation latency in control steps when it is one fixed lag (None otherwise)."""
+        return getattr(self, "_obs_lag", None)
 
     def _timing_rng(self, cls: type, resample: int) -> np.random.Generator:
         gen = self._timing_gens[cls]

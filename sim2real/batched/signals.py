@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from noise_models.corruptor import ActionNoise, ObservationNoise, _Affine, _clip
+from noise_models.corruptor import ActionNoise, NoiseBlock, ObservationNoise
 from noise_models.processes import BLOCK, Bias, Drift, Gaussian, Outlier, Scale, UniformNoise
 from noise_models.timing import ObservationLatency
 
@@ -56,45 +56,37 @@ def signals_reason(models: Sequence[Any]) -> str | None:
 class _Pipes:
     """One pipeline position (the k-th observation or action pipeline) across all worlds."""
 
-    def __init__(self, n: int, size: int, dtype: np.dtype) -> None:
-        self.pipes: list[Any] = [None] * n
+    def __init__(self, n: int, side: str, k: int, size: int, dtype: np.dtype) -> None:
+        self.side, self.k = side, k
+        self.corruptors: list[Any] = [None] * n
         self.F = np.zeros((n, BLOCK, size), dtype=dtype)
         self.G = np.ones((n, size), dtype=dtype)
         self.unit = np.ones(n, bool)  # worlds without gain: x + F (x * 1.0 is x, so skipping it is exact)
         self.rows = np.arange(n)
         self.r = np.zeros(n, np.int64)
-        self.low: np.ndarray | None = None
-        self.high: np.ndarray | None = None
-        self.guard = False
+        self.block: NoiseBlock | None = None  # clip bounds: the same for every world (the same signal layout)
 
-    def take(self, i: int, pipe: Any) -> None:
+    def take(self, i: int, corruptor: Any, block: NoiseBlock) -> None:
         """World ``i``'s pipeline after its reset (or after a refill): its current block and position."""
-        if len(pipe.stages) != 1 or not isinstance(pipe.stages[0], _Affine):
-            raise ValueError("`effects`: a noise pipeline the batched engine cannot fuse (see signals_reason).")
-        stage = pipe.stages[0]
-        self.pipes[i] = pipe
-        self.F[i] = stage.F
-        self.G[i] = 1.0 if stage.G is None else stage.G
-        self.unit[i] = stage.G is None
-        self.r[i] = pipe.r
-        self.low, self.high, self.guard = pipe.low, pipe.high, pipe.guard
+        self.corruptors[i] = corruptor
+        self.F[i] = block.offsets
+        self.G[i] = 1.0 if block.gain is None else block.gain
+        self.unit[i] = block.gain is None
+        self.r[i] = block.row
+        self.block = block
 
     def __call__(self, x: np.ndarray, active: np.ndarray) -> np.ndarray:
         """The noisy signal of every world; only the ``active`` worlds' noise advances."""
         idx = np.flatnonzero(active & (self.r == BLOCK))
         for i in idx.tolist():
-            pipe = self.pipes[i]
-            pipe._refill()  # the world's own next block, from its own stream
-            self.take(i, pipe)
+            corruptor = self.corruptors[i]  # the world's own next block, from its own stream
+            self.take(i, corruptor, corruptor.next_noise_block(self.side, self.k))
         everyone = bool(active.all())
         noise = self.F[self.rows, self.r if everyone else np.minimum(self.r, BLOCK - 1)]
         w = x + noise if self.unit.all() else x * self.G + noise
         self.r += active
-        if self.low is not None:
-            if self.guard:
-                np.copyto(w, _clip(w, self.low, self.high), where=(x >= self.low) & (x <= self.high))
-            else:
-                _clip(w, self.low, self.high, out=w)
+        if self.block is not None:
+            self.block.clip(x, w)
         return w if everyone else np.where(active[:, None], w, x)
 
 
@@ -109,8 +101,14 @@ class BatchedSignals:
     def __init__(self, num_envs: int, envs: Sequence[Any]) -> None:
         self.num_envs = num_envs
         first = envs[0].corruptor
-        self._obs = [_Pipes(num_envs, p.layout.size, p.dtype) for p in first._obs_pipes]
-        self._act = [_Pipes(num_envs, p.layout.size, p.dtype) for p in first._action_pipes]
+        self._obs = [
+            _Pipes(num_envs, "observation", k, size, first.obs_dtype)
+            for k, size in enumerate(first.pipeline_sizes("observation"))
+        ]
+        self._act = [
+            _Pipes(num_envs, "action", k, size, first.action_dtype)
+            for k, size in enumerate(first.pipeline_sizes("action"))
+        ]
         self.action_dtype = first.action_dtype
         self._latency = ObservationLatency in first.timing
         self._lag = np.zeros(num_envs, np.int64)
@@ -120,12 +118,12 @@ class BatchedSignals:
     def reset_world(self, i: int, env: Any, first_obs: np.ndarray) -> None:
         """Takes world ``i``'s state after its single env's reset (draws made, reset observation delivered)."""
         c = env.corruptor
-        for pipes, pipe in zip(self._obs, c._obs_pipes, strict=True):
-            pipes.take(i, pipe)
-        for pipes, pipe in zip(self._act, c._action_pipes, strict=True):
-            pipes.take(i, pipe)
+        for pipes, block in zip(self._obs, c.noise_blocks("observation"), strict=True):
+            pipes.take(i, c, block)
+        for pipes, block in zip(self._act, c.noise_blocks("action"), strict=True):
+            pipes.take(i, c, block)
         if self._latency:
-            lag = c._obs_lag
+            lag = c.observation_lag
             if lag is None:
                 raise ValueError("`effects`: an observation latency without a fixed lag is not batched.")
             if lag + 1 > self._ring.shape[1] or self._ring.shape[2] != first_obs.size:
