@@ -60,17 +60,18 @@ def test_more_episodes_on_the_target_are_counted_paired_and_reported() -> None:
     # policies on the target share its 64 episodes: paired differences over all of them
     d = report.difference("calibrated", "randomized")
     assert d.paired and d.n == 64
-    # a gap between conditions with different counts uses every episode, unpaired
+    # a gap between simulated conditions with different counts is paired over the 16 episodes they share
     g = report.gap("nominal", "sim", "real")
-    assert (g.paired, g.n_reference, g.n_target) == (False, 16, 64)
-    assert g.absolute.value == pytest.approx(report.stats_for("nominal", "sim").mean.value
-                                             - report.stats_for("nominal", "real").mean.value)  # fmt: skip
+    assert (g.paired, g.n_reference, g.n_target) == (True, 16, 16)
+    ev = _evaluation(16, 64)
+    assert g.absolute.value == pytest.approx(ev.returns["nominal"]["sim"].mean()
+                                             - ev.returns["nominal"]["real"][:16].mean())  # fmt: skip
     # SRCC / Pearson across policies: each condition has one count, so agreement is computed, not skipped
     assert all(a.srcc is not None and a.note == "" for a in report.agreement)
     text = report.summary()
     assert "16 episode(s) per simulated condition (64 on real)" in text
     assert "per simulated condition (64 on real)" in report.to_markdown()
-    assert "is unpaired (resampled independently" in report.to_markdown()
+    assert "is paired over the episodes they share (the first ones)" in report.to_markdown()
     data = json.loads(report.to_json())
     assert data["evaluation"]["episodes"] == 16
     assert data["evaluation"]["episodes_by_condition"] == {"sim": [16], "randomized": [16], "real": [64]}
@@ -159,6 +160,8 @@ def test_a_gap_without_a_relative_interval_is_claimed_with_its_absolute_interval
                  Estimate(-3.818, math.nan, math.nan, 0.95, 4, "b"), True, 4, 4, "mean")  # fmt: skip
     text = gap_phrase(g)
     assert text.startswith("gains 10.5 [-8.25, 39.75] from sim to real (absolute; 381.8% relative, without an interval")
+    zero_end = dataclasses.replace(g, absolute=Estimate(-19.0, -57.0, 0.0, 0.95, 4, "b"))
+    assert gap_phrase(zero_end).startswith("gains 19 [0, 57] from sim to real")  # no "-0" end
     assert "%" not in text.split("(")[0]  # the claim itself carries an interval, not a bare percentage
 
 

@@ -181,7 +181,11 @@ class Builder:
                 if a is None or b is None:
                     self.skip(f"no gap {ref!r} -> {target!r} for policy {policy!r}: returns missing.")
                     continue
-                paired = self.ev.condition(ref).simulated and tcond.simulated and a.size == b.size
+                paired = self.ev.condition(ref).simulated and tcond.simulated
+                if paired and a.size != b.size:
+                    # Row e of every simulated condition is the same initial state, so two conditions that ran
+                    # different numbers of episodes (more on the target) are paired over the first ones they share.
+                    a, b = a[: min(a.size, b.size)], b[: min(a.size, b.size)]
                 rng = stream(self.seed, "gap", policy, ref, target)
                 with self.warnings.where(f"gap of {policy!r} from {ref!r} to {target!r}"):
                     if paired:

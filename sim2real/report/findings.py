@@ -79,22 +79,31 @@ def pct(value: float) -> str:
     return f"{100.0 * value:.1f}%" if math.isfinite(value) else "n/a"
 
 
+def _flipped(e: Estimate) -> Estimate:
+    """``-e`` with its ends swapped (``+ 0.0`` so no end prints as ``-0``)."""
+    return Estimate(-e.value + 0.0, -e.high + 0.0, -e.low + 0.0, e.confidence, e.n, e.method)
+
+
 def gap_phrase(g: GapStats) -> str:
     """The gap of one policy between two named ends, worded by the sign of its point estimate:
     ``"loses 10.2% [9.6%, 10.9%] from sim to real (gap 10.12 [9.528, 10.76], paired)"`` or ``"gains ..."``."""
     where = f"from {g.reference} to {g.target}"
-    pairing = "paired" if g.paired else f"unpaired, {g.n_reference} vs {g.n_target} runs"
+    pairing = (
+        ("paired" if g.n_reference == g.n_target else f"paired over {min(g.n_reference, g.n_target)} runs")
+        if g.paired
+        else f"unpaired, {g.n_reference} vs {g.n_target} runs"
+    )
     rel, ab = g.relative, g.absolute
     if not math.isfinite(rel.value):
         verb = "loses" if ab.value > 0 else "gains" if ab.value < 0 else "keeps"
-        size = ab if ab.value >= 0 else Estimate(-ab.value, -ab.high, -ab.low, ab.confidence, ab.n, ab.method)
+        size = ab if ab.value >= 0 else _flipped(ab)
         return (
             f"{verb} {cell(size)} {where} (absolute; the relative gap is undefined: the {g.reference} "
             f"{g.statistic} return is 0; {pairing})"
         )
     if not math.isfinite(rel.low):  # the claim is the absolute gap, which has an interval; the % is a side note
         verb = "loses" if ab.value > 0 else "gains" if ab.value < 0 else "keeps"
-        size = ab if ab.value >= 0 else Estimate(-ab.value, -ab.high, -ab.low, ab.confidence, ab.n, ab.method)
+        size = ab if ab.value >= 0 else _flipped(ab)
         return (
             f"{verb} {cell(size)} {where} (absolute; {pct(abs(rel.value))} relative, without an interval: the "
             f"{g.reference} {g.statistic} return is 0 in too many resamples; {pairing})"
@@ -212,7 +221,8 @@ def episode_target_sentence(report: GapReport) -> str:
     verdict = "goal met" if t.met else f"goal not met (about {t.needed} episodes would meet it)"
     return (
         f"Episodes on {t.condition}: {t.episodes}, chosen so that {what} is at most +-{num(t.goal, 3)} "
-        f"({t.fraction:.0%} of {t.reference_policy!r}'s {num(t.reference_return)} on {t.reference_condition!r}): "
+        f"({t.fraction:.0%} of the mean return {num(t.reference_return)} of {t.reference_policy!r} on "
+        f"{t.reference_condition!r}): "
         f"{ask}. Achieved +-{num(t.half_width, 3)}: {verdict}."
     )
 
@@ -227,7 +237,7 @@ def budget_warnings(report: GapReport) -> tuple[str, ...]:
         out.append(
             f"Precision goal not met: {t.x!r} - {t.y!r} on {t.condition} has a {t.confidence:.0%} half-width of "
             f"{num(t.half_width, 3)} at {t.episodes} episodes, above the goal {num(t.goal, 3)} ({t.fraction:.0%} of "
-            f"{t.reference_policy!r}'s return on {t.reference_condition!r})"
+            f"the mean return of {t.reference_policy!r} on {t.reference_condition!r})"
             + (f"; about {t.needed} episodes would meet it." if t.needed is not None else ".")
         )
     counts = sorted({s.n for s in report.stats})

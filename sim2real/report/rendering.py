@@ -94,8 +94,8 @@ def document(report: GapReport) -> list[_Block]:
             f"({report.num_resamples} resamples, rng seed {report.rng_seed}); success rates with Wilson intervals. "
             "Simulated conditions share initial states episode by episode, so gaps between them are paired"
             + (
-                "; a gap between conditions that ran different numbers of episodes uses all of them and is "
-                "unpaired (resampled independently: usually wider than a paired interval would be)."
+                "; a gap between two simulated conditions that ran different numbers of episodes (more on the "
+                "target) is paired over the episodes they share (the first ones), so its runs column says how many."
                 if len({n for counts in report.episode_counts().values() for n in counts} | {report.episodes}) > 1
                 else "."
             ),

@@ -75,9 +75,10 @@ class GapStats:
         absolute: ``stat(reference) - stat(target)``; positive when the target does worse.
         relative: ``absolute / |stat(reference)|`` (NaN when ``stat(reference)`` is 0).
         paired: True when both conditions are simulated (row ``e`` is the same initial state), so runs were
-            resampled jointly; False for measured returns (resampled independently, counts may differ).
-        n_reference: runs on the reference.
-        n_target: runs on the target.
+            resampled jointly (over the episodes both ran, the first ``min`` of their counts, when the counts
+            differ); False for measured returns (resampled independently, counts may differ).
+        n_reference: runs on the reference that the gap uses.
+        n_target: runs on the target that the gap uses.
         statistic: ``"mean"`` or ``"iqm"``.
     """
 
