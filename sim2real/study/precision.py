@@ -1,0 +1,166 @@
+"""Enough episodes to decide: the study's episodes on the twin, chosen for the precision of its headline.
+
+The headline is the paired difference ``calibrated - randomized`` on the real twin. The main evaluation is the
+pilot: its ``budget.episodes`` episodes estimate the standard deviation ``sd`` of the per-episode differences, and
+with the normal approximation a ``confidence`` interval over ``n`` episodes has half-width ``z * sd / sqrt(n)``.
+The goal is a half-width of at most ``budget.precision`` of the nominal return (the nominal policy's mean in the
+nominal sim), so ``needed = ceil((z * sd / goal) ** 2)``; the twin then runs ``min(max(needed, pilot), cap)``
+episodes of every policy (:attr:`Budget.max_target_episodes` is the cap that keeps the study within its wall-time
+budget), and the report reads the half-width it reached from its own interval
+(:meth:`sim2real.report.GapReport.with_episode_target`) and says whether the goal was met.
+
+The longer twin run starts again from episode 0 with the same episode seeds, so its first ``pilot`` episodes are the
+pilot's own (bitwise) and its rows keep sharing initial states with every other condition's.
+
+Example:
+    >>> import numpy as np
+    >>> from sim2real.conditions import nominal, real
+    >>> from sim2real.evaluation_results import Evaluation
+    >>> rng = np.random.default_rng(0)
+    >>> returns = {p: {"sim": rng.normal(800, 50, 32), "real": rng.normal(600, 300, 32)}
+    ...            for p in ("nominal", "randomized", "calibrated")}
+    >>> ev = Evaluation(task="demo", seed=0, episodes=32, max_steps=None, policies=tuple(returns),
+    ...     conditions=(nominal(), real(params={"body_mass[arm]": 1.2})), returns=returns, successes={}, lengths={},
+    ...     draws={})
+    >>> t = plan_target(ev, fraction=0.05, cap=256)
+    >>> bool(t.goal == 0.05 * abs(returns["nominal"]["sim"].mean())), t.needed > t.episodes == t.cap == 256
+    (True, True)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from statistics import NormalDist
+from typing import Any
+
+import numpy as np
+
+from sim2real.report.results import EpisodeTarget
+
+__all__ = ["extend", "plan_target", "run_target"]
+
+
+def plan_target(
+    evaluation: Any,
+    *,
+    fraction: float,
+    cap: int,
+    x: str = "calibrated",
+    y: str = "randomized",
+    condition: str = "real",
+    reference: tuple[str, str] = ("nominal", "sim"),
+    confidence: float = 0.95,
+) -> EpisodeTarget:
+    """The episodes ``condition`` needs so that the ``confidence`` interval of ``mean(x) - mean(y)`` there has a
+    half-width of at most ``fraction`` of ``reference``'s mean return (see the module docstring); the evaluation's
+    episodes are the pilot. ``half_width`` is NaN until the report fills it in.
+
+    Raises:
+        ValueError: ``fraction`` not in (0, 1], ``cap`` not an int >= 1, or returns missing for ``x`` or ``y`` on
+            ``condition`` or for the reference (the names and what the evaluation has are given).
+    """
+    if isinstance(fraction, bool) or not isinstance(fraction, (int, float)) or not 0 < fraction <= 1:
+        raise ValueError(f"`fraction` must be a number in (0, 1]. Received {fraction!r}.")
+    if isinstance(cap, bool) or not isinstance(cap, int) or cap < 1:
+        raise ValueError(f"`cap` must be an int >= 1. Received {cap!r}.")
+    returns = evaluation.returns
+
+    def get(policy: str, cond: str) -> np.ndarray:
+        values = returns.get(policy, {}).get(cond)
+        if values is None or len(values) == 0:
+            have = {p: sorted(c) for p, c in returns.items()}
+            raise ValueError(f"no returns of policy {policy!r} on {cond!r}; the evaluation has {have}.")
+        return np.asarray(values, dtype=np.float64)
+
+    a, b = get(x, condition), get(y, condition)
+    pilot = int(min(a.size, b.size))
+    diff = a[:pilot] - b[:pilot]
+    sd = float(diff.std(ddof=1)) if pilot > 1 else math.nan
+    ref = float(get(*reference).mean())
+    goal = fraction * abs(ref)
+    z = NormalDist().inv_cdf(0.5 + confidence / 2.0)
+    needed: int | None
+    if not goal > 0 or not math.isfinite(sd):
+        needed, goal = None, (goal if goal > 0 else math.nan)
+    else:
+        needed = max(2, math.ceil((z * sd / goal) ** 2 - 1e-9))
+    episodes = pilot if needed is None else min(max(needed, pilot), max(cap, pilot))
+    return EpisodeTarget(
+        condition=condition,
+        x=x,
+        y=y,
+        reference_policy=reference[0],
+        reference_condition=reference[1],
+        reference_return=ref,
+        fraction=float(fraction),
+        goal=float(goal),
+        pilot_episodes=pilot,
+        pilot_sd=sd,
+        needed=needed,
+        cap=int(cap),
+        episodes=int(episodes),
+        half_width=math.nan,
+        confidence=float(confidence),
+    )
+
+
+def run_target(spec: Any, condition: str, episodes: int, **run: Any) -> Any:
+    """``spec`` (an :class:`sim2real.spec.EvaluationSpec`) run on ``condition`` alone for ``episodes`` episodes of
+    every policy; ``run`` goes to ``spec.run`` (backend, workers, progress, safety)."""
+    chosen = tuple(c for c in spec.conditions if c.name == condition)
+    if not chosen:
+        raise ValueError(f"`condition` must be one of {[c.name for c in spec.conditions]}. Received {condition!r}.")
+    return dataclasses.replace(spec, conditions=chosen, episodes=int(episodes)).run(**run)
+
+
+def extend(evaluation: Any, more: Any, condition: str) -> Any:
+    """``evaluation`` with ``condition``'s returns, lengths, successes, draws and safety measurements replaced by
+    ``more``'s (a longer run of the same policies and seed on that condition, :func:`run_target`).
+
+    Raises:
+        ValueError: ``more`` has other policies, another seed, or fewer episodes on ``condition``, or its first
+            episodes differ from ``evaluation``'s (it is not a continuation of the same episodes).
+    """
+    from sim2real.evaluation import _safety_view
+    from sim2real.evaluation_results import _nested
+
+    if more.policies != evaluation.policies or more.seed != evaluation.seed:
+        raise ValueError(
+            f"`more` must be a run of the same policies and seed: {list(evaluation.policies)} seed "
+            f"{evaluation.seed}. Received {list(more.policies)} seed {more.seed}."
+        )
+    for p in evaluation.policies:
+        old, new = evaluation.returns[p][condition], more.returns[p][condition]
+        if new.size < old.size or not np.array_equal(new[: old.size], old):
+            raise ValueError(
+                f"`more` must continue the episodes of {condition!r}: policy {p!r} has {new.size} episodes there "
+                f"whose first {old.size} differ from the evaluation's."
+            )
+
+    def swap(data: Any, extra: Any) -> dict[str, dict[str, np.ndarray]]:
+        out = {k: dict(v) for k, v in data.items()}
+        for k, v in extra.items():
+            if condition in v:
+                out.setdefault(k, {})[condition] = v[condition]
+        return out
+
+    draws = {k: dict(v) for k, v in evaluation.draws.items()}
+    if condition in more.draws:
+        draws[condition] = dict(more.draws[condition])
+    safety = {p: {c: dict(q) for c, q in d.items()} for p, d in evaluation.safety.items()}
+    for p, d in more.safety.items():
+        if condition in d:
+            safety.setdefault(p, {})[condition] = dict(d[condition])
+    old_steps = sum(int(evaluation.lengths[p][condition].sum()) for p in evaluation.policies
+                    if condition in evaluation.lengths.get(p, {}))  # fmt: skip
+    return dataclasses.replace(
+        evaluation,
+        returns=_nested(swap(evaluation.returns, more.returns), np.float64),
+        lengths=_nested(swap(evaluation.lengths, more.lengths), np.int64),
+        successes=_nested(swap(evaluation.successes, more.successes), bool),
+        draws=_nested(draws, np.float64),
+        safety=_safety_view(safety),
+        env_steps=evaluation.env_steps - old_steps + more.env_steps,
+        seconds=evaluation.seconds + more.seconds,
+    )
