@@ -66,10 +66,20 @@ def lm(
     ftol: float = 1e-10,
     xtol: float = 1e-9,
     atol: float = COST_ATOL,
+    free: np.ndarray | None = None,
 ) -> State:
-    """Box-projected Levenberg–Marquardt with Marquardt scaling; returns the improved state."""
+    """Box-projected Levenberg–Marquardt with Marquardt scaling; returns the improved state.
+
+    ``free`` (P,) bool keeps the other parameters where they are (a profile-likelihood point).
+    """
     theta, x0 = st.theta.copy(), st.x0.copy()
-    p = problem.space.size if fit_params else 0
+    p_all = problem.space.size if fit_params else 0
+    chosen = np.arange(p_all) if free is None else np.flatnonzero(free[:p_all])
+    p = int(chosen.size)
+
+    def columns(jac: np.ndarray) -> np.ndarray:
+        return jac if p == p_all else np.concatenate([jac[:, chosen], jac[:, p_all:]], axis=1)
+
     nx = problem.nx
     lam = 1e-3
     converged = False
@@ -79,7 +89,7 @@ def lm(
     cost = 0.5 * float(r @ r)
     rows = problem.segment_rows() if fit_x0 else []
     while iterations < max_iter:
-        normal = NormalEquations(jac, r, rows, p, nx if fit_x0 else 0)
+        normal = NormalEquations(columns(jac), r, rows, p, nx if fit_x0 else 0)
         diag = np.maximum(normal.diag, 1e-12 * max(float(np.max(normal.diag, initial=0.0)), 1e-300))
         if p and settled(normal, diag):
             converged = True
@@ -92,7 +102,8 @@ def lm(
             except np.linalg.LinAlgError:
                 lam *= 10.0
                 continue
-            theta_new = np.clip(theta + delta[:p], lower, upper) if p else theta
+            theta_new = theta.copy()
+            theta_new[chosen] = np.clip(theta[chosen] + delta[:p], lower[chosen], upper[chosen])
             x0_new = x0 + delta[p:].reshape(-1, nx) if fit_x0 else x0
             r_new = problem.residuals(theta_new, st.delay, st.obs, x0_new)[0]
             cost_new = 0.5 * float(r_new @ r_new)
@@ -118,7 +129,7 @@ def lm(
             theta, st.delay, st.obs, x0, fd_steps(theta, lower, upper, fd_step), fit_x0, fit_params
         )
         fresh = True
-    keep = fresh and fit_params
+    keep = fresh and fit_params and p == p_all
     return State(theta, x0, st.delay, st.obs, cost, iterations, converged, r if keep else None, jac if keep else None)
 
 

@@ -56,6 +56,7 @@ from sysid.covariance import combine, hac_covariance, identifiability
 from sysid.events import contact_rows, split_ranges
 from sysid.logs import LogError, TrajectoryLog, load_log, validate_log
 from sysid.params import ModelPool, ParameterSpace
+from sysid.profile import ProfileCheck, flat_parameters, profile_intervals
 from sysid.quality import INFORMATIVE_SHARE, assess, pooled_ljung_box
 from sysid.result import FitResult
 from sysid.shooting import divergence_curve, divergence_horizon
@@ -200,6 +201,7 @@ def fit(
     signals: Sequence[str] | None = None,
     horizon: int | Literal["auto"] | None = "auto",
     contacts: Literal["cut", "keep"] = "cut",
+    profile: bool = True,
     anchor: Literal["auto", "fit", "logged"] = "auto",
     noise_std: Mapping[str, float] | None = None,
     validation: float = 0.2,
@@ -234,6 +236,10 @@ def fit(
             (a hand hitting the floor or an object; :mod:`sysid.events`), so no shooting segment crosses a
             contact event; contacts elsewhere, or when a parameter acts only through contacts, are kept.
             ``"keep"`` fits every row.
+        profile: profile the likelihood of every parameter whose curvature is flat (standard error above 25%
+            of the estimate, or an interval past a bound): :attr:`FitQuality.profiles` holds its 95% interval
+            with every other parameter re-fitted, and a warning names a side the data do not bound
+            (:mod:`sysid.profile`).
         anchor: ``"fit"`` estimates each segment's initial state, ``"logged"`` starts from the logged state,
             ``"auto"`` fits them when there are at most 1200 such unknowns.
         noise_std: known noise sigma per channel name (others are estimated).
@@ -532,6 +538,14 @@ def fit(
         )
     if max_iter > 0 and not converged:
         warns.append(f"the local stage stopped after {iterations} iterations without meeting its tolerances.")
+    profiles: tuple[ProfileCheck, ...] = ()
+    flat = flat_parameters(st.theta, stderr, ci95, np.stack([lower, upper], axis=1)) if profile else []
+    if flat and max_iter > 0:
+        optimum = State(st.theta, st.x0, st.delay, st.obs, cost)
+        profiles = profile_intervals(final, optimum, lower, upper, flat, s2, ci95, fit_x0=fitted, fd_step=fd_step)
+        for check in profiles:
+            if check.open:
+                warns.append(f"the data barely inform {check.address}: {check.describe()}; excite it more or fix it.")
 
     # ---- held-out validation
     noise = {name: float(sigma[c]) for c, name in enumerate(final.channels)}
@@ -593,6 +607,7 @@ def fit(
         seg_final.count,
         informative,
         contact_count,
+        profiles,
     )
     all_rows = np.unique(np.concatenate(rows))
     index = {int(r_): k for k, r_ in enumerate(all_rows)}

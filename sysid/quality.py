@@ -25,6 +25,8 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from sysid.profile import ProfileCheck
+
 __all__ = [
     "EXACT_FIT_PERCENT",
     "INFLATION_LIMIT",
@@ -88,6 +90,8 @@ class FitQuality:
         informative_channels: channels carrying at least :data:`INFORMATIVE_SHARE` of some parameter's
             information; only their whiteness counts (a free ball bouncing beside an arm says nothing about the
             arm's damping). Empty: every channel counts.
+        profiles: a :class:`~sysid.profile.ProfileCheck` (profile-likelihood 95% interval) per parameter whose
+            curvature was flat (standard error above 25% of the estimate, or an interval past a bound).
         contact_rows: log rows left out of the fit because a contact touched a body the parameters move
             (``fit(contacts="cut")``; 0 when none were).
         reasons: one sentence per failed check; empty when the fit is ok.
@@ -104,6 +108,7 @@ class FitQuality:
     segments: int = 0
     informative_channels: tuple[str, ...] = ()
     contact_rows: int = 0
+    profiles: tuple[ProfileCheck, ...] = ()
     reasons: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
@@ -117,6 +122,7 @@ class FitQuality:
         object.__setattr__(self, "at_bounds", tuple(str(a) for a in self.at_bounds))
         object.__setattr__(self, "reasons", tuple(str(r) for r in self.reasons))
         object.__setattr__(self, "informative_channels", tuple(str(c) for c in self.informative_channels))
+        object.__setattr__(self, "profiles", tuple(self.profiles))
 
     @property
     def ok(self) -> bool:
@@ -158,6 +164,7 @@ class FitQuality:
             "segments": self.segments,
             "informative_channels": list(self.informative_channels),
             "contact_rows": self.contact_rows,
+            "profiles": [c.to_dict() for c in self.profiles],
             "reasons": list(self.reasons),
         }
 
@@ -180,6 +187,7 @@ class FitQuality:
             segments=int(data.get("segments", 0)),
             informative_channels=tuple(data.get("informative_channels", ())),
             contact_rows=int(data.get("contact_rows", 0)),
+            profiles=tuple(ProfileCheck.from_dict(c) for c in data.get("profiles", ())),
             reasons=tuple(data.get("reasons", ())),
         )
 
@@ -253,6 +261,7 @@ def assess(
     segments: int,
     informative_channels: tuple[str, ...] = (),
     contact_rows: int = 0,
+    profiles: tuple[ProfileCheck, ...] = (),
 ) -> FitQuality:
     """Runs every check and returns the :class:`FitQuality` with a reason per failure.
 
@@ -320,5 +329,6 @@ def assess(
         segments=segments,
         informative_channels=informative_channels,
         contact_rows=contact_rows,
+        profiles=profiles,
         reasons=tuple(reasons),
     )

@@ -471,7 +471,9 @@ class FitResult:
         owner = EFFECT_FIELDS.get(address.field)
         if owner is None or (owner.components is None and address.component is not None):
             return None
-        if owner.components is not None and (address.component is None or address.component >= len(owner.components[1])):
+        if owner.components is not None and (
+            address.component is None or address.component >= len(owner.components[1])
+        ):
             return None
         return effect_for(address, "set", Uniform(*self._range(i, width, min_relative, digits)))
 
@@ -571,6 +573,7 @@ class FitResult:
             )
         if self.latency:
             lines.append("latency (s): " + ", ".join(f"{k}={v:g}" for k, v in self.latency.items()))
+        lines += [f"profile: {check.describe()}" for check in self.quality.profiles]
         lines += [f"warning: {w}" for w in self.warnings]
         lines += [f"NOT OK: {reason}" for reason in self.quality.reasons]
         return "\n".join(lines)
