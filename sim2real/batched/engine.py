@@ -45,8 +45,6 @@ from sim2real.batched.signals import BatchedSignals, signals_reason
 
 __all__ = ["BatchedEnv", "make_batched", "supports"]
 
-_STATE_SPEC = int(mujoco.mjtState.mjSTATE_TIME | mujoco.mjtState.mjSTATE_QPOS | mujoco.mjtState.mjSTATE_QVEL)
-
 
 def supports(task: Any, *effects: Any, options: Mapping[str, Any] | None = None) -> str | None:
     """Why the batched engine cannot run ``task`` with ``effects`` and ``make`` ``options`` (None when it can).
@@ -180,7 +178,7 @@ class BatchedEnv:
             else mujoco.mj_name2id(m0, mujoco.mjtObj.mjOBJ_SITE, kernel.jacobian_site)
         )
         self._nq, self._nv = m0.nq, m0.nv
-        self._state = np.zeros((n, 1 + m0.nq + m0.nv))
+        self._state = np.zeros((n, m0.nq + m0.nv))  # [qpos, qvel] of every world
         self._ctrl = [d.ctrl for d in self.datas]
         self._gathered = {f: np.zeros((n, *getattr(self.datas[0], f).shape)) for f in kernel.fields}
         self._views = {f: [getattr(d, f) for d in self.datas] for f in kernel.fields}
@@ -210,6 +208,16 @@ class BatchedEnv:
         self._end_diverged = bool(end_diverged) or kernel.diverged_reward == "zero"
         self.threads = int(threads)
         self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="sim2real-batched") if threads > 1 else None
+        # Per world, every copy a step makes, as (destination row, source) views made once: a step then costs
+        # one slice assignment per array and world (the row views and MjData attribute lookups were a third of
+        # the Python time per world).
+        copies = [
+            [(self._state[i, : m0.nq], d.qpos), (self._state[i, m0.nq :], d.qvel)]
+            + [(self._gathered[f][i], self._views[f][i]) for f in kernel.fields]
+            + [(self._warnings[i], self._warning_views[i])]
+            for i, d in enumerate(self.datas)
+        ]
+        self._worlds = [(m, d, c, cp) for m, d, c, cp in zip(self.models, self.datas, self._ctrl, copies, strict=True)]
         self._closed = False
 
     @property
@@ -262,10 +270,8 @@ class BatchedEnv:
             self._reset_diverged[i] = self._diverged[i] = bool(report["diverged"]) and self._end_diverged
             self._steps[i] = 0
             m, d = self.models[i], self.datas[i]
-            mujoco.mj_getState(m, d, self._state[i], _STATE_SPEC)
-            self._warnings[i] = self._warning_views[i]
-            for field, views in self._views.items():
-                self._gathered[field][i] = views[i]
+            for destination, source in self._worlds[i][3]:
+                destination[...] = source
             if self._site >= 0:
                 mujoco.mj_jacSite(m, d, self._gathered["jacobian"][i], None, self._site)
         self.kernel.bind(self.models, self.envs)
@@ -301,7 +307,7 @@ class BatchedEnv:
         active &= ~self._reset_diverged
         before = self._warnings[:, self._watched].sum(axis=1)
         state, gathered, kernel = self._state, self._gathered, self.kernel
-        controls = kernel.controls(actions, state[:, 1 : 1 + self._nq], gathered)
+        controls = kernel.controls(actions, state[:, : self._nq], gathered)
         worlds = np.flatnonzero(active).tolist()
         pool = self._pool
         if pool is None or len(worlds) < 2 * self.threads:
@@ -310,8 +316,8 @@ class BatchedEnv:
             share = -(-len(worlds) // self.threads)
             list(pool.map(self._advance, [worlds[k : k + share] for k in range(0, len(worlds), share)],
                           [controls] * self.threads))  # fmt: skip
-        qpos = state[:, 1 : 1 + self._nq]
-        qvel = state[:, 1 + self._nq :]
+        qpos = state[:, : self._nq]
+        qvel = state[:, self._nq :]
         # A warning during the step: MuJoCo reset the world (bad positions, velocities or accelerations) or
         # ran out of room. dm-control raises PhysicsError there and the adapter ends the episode with reward 0; a gymnasium env's
         # own step returns what it computes, and RandomizePhysics ends the episode. Both keep the last observation.
@@ -334,10 +340,7 @@ class BatchedEnv:
         return self._out.copy(), reward, terminated, truncated, self._diverged & (diverged | stuck)
 
     def _advance(self, worlds: list[int], controls: np.ndarray) -> None:
-        """One control step of ``worlds``: the task's C calls in its order, then the gathers into row ``i``."""
-        models, datas, ctrl, state = self.models, self.datas, self._ctrl, self._state
-        views = [(self._gathered[f], self._views[f]) for f in self.kernel.fields]
-        views.append((self._warnings, self._warning_views))
+        """One control step of ``worlds``: the task's C calls in its order, then the copies into row ``i``."""
         split, sync, forward, n_sub, site = (
             self._split_step,
             self._sync_after,
@@ -346,9 +349,10 @@ class BatchedEnv:
             self._site,
         )
         jacobian = self._gathered.get("jacobian")
+        table = self._worlds
         for i in worlds:
-            m, d = models[i], datas[i]
-            ctrl[i][:] = controls[i]
+            m, d, ctrl, copies = table[i]
+            ctrl[...] = controls[i]
             if split:
                 mujoco.mj_step2(m, d)
                 if n_sub > 1:
@@ -359,9 +363,8 @@ class BatchedEnv:
                 mujoco.mj_step1(m, d)
             if forward:
                 mujoco.mj_forward(m, d)
-            mujoco.mj_getState(m, d, state[i], _STATE_SPEC)
-            for buffer, view in views:
-                buffer[i] = view[i]
+            for destination, source in copies:
+                destination[...] = source
             if site >= 0:
                 mujoco.mj_jacSite(m, d, jacobian[i], None, site)  # type: ignore[index]
 

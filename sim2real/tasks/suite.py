@@ -91,8 +91,11 @@ def suite_env(domain: str, task: str, time_limit: float | None = None, *, textur
     if template is None:
         template = _TEMPLATES[key] = _template(domain, task, time_limit, textures)
     physics = template.physics.copy(share_model=False)
-    new_task = copy.deepcopy(template.task)
-    new_task._random = np.random.RandomState()
+    # The task's RandomState is replaced by a fresh one (new entropy, as suite.load gives): passing it in the
+    # memo skips pickling the template's generator state, which was most of the copy.
+    template_random = template.task._random
+    new_task = copy.deepcopy(template.task, {id(template_random): np.random.RandomState()})
+    assert new_task._random is not template_random
     return control.Environment(
         physics,
         new_task,
