@@ -19,7 +19,13 @@ policy, ``--env-blocks`` alternating blocks of ``--env-steps`` steps each, CPU t
 
 The entropy curve comes from one more ADR run of ``--curve-frames`` (untimed, seed 0): its ADR history (frames,
 mean nats per dimension; ``-inf`` while a dimension is still a point) next to the entropy of the hand-picked ranges,
-with the training returns per batch (what the thresholds act on).
+with the training returns per batch. That run's controller is the one a user would write (:func:`curve_controller`):
+hard limits that only keep the model physical (damping 0-5x, gain 0.25-2x, mass 0.25-4x, wider than the hand-picked
+ranges, which cap the timed arms' controller so its entropy can never exceed theirs), started at the nominal point,
+and by default PPO warm-started by behaviour cloning of the task's scripted baseline (``--curve-bc``) so the policy
+can succeed at all: the metric is then the episode's success (``auto``), a boundary widens when both episodes of its
+buffer (``m`` 2) succeed and narrows when both fail. The teacher's own episodes (while its data is recorded) report to
+the controller too, so the entropy at the end of the warm start is printed separately.
 
 Usage:
     MUJOCO_GL=egl .venv/bin/python benchmarks/bench_adr.py                  # arm-reach, 3 repeats of 3000 frames
@@ -60,8 +66,32 @@ def controller(t_low: float, t_high: float, m: int) -> ADR:
     return ADR(effects(), delta=0.1, t_low=t_low, t_high=t_high, p_boundary=0.5, m=m, metric="return")
 
 
-def run(task: str, frames: int, seed: int, adr: ADR | None) -> tuple[float, float, Any]:
-    cfg = PPOConfig(frames=frames, frames_per_batch=500, minibatch_size=250, epochs=4, obs_norm_frames=500)
+def curve_controller(t_low: float, t_high: float, m: int, metric: str) -> ADR:
+    """ADR over the same parameters with physical hard limits only (the study's ``adr`` section uses the same)."""
+    wide = [
+        Damping(scale=Uniform(0.0, 5.0)),
+        Mass(scale=Uniform(0.25, 4.0), bodies="*"),
+        ActuatorGain(scale=Uniform(0.25, 2.0)),
+    ]
+    # About 1/16-1/20 of each limit's span: a boundary that always copes reaches its limit in ~16 moves.
+    delta = {"Damping[joints=*]": 0.25, "Mass[bodies=*]": 0.2, "ActuatorGain[actuators=*]": 0.1}
+    return ADR(wide, delta=delta, t_low=t_low, t_high=t_high, p_boundary=0.5, m=m, metric=metric)
+
+
+def run(
+    task: str, frames: int, seed: int, adr: ADR | None, bc: str | None = None, bc_frames: int = 0
+) -> tuple[float, float, Any]:
+    cfg = PPOConfig(
+        frames=frames,
+        frames_per_batch=500,
+        minibatch_size=250,
+        epochs=4,
+        obs_norm_frames=500,
+        bc_baseline=bc,
+        bc_frames=bc_frames if bc else 0,
+        # ADR collects per env (sim2real.agents.collect); the DR arm must too, or the ratio measures the engine.
+        engine="per-env",
+    )
     chosen = [adr] if adr is not None else effects()
     cpu = time.process_time()
     result = train(task, cfg, effects=chosen, seed=seed, progress=False, logger=None)
@@ -100,7 +130,12 @@ def main() -> None:
     parser.add_argument("--t-low", type=float, default=-130.0, help="ADR t_low (episode return)")
     parser.add_argument("--t-high", type=float, default=-105.0, help="ADR t_high (episode return)")
     parser.add_argument("--m", type=int, default=2, help="ADR buffer size")
-    parser.add_argument("--curve-frames", type=int, default=10000, help="frames of the entropy-curve run (0: none)")
+    parser.add_argument("--curve-frames", type=int, default=30000, help="frames of the entropy-curve run (0: none)")
+    parser.add_argument("--curve-bc", default="ReachController", help="BC warm start of the curve run ('' for none)")
+    parser.add_argument("--curve-bc-frames", type=int, default=4000, help="frames the BC teacher records")
+    parser.add_argument("--curve-metric", default="auto", help="ADR metric of the curve run (auto: success)")
+    parser.add_argument("--curve-t-low", type=float, default=0.3, help="curve run t_low (success rate)")
+    parser.add_argument("--curve-t-high", type=float, default=0.7, help="curve run t_high (success rate)")
     parser.add_argument("--env-steps", type=int, default=2000, help="steps per block of the env-step arm")
     parser.add_argument("--env-blocks", type=int, default=7, help="blocks per arm of the env-step arm (0: none)")
     args = parser.parse_args()
@@ -124,8 +159,16 @@ def main() -> None:
     hand = float(np.mean([math.log(e.distribution.high - e.distribution.low) for e in effects()]))
     print(f"# entropy of the hand-picked ranges: {hand:.3f} nats/dim")
     if args.curve_frames > 0:
-        _, _, result = run(args.task, args.curve_frames, 0, controller(args.t_low, args.t_high, args.m))
+        curve = curve_controller(args.curve_t_low, args.curve_t_high, args.m, args.curve_metric)
+        bc = args.curve_bc or None
+        _, _, result = run(args.task, args.curve_frames, 0, curve, bc, args.curve_bc_frames)
         hist = ADR.from_state(result.adr).history
+        warm = 500 + (args.curve_bc_frames if bc else 0)
+        at_warm = [e for f, e in zip(hist.frames, hist.entropy, strict=True) if f <= warm][-1]
+        print(
+            f"# curve controller: {curve!r} at the end; metric {args.curve_metric}, t {args.curve_t_low}/{args.curve_t_high}"
+        )
+        print(f"# entropy after the normaliser + BC warm start ({warm} frames): {at_warm:.3f} nats/dim")
         points = ", ".join(f"{f}:{e:.3f}" for f, e in zip(hist.frames, hist.entropy, strict=True))
         final = dict(zip(hist.keys, zip(hist.low[-1], hist.high[-1], strict=True), strict=True))
         returns = ", ".join(
