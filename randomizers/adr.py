@@ -336,6 +336,24 @@ Correlated effect (ADR scales its covariance). Received Gravity(add=Normal(mean=
         Correlated effect its Gaussian with the standard deviations scaled by the upper boundary)."""
         return self._dists[index]
 
+    def effects_at_ranges(self) -> tuple[Effect, ...]:
+        """The ADR effects drawing from their current ranges (what an unpinned episode draws from), as ordinary
+        effects with the same keys: e.g. the final training distribution of a run, for an evaluation condition.
+
+        Example:
+            >>> from randomizers import Damping, dump_config
+            >>> adr = ADR([Damping(scale=Uniform(0.0, 4.0))], delta=0.5, m=1, t_low=0.2, t_high=0.8)
+            >>> _ = adr.record(Pin("Damping[joints=*]", "high", 1.0), 1.0)
+            >>> adr.effects_at_ranges()
+            (Damping(scale=Uniform(low=1.0, high=1.5), joints='*'),)
+        """
+        out = []
+        for i, effect in enumerate(self.effects):
+            fields = effect._fields()
+            fields["distribution" if self._cov[i] else effect.operation] = self._dists[i]  # type: ignore[attr-defined]
+            out.append(type(effect)(**fields))
+        return tuple(out)
+
     def pinned(self, index: int, value: float, rng: np.random.Generator, count: int) -> np.ndarray:
         """The draws of a pinned episode: ``value`` for every target; for a Correlated effect, one point at ``value``
         standard deviations on a random direction (``mean + value * A u``, ``A A^T = cov``, ``u`` uniform on the unit

@@ -41,24 +41,36 @@ class AutoRandomizePhysicsTransform(RandomizePhysicsTransform):
         super().__init__((), seed)
         self.randomizer = ADRRandomizer(effects, adr, seed)  # not bound yet: the parent env binds it
         self.adr = adr
-        self._return = 0.0
-        self._length = 0
-        self._running = False
+        self.__dict__["_tally"] = _Tally()
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
-        self._return, self._length, self._running = 0.0, 0, True
+        tally = self._tally
+        tally.episode_return, tally.length, tally.running = 0.0, 0, True
         return super()._reset(tensordict, tensordict_reset)
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
         next_tensordict = super()._step(tensordict, next_tensordict)
-        # One env per transform: reward and done hold one entry, and .item() is the cheapest read (~1 µs).
+        # One env per transform: reward and done hold one entry, and .item() is the cheapest read (~1 µs). The sums
+        # live on a plain object: a Transform is an nn.Module, whose __setattr__ costs ~3 µs per attribute.
+        tally = self._tally
         reward, done = next_tensordict.get("reward"), next_tensordict.get("done")
-        self._return += reward.item() if reward.numel() == 1 else float(reward.sum())
-        self._length += 1
-        if self._running and (done.item() if done.numel() == 1 else bool(done.any())):
-            self._running = False
+        tally.episode_return += reward.item() if reward.numel() == 1 else float(reward.sum())
+        tally.length += 1
+        if tally.running and (done.item() if done.numel() == 1 else bool(done.any())):
+            tally.running = False
             success = next_tensordict.get("success", None)
             flag = None if success is None else bool(success.any())
             randomizer: ADRRandomizer = self.randomizer  # type: ignore[assignment]
-            randomizer.end_episode(Episode(self._return, self._length, flag))
+            randomizer.end_episode(Episode(tally.episode_return, tally.length, flag))
         return next_tensordict
+
+
+class _Tally:
+    """The running episode's reward sum and length, and whether it is still to be reported."""
+
+    __slots__ = ("episode_return", "length", "running")
+
+    def __init__(self) -> None:
+        self.episode_return = 0.0
+        self.length = 0
+        self.running = False
