@@ -401,6 +401,8 @@ def test_cli_train_writes_a_checkpoint(tmp_path: Path) -> None:
     )  # fmt: skip
     assert code == 0, out.getvalue()
     assert "ppo on sim2real/arm-reach, 200 frames" in out.getvalue() and "2 effect(s)" in out.getvalue()
+    # TINY_PPO: 200 frames per batch, num_envs 20 -> 20 batched worlds (Damping and ObservationLatency are batched).
+    assert "collection: batched engine, 20 worlds x 10 steps per batch" in out.getvalue()
     ckpt = load_checkpoint(tmp_path / "ckpt.pt")
     assert ckpt.config.frames == 200
     # The training randomisation travels with the checkpoint, as YAML that loads back to equal models.
@@ -442,20 +444,21 @@ def test_ppo_learns_arm_reach() -> None:
     """20k frames of PPO move the arm clearly closer than random actions: judged over four training seeds.
 
     One seed is not a test. Measured with this config on the locked install (benchmarks/learn_spread.py --seeds 0-7,
-    2026-11-23; returns are minus the summed distance in metres over 200 steps, random actions: -100.2), the gain
-    over random was +35.5, +29.0, +23.2, +31.6, +1.0, +27.9, +29.3, -8.5 for seeds 0-7: mean +21.1, sd 15.9, and
-    two runs in eight do not learn within 20k frames (another machine's numerics moved seed 0 alone from +35 to +6).
-    So the test asks that at least one of four runs learns clearly (gain > 20) and that the four beat random on
-    average: with one run in four failing independently, both fail together only when all four runs fail
-    (about 0.4%), while a PPO that does not learn (gains around 0 +- 10) fails the first.
+    2026-11-23; returns are minus the summed distance in metres over 200 steps, random actions: -100.2). Collecting
+    from one env (today ``engine="per-env"``) the gains over random were +35.5, +29.0, +23.2, +31.6, +1.0, +27.9,
+    +29.3, -8.5 for seeds 0-7 (mean +21.1, sd 15.9). Collecting from 20 batched worlds (the default since issue 15)
+    they were +15.8, +52.3, +21.6, +10.0, +32.9, +26.5, +19.0, +33.4 (mean +26.4, sd 13.2, every seed learns).
+    So the test asks that at least one of four runs learns clearly (gain > 15: 7 runs in 8 do) and that the four
+    beat random by more than 5 on average (the mean of four sits ~3 sd above that): both fail by chance well under
+    1% of the time, while a PPO that does not learn (gains around 0 +- 10) fails at least one most of the time.
     """
     from sim2real.parallel import run_tasks
 
     random = float(episode_returns(ARM, as_policy(_RandomPolicy(-0.05, 0.05, 3, seed=0)), EVAL_SEEDS).mean())
     trained = np.array(run_tasks(trained_return, LEARN_SEEDS, backend="local", workers=2).results)
     gains = trained - random
-    assert gains.max() > 20, (gains, random)
-    assert gains.mean() > 0, (gains, random)
+    assert gains.max() > 15, (gains, random)
+    assert gains.mean() > 5, (gains, random)
 
 
 # --------------------------------------------------------------------------- behaviour-cloning warm start
