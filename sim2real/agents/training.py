@@ -181,9 +181,10 @@ def train(
 
     Args:
         task_or_env: a task id, a gymnasium env or a TorchRL env (see :func:`make_train_env`).
-        config: :class:`PPOConfig` (TorchRL ``ClipPPOLoss`` + ``GAE``) or :class:`SACConfig` (the hand-written
-            update of :mod:`sim2real.agents.sac` on a uniform replay buffer; a task id or gymnasium env is then
-            stepped through gymnasium, a TorchRL env through TorchRL).
+        config: :class:`PPOConfig` (TorchRL ``ClipPPOLoss`` + ``GAE``; frames collected from ``num_envs`` worlds of
+            the batched engine when it supports the task and effects, see :mod:`sim2real.agents.collect`) or
+            :class:`SACConfig` (the hand-written update of :mod:`sim2real.agents.sac` on a uniform replay
+            buffer; a task id or gymnasium env is then stepped through gymnasium, a TorchRL env through TorchRL).
         effects: physics effects and signal models applied with :func:`sim2real.wrap` (domain randomisation).
         seed: seeds weights, exploration, minibatch order, env and effects.
         progress: show a tqdm bar on stderr.
