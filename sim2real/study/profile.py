@@ -72,6 +72,9 @@ class StudyProfile:
         sweeps, grid: the report's one-parameter sweeps and two-parameter grid (evaluation-spec items).
         agent: the PPO settings of the shipped checkpoints.
         folder: the profile's folder.
+        adr: the ADR config of the "adr" policy (canonical YAML, :meth:`randomizers.ADR.config` keys; ranges from
+            the nominal point), or None when the profile has no ``adr`` section.
+        adr_signals: the signal models the "adr" policy trains under besides its ADR ranges.
     """
 
     task: str
@@ -87,6 +90,8 @@ class StudyProfile:
     agent: Any
     folder: Path
     twin_config: Mapping[str, Any]
+    adr: str | None = None
+    adr_signals: tuple[Any, ...] = ()
 
     def spec_config(
         self,
@@ -188,6 +193,17 @@ def load_profile(task: str = DEFAULT_TASK) -> StudyProfile:
     except ValueError as err:
         raise ValueError(f"{path}: twin.signals: {err}") from err
     calib = data["calibration"]
+    adr = data.get("adr") or {}
+    adr_text = None
+    if adr:  # the "adr" policy's controller, checked here so a bad profile fails before any work
+        from sim2real.agents.adr_training import adr_config_text
+
+        try:
+            adr_text = adr_config_text(adr.get("ranges"))
+        except ValueError as err:
+            raise ValueError(f"{path}: adr.ranges: {str(err).removeprefix('`adr`: ')}") from err
+        if adr_text is None:
+            raise ValueError(f"{path}: `adr` must have `ranges` (an ADR config). Received keys {sorted(adr)}.")
     return StudyProfile(
         task=str(data["task"]),
         twin=condition,
@@ -202,4 +218,6 @@ def load_profile(task: str = DEFAULT_TASK) -> StudyProfile:
         agent=load_agent_config(dict(data["agent"])),
         folder=path.parent,
         twin_config=twin_config,
+        adr=adr_text,
+        adr_signals=tuple(load_config({"signals": adr["signals"]})) if adr.get("signals") else (),
     )

@@ -135,13 +135,23 @@ def _run(
     progress: bool,
     log: TextIO | None,
 ) -> StudyResult:
+    import yaml
+
     import sysid
     from randomizers.files import atomic_write
     from sim2real.agents import baseline_for
     from sim2real.report import GapReport
     from sim2real.spec import load_spec
     from sim2real.study.fitting import best_fit, calibrated_effects, record_twin
-    from sim2real.study.policies import ROLES, TrainJob, effects_yaml, shipped, train_one
+    from sim2real.study.policies import (
+        TrainJob,
+        adr_simulator,
+        effects_yaml,
+        role_agent,
+        shipped,
+        study_roles,
+        train_one,
+    )
     from sim2real.study.summary import DISPLAY_CONDITIONS, DISPLAY_POLICIES, TRAINING, study_summary
 
     def dispatch(fn: Callable[[Any], Any], items: list[Any], desc: str) -> list:
@@ -168,20 +178,22 @@ def _run(
     calibrated_path = staging / "sysid" / "calibrated.yaml"
     atomic_write(calibrated_path, effects_yaml(calibrated) or "effects: []\n")
 
+    roles = study_roles(profile)
     role_effects = {"nominal": (), "randomized": profile.randomized, "calibrated": tuple(calibrated)}
+    role_effects["adr"] = profile.adr_signals  # plus the ADR ranges of its agent config (role_agent)
     sources: dict[str, str] = {}
     checkpoints: dict[str, str] = {}
 
     def policies_stage() -> None:
         jobs = []
-        for role in ROLES:
+        for role in roles:
             text = effects_yaml(role_effects[role])
             found = None if budget.retrain else shipped(profile, role, text)
             if found is not None:
                 checkpoints[role] = str(found)
                 sources[role] = f"shipped checkpoint {found.name}"
                 continue
-            agent = profile.agent
+            agent = role_agent(profile, role)
             if budget.train_frames is not None:
                 agent = replace(agent, frames=budget.train_frames)
             (staging / "checkpoints").mkdir(exist_ok=True)
@@ -192,13 +204,14 @@ def _run(
             checkpoints[job.role] = path
         sources["scripted"] = repr(baseline_for(profile.task))
 
-    stages.run("policies", "nominal, randomised and calibrated PPO policies and the scripted baseline", policies_stage)
+    stages.run("policies", f"{', '.join(roles)} PPO policies and the scripted baseline", policies_stage)
     # The conditions are an ordinary evaluation spec: the same parser as `sim2real evaluate --config`.
-    policies: dict[str, Any] = {role: {"checkpoint": checkpoints[role]} for role in ROLES}
+    policies: dict[str, Any] = {role: {"checkpoint": checkpoints[role]} for role in roles}
     policies["scripted"] = "baseline"
-    spec = load_spec(
-        profile.spec_config(budget, seed=seed, policies=policies, simulators={"calibrated": str(calibrated_path)})
-    )
+    simulators: dict[str, Any] = {"calibrated": str(calibrated_path)}
+    if "adr" in checkpoints:  # the sim the ADR policy ended its training in: its final ranges
+        simulators["adr"] = yaml.safe_load(effects_yaml(adr_simulator(checkpoints["adr"], profile.adr_signals)) or "")
+    spec = load_spec(profile.spec_config(budget, seed=seed, policies=policies, simulators=simulators))
     evaluation = stages.run(
         "evaluate",
         f"{len(spec.policies)} policies x {len(spec.conditions)} conditions x {budget.episodes} episodes ({backend})",
@@ -216,9 +229,10 @@ def _run(
             rng=seed,
             title=f"sim2real study: {profile.task}",
             notes=(*(f"{role} policy: {text}" for role, text in sources.items()), f"budget {budget.name}, seed {seed}"),
-            training=TRAINING,  # each policy's robustness radii keep a fraction of its return in its own sim
+            # each policy's robustness radii keep a fraction of its return in its own sim
+            training={k: v for k, v in TRAINING.items() if k in spec.policies},
             control_timestep=float(trajectory.meta["control_timestep"]),  # latencies shown in ms
-            policy_labels=DISPLAY_POLICIES,
+            policy_labels={k: v for k, v in DISPLAY_POLICIES.items() if k in spec.policies},
             condition_labels={k: v for k, v in DISPLAY_CONDITIONS.items() if k in {c.name for c in spec.conditions}},
         )
         report = report.with_lead(study_summary(report))  # the paragraph is part of report.md/html/json

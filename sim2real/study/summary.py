@@ -16,12 +16,13 @@ from sim2real.report.findings import cell, gap_phrase, prediction_sentence, vers
 __all__ = ["DISPLAY_CONDITIONS", "DISPLAY_POLICIES", "TRAINING", "study_summary"]
 
 #: The sim each study policy was trained in (the scripted baseline was tuned in the nominal sim).
-TRAINING = {"nominal": "sim", "randomized": "randomized", "calibrated": "calibrated", "scripted": "sim"}
+TRAINING = {"nominal": "sim", "randomized": "randomized", "calibrated": "calibrated", "adr": "adr", "scripted": "sim"}
 #: Display names of the study's policies, apart from its conditions (figures and tables).
 DISPLAY_POLICIES = {
     "nominal": "trained: nominal",
     "randomized": "trained: randomised",
     "calibrated": "trained: calibrated",
+    "adr": "trained: ADR",
     "scripted": "scripted baseline",
 }
 #: Display names of the study's non-sweep conditions.
@@ -29,6 +30,7 @@ DISPLAY_CONDITIONS = {
     "sim": "sim: nominal",
     "randomized": "sim: randomised",
     "calibrated": "sim: calibrated",
+    "adr": "sim: ADR final ranges",
     "real": "real twin",
 }
 
@@ -56,6 +58,14 @@ def study_summary(report: Any, evaluation: Any = None) -> str:
             f"it {gap_phrase(report.gap('calibrated', 'calibrated', 'real'))}."
         )
         parts.append(versus(report, "calibrated", "randomized", "the twin"))
+        if any(s.policy == "adr" for s in report.stats):
+            parts.append(
+                f"The policy trained under automatic domain randomisation from the nominal point returns "
+                f"{cell(report.stats_for('adr', 'real').mean, 3)} on the twin and "
+                f"{cell(report.stats_for('adr', 'adr').mean, 3)} in its final ranges: it "
+                f"{gap_phrase(report.gap('adr', 'adr', 'real'))}."
+            )
+            parts.append(versus(report, "adr", "randomized", "the twin"))
         for p in report.predictions:
             parts.append(prediction_sentence(report, p))
         parts.append(f"The scripted baseline returns {cell(report.stats_for('scripted', 'real').mean, 3)} on the twin.")
