@@ -75,6 +75,9 @@ class Problem:
         fitted_anchor: initial states are nuisance parameters (True) or the logged states (False).
         obs_margin: sensor rows with segment index below this are skipped (room for observation latency).
         nthread: rollout threads.
+        state_mask: (nq + nv,) bool, the state entries that count (default all): their ``qpos``/``qvel`` channels
+            enter the residual and their initial states are fitted. The rest are still simulated (from the
+            logged anchor) but neither measured nor fitted — a body the parameters do not move.
     """
 
     def __init__(
@@ -88,6 +91,7 @@ class Problem:
         obs_margin: int,
         nthread: int | None,
         pool: ModelPool | None = None,
+        state_mask: np.ndarray | None = None,
     ) -> None:
         self.log = log
         self.model = model
@@ -97,6 +101,9 @@ class Problem:
         self.n_sub = log.n_substeps
         self.nq, self.nv, self.na = model.nq, model.nv, model.na
         self.nx = self.nq + self.nv
+        mask = np.ones(self.nx, dtype=bool) if state_mask is None else np.asarray(state_mask, dtype=bool)
+        self.x_dims = np.flatnonzero(mask)  # fitted initial-state entries
+        self.nxa = int(self.x_dims.size)
         self.pool = pool or ModelPool(model, space)
         self.nthread = max(1, nthread or os.cpu_count() or 1)
         self._datas = [mujoco.MjData(model) for _ in range(self.nthread)]
@@ -106,11 +113,11 @@ class Problem:
         state_cols: list[int] = []
         self.channels: list[str] = []
         if "qpos" in signals:
-            state_cols += list(range(self.nq))
-            self.channels += names["qpos"]
+            state_cols += [i for i in range(self.nq) if mask[i]]
+            self.channels += [n for i, n in enumerate(names["qpos"]) if mask[i]]
         if "qvel" in signals:
-            state_cols += [self.nq + i for i in range(self.nv)]
-            self.channels += names["qvel"]
+            state_cols += [self.nq + i for i in range(self.nv) if mask[self.nq + i]]
+            self.channels += [n for i, n in enumerate(names["qvel"]) if mask[self.nq + i]]
         self.state_cols = np.asarray(state_cols, dtype=np.intp)
         self.use_sensors = "sensordata" in signals and log.sensordata is not None and model.nsensordata > 0
         if self.use_sensors:
@@ -236,8 +243,9 @@ class Problem:
         fit_x0: bool,
         fit_params: bool = True,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Residual (N,) and forward-difference Jacobian (N, P [+ S*nx]) in one batched rollout."""
-        p, s, nx = self.space.size, self.seg.count, self.nx
+        """Residual (N,) and forward-difference Jacobian (N, P [+ S*nxa]) in one batched rollout (the
+        initial-state columns: the fitted entries ``x_dims`` of each segment, segment after segment)."""
+        p, s, nx, nxa, dims = self.space.size, self.seg.count, self.nx, self.nxa, self.x_dims
         x0 = self.anchors() if x0 is None else x0
         sets = [values]
         if fit_params:
@@ -252,11 +260,11 @@ class Problem:
         if fit_x0:
             scale = np.maximum(np.abs(x0).max(axis=0), 1e-2)
             x_steps = 1e-6 * scale
-            pert = np.repeat(base_states, nx, axis=0)  # row s*nx + i perturbs state i of segment s
-            pert[:, 1 : 1 + nx] += np.tile(np.diag(x_steps), (s, 1))
+            pert = np.repeat(base_states, nxa, axis=0)  # row s*nxa + i perturbs state dims[i] of segment s
+            pert[np.arange(s * nxa), 1 + np.tile(dims, s)] += np.tile(x_steps[dims], s)
             states.append(pert)
-            controls.append(np.repeat(self.controls(delay), nx, axis=0))
-            row_models += [models[0]] * (s * nx)
+            controls.append(np.repeat(self.controls(delay), nxa, axis=0))
+            row_models += [models[0]] * (s * nxa)
         pred, sens = self.rollout(row_models, np.vstack(states), np.concatenate(controls))
         n_sets = table.shape[0]
         main_pred = pred[: n_sets * s].reshape(n_sets, s, self.L + 1, nx)
@@ -267,16 +275,16 @@ class Problem:
         if fit_params:
             columns.append(((res[1:] - r0) / steps[:, None]).T)
         if fit_x0:
-            xp = pred[n_sets * s :].reshape(s, nx, self.L + 1, nx)
-            xs = sens[n_sets * s :].reshape(s, nx, self.L, -1)
-            block = np.zeros((r0.size, s * nx))
+            xp = pred[n_sets * s :].reshape(s, nxa, self.L + 1, nx)
+            xs = sens[n_sets * s :].reshape(s, nxa, self.L, -1)
+            block = np.zeros((r0.size, s * nxa))
             for k in range(s):
-                p_k = np.repeat(main_pred[:1], nx, axis=0)
-                s_k = np.repeat(main_sens[:1], nx, axis=0)
+                p_k = np.repeat(main_pred[:1], nxa, axis=0)
+                s_k = np.repeat(main_sens[:1], nxa, axis=0)
                 p_k[:, k] = xp[k]
                 s_k[:, k] = xs[k]
                 r_k = self.weighted(*self.raw_residuals(p_k, s_k, obs_delay))
-                block[:, k * nx : (k + 1) * nx] = ((r_k - r0) / x_steps[:, None]).T
+                block[:, k * nxa : (k + 1) * nxa] = ((r_k - r0) / x_steps[dims][:, None]).T
             columns.append(block)
         return r0, np.concatenate(columns, axis=1) if columns else np.zeros((r0.size, 0))
 

@@ -80,7 +80,7 @@ def lm(
     def columns(jac: np.ndarray) -> np.ndarray:
         return jac if p == p_all else np.concatenate([jac[:, chosen], jac[:, p_all:]], axis=1)
 
-    nx = problem.nx
+    nx = problem.nxa
     lam = 1e-3
     converged = False
     iterations = 0
@@ -104,7 +104,10 @@ def lm(
                 continue
             theta_new = theta.copy()
             theta_new[chosen] = np.clip(theta[chosen] + delta[:p], lower[chosen], upper[chosen])
-            x0_new = x0 + delta[p:].reshape(-1, nx) if fit_x0 else x0
+            x0_new = x0
+            if fit_x0:
+                x0_new = x0.copy()
+                x0_new[:, problem.x_dims] += delta[p:].reshape(-1, nx)
             r_new = problem.residuals(theta_new, st.delay, st.obs, x0_new)[0]
             cost_new = 0.5 * float(r_new @ r_new)
             if np.isfinite(cost_new) and cost_new < cost:

@@ -54,6 +54,7 @@ __all__ = [
 Measure = Literal["qpos", "qvel", "state", "sensordata"]
 _MEASURES = ("qpos", "qvel", "state", "sensordata")
 
+
 def _split_params(params: str | Sequence[str]) -> list[str]:
     if isinstance(params, str):
         items = [p.strip() for p in params.split(",")]

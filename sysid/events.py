@@ -21,7 +21,16 @@ import numpy as np
 from sysid.logs import TrajectoryLog
 from sysid.params import ModelPool, ParameterSpace
 
-__all__ = ["CONTACT_MARGIN_ROWS", "MIN_KEPT_SHARE", "MIN_RANGE_ROWS", "contact_rows", "split_ranges"]
+__all__ = [
+    "CONTACT_MARGIN_ROWS",
+    "MIN_KEPT_SHARE",
+    "MIN_RANGE_ROWS",
+    "contact_rows",
+    "moved_trees",
+    "sensor_trees",
+    "split_ranges",
+    "state_trees",
+]
 
 #: Rows on either side of a row with a contact that are also left out: a contact can begin or end between two
 #: logged rows, and a noisy logged state can miss it by a row.
@@ -81,6 +90,83 @@ def _moved_trees(
     return {int(t) for t in model.dof_treeid[moved.any(axis=0)]}
 
 
+def _row_pairs(log: TrajectoryLog, model: mujoco.MjModel) -> list[list[tuple[int, int]]]:
+    data = mujoco.MjData(model)
+    pairs = []
+    for row in range(log.qpos.shape[0]):
+        data.qpos[:] = log.qpos[row]
+        mujoco.mj_fwdPosition(model, data)
+        pairs.append(_contact_pairs(model, data))
+    return pairs
+
+
+def moved_trees(
+    log: TrajectoryLog, model: mujoco.MjModel, space: ParameterSpace, pool: ModelPool, theta: np.ndarray
+) -> set[int] | None:
+    """Kinematic trees whose accelerations some parameter changes, read at logged rows where no contact couples
+    two moving trees; None when some parameter changes nothing there (it acts through contacts, or through
+    something these rows do not show) — then every tree counts.
+    """
+    pairs = _row_pairs(log, model)
+    free = np.array([all(a == -1 or b == -1 or a == b for a, b in p) for p in pairs])
+    candidates = np.flatnonzero(free)
+    if candidates.size == 0 or space.size == 0:
+        return None
+    sample = candidates[np.linspace(0, candidates.size - 1, min(_SAMPLE_ROWS, candidates.size)).round().astype(int)]
+    return _moved_trees(log, model, space, pool, theta, np.unique(sample))
+
+
+def state_trees(model: mujoco.MjModel) -> np.ndarray:
+    """(nq + nv,) the kinematic tree of every ``qpos`` and ``qvel`` entry (the log's state columns).
+
+    Example:
+        >>> m = mujoco.MjModel.from_xml_string('<mujoco><worldbody><body><freejoint/><geom size=".1"/></body>'
+        ...     '<body><joint type="hinge"/><geom size=".1"/></body></worldbody></mujoco>')
+        >>> state_trees(m).tolist()
+        [0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0, 1]
+    """
+    widths = np.diff(np.append(model.jnt_qposadr, model.nq))
+    qpos_tree = np.repeat(model.dof_treeid[model.jnt_dofadr], widths)
+    return np.concatenate([qpos_tree, model.dof_treeid]).astype(np.intp)
+
+
+def sensor_trees(model: mujoco.MjModel) -> list[int | None]:
+    """The kinematic tree each sensor is attached to (through its site, body, joint, geom or camera, and its
+    reference frame when it has one); None when it is attached to the world or to something else (it may read
+    any body).
+
+    Example:
+        >>> m = mujoco.MjModel.from_xml_string('<mujoco><worldbody><site name="w"/><body><joint name="j"/>'
+        ...     '<geom size=".1"/><site name="s"/></body></worldbody>'
+        ...     '<sensor><touch site="s"/><jointpos joint="j"/><framepos objtype="site" objname="w"/></sensor></mujoco>')
+        >>> sensor_trees(m)
+        [0, 0, None]
+    """
+    obj = mujoco.mjtObj
+    body_of = {
+        int(obj.mjOBJ_SITE): model.site_bodyid,
+        int(obj.mjOBJ_BODY): np.arange(model.nbody),
+        int(obj.mjOBJ_XBODY): np.arange(model.nbody),
+        int(obj.mjOBJ_JOINT): model.jnt_bodyid,
+        int(obj.mjOBJ_GEOM): model.geom_bodyid,
+        int(obj.mjOBJ_CAMERA): model.cam_bodyid,
+    }
+    out: list[int | None] = []
+    for i in range(model.nsensor):
+        trees = set()
+        for kind, ident in (
+            (model.sensor_objtype[i], model.sensor_objid[i]),
+            (model.sensor_reftype[i], model.sensor_refid[i]),
+        ):
+            if ident < 0 and kind == obj.mjOBJ_UNKNOWN:
+                continue
+            bodies = body_of.get(int(kind))
+            trees.add(None if bodies is None or ident < 0 else int(model.body_treeid[bodies[ident]]))
+        tree = trees.pop() if len(trees) == 1 else None
+        out.append(None if tree is None or tree < 0 else tree)
+    return out
+
+
 def contact_rows(
     log: TrajectoryLog,
     model: mujoco.MjModel,
@@ -98,24 +184,11 @@ def contact_rows(
         pool: model copies for ``space`` (written here).
         theta: parameter values at which the trees are found.
     """
-    rows = log.qpos.shape[0]
-    data = mujoco.MjData(model)
-    pairs: list[list[tuple[int, int]]] = []
-    for row in range(rows):
-        data.qpos[:] = log.qpos[row]
-        mujoco.mj_fwdPosition(model, data)
-        pairs.append(_contact_pairs(model, data))
-    flagged = np.zeros(rows, dtype=bool)
-    if not any(pairs) or space.size == 0:
+    pairs = _row_pairs(log, model)
+    flagged = np.zeros(len(pairs), dtype=bool)
+    if not any(pairs):
         return flagged
-    # Rows where no contact couples two bodies that move: the parameters' reach is read there without a contact
-    # spreading it from one tree to another.
-    free = np.array([all(a == -1 or b == -1 or a == b for a, b in p) for p in pairs])
-    candidates = np.flatnonzero(free)
-    if candidates.size == 0:
-        return flagged
-    sample = candidates[np.linspace(0, candidates.size - 1, min(_SAMPLE_ROWS, candidates.size)).round().astype(int)]
-    trees = _moved_trees(log, model, space, pool, theta, np.unique(sample))
+    trees = moved_trees(log, model, space, pool, theta)
     if trees is None:
         return flagged
     for row, p in enumerate(pairs):

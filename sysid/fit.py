@@ -53,8 +53,8 @@ from noise_models.timing import convert_time
 from sysid._problem import Problem, make_segments
 from sysid._solver import COST_ATOL, Progress, State, fd_steps, lm
 from sysid.covariance import combine, hac_covariance, identifiability
-from sysid.events import contact_rows, split_ranges
-from sysid.logs import LogError, TrajectoryLog, load_log, validate_log
+from sysid.events import contact_rows, moved_trees, sensor_trees, split_ranges, state_trees
+from sysid.logs import LogError, TrajectoryLog, channel_names, load_log, validate_log
 from sysid.params import ModelPool, ParameterSpace
 from sysid.profile import ProfileCheck, flat_parameters, profile_intervals
 from sysid.quality import INFORMATIVE_SHARE, assess, pooled_ljung_box
@@ -332,6 +332,18 @@ def fit(
     if not fit_ranges:
         raise LogError("the log has no rows left to fit after the validation split. Received too short a log.")
     pool = ModelPool(model, space)
+    # State entries of bodies the parameters do not move (a ball beside an arm) are neither measured nor fitted:
+    # with the rows where they touch what moves cut out below, their residuals are independent of the
+    # parameters, and their open-loop prediction (a ball bouncing on the floor) would only shorten the segments
+    # and add nuisance initial states. A sensor on another body (or the world, which may see any body) keeps them
+    # all, and so does contacts="keep" (a kept contact couples the bodies).
+    trees = moved_trees(log, model, space, pool, theta0)
+    state_mask: np.ndarray | None = None
+    on_moved = "sensordata" not in signals or all(t is not None and t in (trees or ()) for t in sensor_trees(model))
+    if trees is not None and on_moved and contacts == "cut":
+        state_mask = np.isin(state_trees(model), sorted(trees))
+        if state_mask.all() or not state_mask.any():
+            state_mask = None
     contact_count = 0
     if contacts == "cut":
         flagged = contact_rows(log, model, space, pool, theta0)
@@ -352,14 +364,16 @@ def fit(
             raise LogError(
                 "`log` must have at least 2 rows per episode to fit. Received episodes too short to simulate."
             )
-        return Problem(log, model, space, seg, signals, fit_x0, obs_margin, nthread, pool), fit_x0
+        return Problem(log, model, space, seg, signals, fit_x0, obs_margin, nthread, pool, state_mask), fit_x0
 
     final, fitted = build(fixed_horizon)
     sigma = _difference_sigma(final)
     known = dict(noise_std or {})
-    unknown_names = sorted(set(known) - set(final.channels))
+    names = channel_names(model)
+    every_channel = [n for signal in signals for n in names[signal]]
+    unknown_names = sorted(set(known) - set(every_channel))
     if unknown_names:
-        raise ValueError(f"`noise_std` keys must be channel names {final.channels}. Received unknown {unknown_names}.")
+        raise ValueError(f"`noise_std` keys must be channel names {every_channel}. Received unknown {unknown_names}.")
     for c, name in enumerate(final.channels):
         if name in known:
             sigma[c] = float(known[name])
@@ -375,7 +389,7 @@ def fit(
         short = max(5, 2 * max(ranges["action"]) + 5, obs_margin + 5)
         g_horizon = short if fixed_horizon is None else min(fixed_horizon, short)
         seg_g = make_segments(fit_ranges, g_horizon, False)
-        gprob = Problem(log, model, space, seg_g, signals, False, obs_margin, nthread, pool)
+        gprob = Problem(log, model, space, seg_g, signals, False, obs_margin, nthread, pool, state_mask)
         gprob.weights = final.weights
         starts = _starts(space, theta0, n_starts if global_search else 0, rng)
         # Few starts per batch: every start needs its own model copy (~35 ms each), the rollout threads stay busy.
@@ -415,7 +429,18 @@ def fit(
         st = State(best.theta, final.anchors(), best.delay, best.obs)
     if auto_horizon:
         curve = divergence_curve(
-            log, model, space, fit_ranges, signals, final.weights, st.theta, st.delay, st.obs, nthread, pool
+            log,
+            model,
+            space,
+            fit_ranges,
+            signals,
+            final.weights,
+            st.theta,
+            st.delay,
+            st.obs,
+            nthread,
+            pool,
+            state_mask=state_mask,
         )
         fixed_horizon = divergence_horizon(curve)
         if fixed_horizon is not None:
@@ -425,16 +450,16 @@ def fit(
     seg_final = final.seg
 
     # ---- local stage with noise re-estimation, then latency refinement
-    unknowns = space.size + (seg_final.count * nx if fitted else 0)
+    unknowns = space.size + (seg_final.count * final.nxa if fitted else 0)
     lm_kwargs: dict[str, Any] = {"fit_x0": fitted, "fd_step": fd_step, "progress": bar}
     if max_iter > 0:
         # The noise levels are re-estimated from the residuals below, so this first solve only needs to get close.
-        loose = len(known) < len(final.channels)
+        loose = not all(name in known for name in final.channels)
         st = lm(
             final, st, lower, upper, max_iter=max_iter, stage="local", atol=1.0 if loose else COST_ATOL, **lm_kwargs
         )
         for _ in range(2):
-            if len(known) == len(final.channels):
+            if all(name in known for name in final.channels):
                 break
             new_sigma = _residual_sigma(final, st.theta, st.delay, st.obs, st.x0, unknowns)
             for c, name in enumerate(final.channels):
@@ -491,7 +516,7 @@ def fit(
         # the loaded 2-core box).
         jp = jp.copy()
         for k, idx in enumerate(final.segment_rows()):
-            jx = jac[idx, p + k * nx : p + (k + 1) * nx]
+            jx = jac[idx, p + k * final.nxa : p + (k + 1) * final.nxa]
             scale = np.maximum(np.linalg.norm(jx, axis=0), 1e-300)
             jx = jx / scale
             try:
@@ -554,7 +579,16 @@ def fit(
     if val_ranges:
         vfit = anchor != "logged" and make_segments(val_ranges, fixed_horizon, True).count * nx <= _MAX_NUISANCE
         vprob = Problem(
-            log, model, space, make_segments(val_ranges, fixed_horizon, vfit), signals, vfit, obs_margin, nthread, pool
+            log,
+            model,
+            space,
+            make_segments(val_ranges, fixed_horizon, vfit),
+            signals,
+            vfit,
+            obs_margin,
+            nthread,
+            pool,
+            state_mask,
         )
         vprob.weights = final.weights
         vst = State(st.theta, vprob.anchors(), st.delay, st.obs)
@@ -572,7 +606,7 @@ def fit(
                 stage="validate",
             )
         trace_problem, trace_x0, source = vprob, vst.x0, "validation"
-        val_unknowns = vprob.seg.count * nx if vfit else 0
+        val_unknowns = vprob.seg.count * vprob.nxa if vfit else 0
     pred, sens = trace_problem.simulate(st.theta, st.delay, trace_x0)
     errors = trace_problem.channel_errors(*trace_problem.raw_residuals(pred, sens, st.obs))
     measured = trace_problem.channel_measurements()

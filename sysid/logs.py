@@ -99,8 +99,9 @@ def _latency_in_seconds(meta: Mapping[str, Any]) -> dict[str, Any]:
         raise LogError(f"`meta['true_latency_steps']` must map 'action'/'obs' to control steps. Received {legacy!r}.")
     substeps = max(1, round(float(out["control_timestep"]) / float(out["timestep"])))
     seconds = {
-        str(side): convert_time(float(steps), "control_steps", "seconds", timestep=float(out["timestep"]),
-                                substeps=substeps)
+        str(side): convert_time(
+            float(steps), "control_steps", "seconds", timestep=float(out["timestep"]), substeps=substeps
+        )
         for side, steps in legacy.items()
     }
     out.setdefault("true_latency_seconds", seconds)
@@ -608,7 +609,9 @@ def record_log(
         "actuator_names": [n[5:-1] for n in names["ctrl"]],
         "sensor_names": names["sensordata"],
         "true_latency_seconds": {
-            side: convert_time(steps_, "control_steps", "seconds", timestep=float(model.opt.timestep), substeps=n_substeps)
+            side: convert_time(
+                steps_, "control_steps", "seconds", timestep=float(model.opt.timestep), substeps=n_substeps
+            )
             for side, steps_ in (("action", action_latency), ("obs", obs_latency))
         },
         "noise_std": sigmas,

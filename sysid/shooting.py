@@ -40,8 +40,13 @@ def divergence_curve(
     nthread: int | None,
     pool: ModelPool,
     max_lead: int = _MAX_LEAD,
+    state_mask: np.ndarray | None = None,
 ) -> np.ndarray:
     """Median over anchors of the RMS weighted error at lead 1, 2, … (open loop from logged states).
+
+    ``state_mask`` (bool over ``qpos``/``qvel`` entries) limits the RMS to the channels of what the parameters
+    move: a ball bouncing beside an arm diverges within a few steps but says nothing about the arm, and would
+    otherwise cut the arm's log into needlessly short segments.
 
     Returns:
         (K,) error per lead, K = min(max_lead, longest fitted range - 1).
@@ -61,7 +66,7 @@ def divergence_curve(
             e0.append(ep_start)
             e1.append(ep_stop)
     seg = Segments(*(np.asarray(v, dtype=np.intp) for v in (start, length, e0, e1)))
-    problem = Problem(log, model, space, seg, signals, False, 0, nthread, pool)
+    problem = Problem(log, model, space, seg, signals, False, 0, nthread, pool, state_mask)
     problem.weights = weights
     pred, sens = problem.simulate(theta, delay)
     r_state, r_sens = problem.raw_residuals(pred, sens, obs_delay)

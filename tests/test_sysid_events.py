@@ -91,3 +91,16 @@ def test_fit_leaves_contact_rows_out_and_reports_them() -> None:
     assert cut.n_residuals < kept.n_residuals
     with pytest.raises(ValueError, match=r"`contacts` must be 'cut' or 'keep'. Received 'drop'"):
         fit(log, guess, ["dof_damping[hinge]"], contacts="drop")  # type: ignore[arg-type]
+
+
+def test_a_body_the_parameters_do_not_move_is_neither_measured_nor_fitted() -> None:
+    _model, log, _ = _log(2)
+    known = {"qpos[slide]": 1e-4, "qvel[slide]": 1e-3}  # the ball's noise may still be given
+    cut = fit(log, XML, ["dof_damping[hinge]"], global_search=False, progress=False, noise_std=known)
+    assert cut.channels == ("qpos[hinge]", "qvel[hinge]")
+    lo, hi = cut.ci95[0]
+    assert lo <= 0.2 <= hi
+    kept = fit(log, XML, ["dof_damping[hinge]"], global_search=False, progress=False, contacts="keep")
+    assert kept.channels == ("qpos[hinge]", "qpos[slide]", "qvel[hinge]", "qvel[slide]")
+    with pytest.raises(ValueError, match=r"`noise_std` keys must be channel names \[.*\]. Received unknown \['x'\]"):
+        fit(log, XML, ["dof_damping[hinge]"], noise_std={"x": 1.0}, progress=False)
