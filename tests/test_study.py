@@ -37,6 +37,34 @@ def test_quick_study_writes_the_report(quick: Path) -> None:
     assert "dof_damping[shoulder]" in appendix
 
 
+def test_quick_study_decides_its_twin_episodes_and_reports_safety_and_units(quick: Path) -> None:
+    import re
+
+    report = json.loads((quick / "report.json").read_text())
+    # Enough episodes to decide: the main evaluation is the pilot, the twin runs what the precision goal asks for,
+    # capped by the budget (quick: 4 episodes, at most 8 on the twin).
+    t = report["episode_target"]
+    assert (t["condition"], t["x"], t["y"], t["pilot_episodes"], t["cap"]) == ("real", "calibrated", "randomized", 4, 8)
+    assert t["episodes"] == (4 if t["needed"] is None else min(max(t["needed"], 4), 8))
+    assert report["evaluation"]["episodes"] == 4
+    if t["episodes"] != 4:
+        assert report["evaluation"]["episodes_by_condition"]["real"] == [t["episodes"]]
+    assert all(s["n"] == (t["episodes"] if s["condition"] == "real" else 4) for s in report["stats"])
+    assert "Episodes on real:" in report["lead"]
+    # The arm's envelope (sim2real/data/study/dmc-reacher-easy/safety.yaml), every physics step of reacher seen.
+    safety = report["safety"]
+    assert safety["physics_steps_per_sample"] == 1 and safety["limits"]["max_ee_speed"]["body"] == "finger"
+    assert {r["quantity"] for r in safety["rows"]} >= {"joint_limit_hits", "effort_ratio", "ee_speed", "diverged"}
+    # The sensor-noise sweep in the observation's physical units, not "observation units".
+    assert report["observation_unit"] == "rad (position), m (to_target), rad/s (velocity)"
+    md = (quick / "report.md").read_text()
+    assert "observation units" not in md and "## Safety" in md
+    # No nan, and a zero-width interval always says why.
+    assert not re.search(r"\bnan\b", md, re.IGNORECASE) and not re.search(r"\bnan\b", report["summary"], re.I)
+    for match in re.finditer(r"0 \\?\[0, 0\\?\]", md):
+        assert md[match.end() : match.end() + 12] == " (no spread:", md[match.start() - 80 : match.end() + 40]
+
+
 def test_same_seed_reproduces_the_report_json_bitwise(quick: Path, tmp_path: Path) -> None:
     again = run_study(out=tmp_path / "again", budget="quick", backend="serial", seed=0, progress=False, log=None)
     assert (again.out / "report.json").read_bytes() == (quick / "report.json").read_bytes()

@@ -33,6 +33,10 @@ class Budget:
         train_frames: frames for policies that must be trained (None: the profile's PPO frames).
         retrain: train every policy even when a shipped checkpoint matches.
         num_resamples: bootstrap resamples of every interval.
+        precision: the goal half-width of the headline's interval (calibrated - randomized on the twin) as a
+            fraction of the nominal return (:mod:`sim2real.study.precision`).
+        max_target_episodes: the most episodes of every policy on the twin when the goal asks for more than
+            ``episodes`` (keeps the standard study within its wall-time budget).
     """
 
     name: str
@@ -46,12 +50,14 @@ class Budget:
     train_frames: int | None
     retrain: bool
     num_resamples: int
+    precision: float = 0.05
+    max_target_episodes: int = 128
 
 
 BUDGETS: dict[str, Budget] = {
-    "quick": Budget("quick", 4, 200, 3, 2, 4, 200, 2, 2_000, False, 500),
-    "standard": Budget("standard", 32, None, None, None, 4, 200, 2, None, False, 2_000),
-    "full": Budget("full", 100, None, None, None, 8, 200, 4, None, True, 5_000),
+    "quick": Budget("quick", 4, 200, 3, 2, 4, 200, 2, 2_000, False, 500, 0.05, 8),
+    "standard": Budget("standard", 32, None, None, None, 4, 200, 2, None, False, 2_000, 0.05, 128),
+    "full": Budget("full", 100, None, None, None, 8, 200, 4, None, True, 5_000, 0.05, 1_024),
 }
 
 
@@ -72,6 +78,8 @@ class StudyProfile:
         sweeps, grid: the report's one-parameter sweeps and two-parameter grid (evaluation-spec items).
         agent: the PPO settings of the shipped checkpoints.
         folder: the profile's folder.
+        safety: the safety envelope the study measures and reports (``safety.yaml`` next to ``study.yaml``, a
+            :func:`sim2real.safety.load_limits` file), or None when the profile has none.
         adr: the ADR config of the "adr" policy (canonical YAML, :meth:`randomizers.ADR.config` keys; ranges from
             the nominal point), or None when the profile has no ``adr`` section.
         adr_signals: the signal models the "adr" policy trains under besides its ADR ranges.
@@ -92,6 +100,7 @@ class StudyProfile:
     twin_config: Mapping[str, Any]
     adr: str | None = None
     adr_signals: tuple[Any, ...] = ()
+    safety: Any = None
 
     def spec_config(
         self,
@@ -220,4 +229,12 @@ def load_profile(task: str = DEFAULT_TASK) -> StudyProfile:
         twin_config=twin_config,
         adr=adr_text,
         adr_signals=tuple(load_config({"signals": adr["signals"]})) if adr.get("signals") else (),
+        safety=_safety(path.parent / "safety.yaml"),
     )
+
+
+def _safety(path: Path) -> Any:
+    """The profile's safety envelope (``safety.yaml``), or None without one."""
+    from sim2real.safety import load_limits
+
+    return load_limits(path) if path.is_file() else None

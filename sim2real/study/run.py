@@ -141,6 +141,8 @@ def _run(
     from randomizers.files import atomic_write
     from sim2real.agents import baseline_for
     from sim2real.report import GapReport
+    from sim2real.report.labels import observation_unit
+    from sim2real.safety import SafetyTable, physics_substeps
     from sim2real.spec import load_spec
     from sim2real.study.fitting import best_fit, calibrated_effects, record_twin
     from sim2real.study.policies import (
@@ -152,12 +154,14 @@ def _run(
         study_roles,
         train_one,
     )
+    from sim2real.study.precision import extend, plan_target, run_target
     from sim2real.study.summary import DISPLAY_CONDITIONS, DISPLAY_POLICIES, TRAINING, study_summary
+    from sim2real.tasks import make
 
     def dispatch(fn: Callable[[Any], Any], items: list[Any], desc: str) -> list:
         return _dispatch(fn, items, backend, workers, desc)
 
-    stages = _Stages(log, 5)
+    stages = _Stages(log, 6)
     trajectory = stages.run(
         "twin",
         f"recording {budget.log_episodes} {profile.excitation} episodes on the real twin",
@@ -212,11 +216,31 @@ def _run(
     if "adr" in checkpoints:  # the sim the ADR policy ended its training in: its final ranges
         simulators["adr"] = yaml.safe_load(effects_yaml(adr_simulator(checkpoints["adr"], profile.adr_signals)) or "")
     spec = load_spec(profile.spec_config(budget, seed=seed, policies=policies, simulators=simulators))
+    safety = profile.safety  # the arm's envelope, measured on every simulated condition (the Safety section)
     evaluation = stages.run(
         "evaluate",
         f"{len(spec.policies)} policies x {len(spec.conditions)} conditions x {budget.episodes} episodes ({backend})",
-        lambda: spec.run(backend=backend, workers=workers, progress=progress),
+        lambda: spec.run(backend=backend, workers=workers, progress=progress, safety=safety),
     )
+    # Enough episodes to decide: the evaluation above is the pilot of the headline's precision goal on the twin.
+    target = plan_target(evaluation, fraction=budget.precision, cap=budget.max_target_episodes)
+    if target.episodes > evaluation.episodes:
+        more = stages.run(
+            "target",
+            f"{target.episodes} episodes of every policy on the real twin (the pilot asks for {target.needed} to "
+            f"reach +-{target.goal:.3g}; cap {target.cap})",
+            lambda: run_target(
+                spec, "real", target.episodes, backend=backend, workers=workers, progress=progress, safety=safety
+            ),
+        )
+        evaluation = extend(evaluation, more, "real")
+    else:
+        stages.run("target", f"the pilot's {evaluation.episodes} episodes reach the precision goal", lambda: None)
+    env = make(profile.task)
+    try:  # what the report's units and the safety sampling note are read from
+        obs_unit, substeps = observation_unit(env), physics_substeps(env)
+    finally:
+        env.close()
 
     def report_stage() -> Any:
         report = GapReport.build(
@@ -234,7 +258,11 @@ def _run(
             control_timestep=float(trajectory.meta["control_timestep"]),  # latencies shown in ms
             policy_labels={k: v for k, v in DISPLAY_POLICIES.items() if k in spec.policies},
             condition_labels={k: v for k, v in DISPLAY_CONDITIONS.items() if k in {c.name for c in spec.conditions}},
+            observation_unit=obs_unit,  # the sensor-noise sweep in rad / m / rad/s
         )
+        if safety is not None:
+            report = replace(report, safety=SafetyTable.build(evaluation, safety, substeps=substeps))
+        report = report.with_episode_target(target)  # the half-width reached, from the report's own interval
         report = report.with_lead(study_summary(report))  # the paragraph is part of report.md/html/json
         report.write(staging)
         return report

@@ -11,7 +11,14 @@ from __future__ import annotations
 
 from typing import Any
 
-from sim2real.report.findings import cell, gap_phrase, prediction_sentence, versus
+from sim2real.report.findings import (
+    cell,
+    episode_target_sentence,
+    episodes_text,
+    gap_phrase,
+    prediction_sentence,
+    versus,
+)
 
 __all__ = ["DISPLAY_CONDITIONS", "DISPLAY_POLICIES", "TRAINING", "study_summary"]
 
@@ -69,9 +76,11 @@ def study_summary(report: Any, evaluation: Any = None) -> str:
         for p in report.predictions:
             parts.append(prediction_sentence(report, p))
         parts.append(f"The scripted baseline returns {cell(report.stats_for('scripted', 'real').mean, 3)} on the twin.")
+        if report.episode_target is not None:
+            parts.append(episode_target_sentence(report))
         parts.append(
-            f"Intervals: {report.confidence:.0%} stratified bootstrap over {sim.n} episodes per condition "
-            "(paired where the conditions share initial states)."
+            f"Intervals: {report.confidence:.0%} stratified bootstrap over {episodes_text(report)}; paired where "
+            "the conditions share initial states (over the episodes both ran)."
         )
         return " ".join(parts)
     except KeyError:
