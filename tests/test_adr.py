@@ -589,3 +589,56 @@ def _dm_env_tests() -> type:
 
 TestDmEnvADRContract = _dm_env_tests()
 
+
+# -- the study's "adr" policy ---------------------------------------------------------------------------------
+def test_study_profile_adr_section_is_checked_and_gives_the_adr_role(tmp_path: Any, monkeypatch: Any) -> None:
+    import shutil
+
+    import sim2real.study.profile as profile_module
+    from sim2real.study import load_profile
+    from sim2real.study.policies import role_agent, study_roles
+
+    shipped = load_profile()
+    folder = tmp_path / "dmc-reacher-easy"
+    shutil.copytree(shipped.folder, folder, ignore=shutil.ignore_patterns("*.pt"))
+    monkeypatch.setattr(profile_module, "PROFILES", tmp_path)
+    text = (folder / "study.yaml").read_text()
+    if "\nadr:\n" in text:
+        text = text[: text.index("\nadr:\n")] + text[text.index("\n# System identification") :]
+    (folder / "study.yaml").write_text(text)
+    assert load_profile().adr is None and study_roles(load_profile())[-1] == "calibrated"
+    with pytest.raises(ValueError, match=r"`role` 'adr' needs an `adr` section in .*study.yaml"):
+        role_agent(load_profile(), "adr")
+
+    section = """
+adr:
+  ranges:
+    effects:
+      - {type: Damping, scale: [0.0, 5.0]}
+      - {type: ActuatorGain, scale: [0.25, 2.0]}
+      - {type: Mass, scale: [0.25, 4.0]}
+    delta: 0.1
+    t_low: 500
+    t_high: 800
+  signals:
+    - {type: ActionLatency, steps: 1}
+"""
+    (folder / "study.yaml").write_text(text + section)
+    profile = load_profile()
+    assert profile.adr is not None and study_roles(profile) == ("nominal", "randomized", "calibrated", "adr")
+    adr = ADR.from_config(__import__("yaml").safe_load(profile.adr))
+    assert set(adr.ranges.values()) == {(1.0, 1.0)}  # started at the nominal point: no range picked by hand
+    assert adr.keys == tuple(e.key for e in profile.randomized if hasattr(e, "operation"))  # the same parameters
+    assert [type(e).__name__ for e in profile.adr_signals] == ["ActionLatency"]
+    assert role_agent(profile, "adr").adr == profile.adr and role_agent(profile, "nominal") == profile.agent
+    with pytest.raises(ValueError, match=r"`role` must be one of \['nominal', 'randomized', 'calibrated', 'adr'\]"):
+        role_agent(profile, "dr")
+    (folder / "study.yaml").write_text(text + section.replace("t_low: 500", "t_low: 900"))
+    with pytest.raises(ValueError) as err:
+        load_profile()
+    assert str(err.value) == (
+        f"{folder / 'study.yaml'}: adr.ranges: `t_low` of ADR must be < `t_high`. Received t_low=900.0, t_high=800.0."
+    )
+    (folder / "study.yaml").write_text(text + "adr: {signals: []}\n")
+    with pytest.raises(ValueError, match=r"study.yaml: `adr` must have `ranges` \(an ADR config\). Received keys"):
+        load_profile()
