@@ -167,6 +167,10 @@ def main_torchrl(argv: list[str] | None = None) -> None:
 P4_TASKS = {"dmc/reacher-easy": ("reacher", "easy"), "dmc/manipulator-bring_ball": ("manipulator", "bring_ball")}
 P4_GOALS = {"limit": 0.5, "sync": 4.0, "today": 7.0}
 
+#: The P4 arms' clock: wall time, or with --cpu-time this process's CPU time (all its threads), which a box shared
+#: with other jobs disturbs far less (run-to-run spread of wall figures was 2-3x under load).
+_clock = time.perf_counter
+
 
 class NumpyMLP:
     """A fixed random 64-64 tanh MLP in numpy: the same policy cost in every arm."""
@@ -229,15 +233,15 @@ def _p4_engine(task: str, num: int, steps: int, threads: int = 1, chosen: Any = 
     """The batched engine stepped directly: (control steps/s stepping only, seconds to build the N worlds)."""
     from sim2real.batched import make_batched
 
-    start = time.perf_counter()
+    start = _clock()
     worlds = make_batched(task, num, *(effects() if chosen is None else chosen), seed=0, threads=threads)
-    build = time.perf_counter() - start
+    build = _clock() - start
     policy = NumpyMLP(worlds.observation_dim, worlds.action_dim)
     obs, _ = worlds.reset(seed=0)
-    start = time.perf_counter()
+    start = _clock()
     for _ in range(steps):
         obs, *_ = worlds.step(policy(obs))
-    rate = num * steps / (time.perf_counter() - start)
+    rate = num * steps / (_clock() - start)
     worlds.close()
     return rate, build
 
@@ -246,10 +250,10 @@ def _p4_evaluate(task: str, num: int, steps: int, engine: str) -> tuple[float, s
     """``evaluate`` end to end (env construction included): (env steps/s, engine that ran)."""
     env = s2r.make(task)
     policy = NumpyMLP(env.observation_space.shape[0], env.action_space.shape[0])
-    start = time.perf_counter()
+    start = _clock()
     result = evaluate({"mlp": policy}, task, [randomized(effects())], episodes=num, batch=num, seed=0,
                       max_steps=steps, engine=engine)  # fmt: skip
-    return result.env_steps / (time.perf_counter() - start), result.engines["randomized"]
+    return result.env_steps / (_clock() - start), result.engines["randomized"]
 
 
 def _p4_sync(task: str, num: int, steps: int) -> float:
@@ -259,10 +263,10 @@ def _p4_sync(task: str, num: int, steps: int) -> float:
     envs = gym.vector.SyncVectorEnv([lambda i=i: _hand_dr_env(task, i, 0) for i in range(num)])
     policy = NumpyMLP(envs.single_observation_space.shape[0], envs.single_action_space.shape[0])
     obs, _ = envs.reset(seed=0)
-    start = time.perf_counter()
+    start = _clock()
     for _ in range(steps):
         obs, *_ = envs.step(policy(obs))
-    rate = num * steps / (time.perf_counter() - start)
+    rate = num * steps / (_clock() - start)
     envs.close()
     return rate
 
@@ -297,12 +301,12 @@ def _p4_limit(domain: str, name: str, num: int, steps: int) -> float:
     policy = NumpyMLP(m0.nq + m0.nv, m0.nu)
     qslice = slice(1, 1 + m0.nq + m0.nv)  # state = [time, qpos, qvel, ...]
     pool = mj_rollout.Rollout(nthread=threads)
-    start = time.perf_counter()
+    start = _clock()
     for _ in range(steps):
         control[:] = policy(state[:, qslice])[:, None, :]
         pool.rollout(models, datas, state, control, skip_checks=True, nstep=n_sub, state=out, sensordata=sens)
         state[:] = out[:, -1]
-    rate = num * steps / (time.perf_counter() - start)
+    rate = num * steps / (_clock() - start)
     pool.close()
     return rate
 
@@ -313,17 +317,25 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--steps", type=int, nargs=2, default=[1000, 200], help="control steps: reacher, manipulator")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--quick", action="store_true", help="smoke test: 8 samples, 50 steps, 1 repeat")
+    parser.add_argument("--cpu-time", action="store_true", help="time every arm by this process's CPU time")
+    parser.add_argument("--tasks", nargs="+", default=list(P4_TASKS), choices=list(P4_TASKS))
     args = parser.parse_args(argv)
     if args.quick:
         args.samples, args.steps, args.repeats = 8, [50, 20], 1
+    if args.cpu_time:
+        global _clock
+        _clock = time.process_time
     import numpy as np
 
     from sim2real.batched import supports
 
     n = args.samples
     print(f"# bench_eval P4  python {platform.python_version()}  mujoco {mujoco.__version__}  numpy {np.__version__}  "
-          f"{os.cpu_count()} CPUs; {n} samples, {args.repeats} repeats, numpy 64-64 MLP policy")  # fmt: skip
+          f"{os.cpu_count()} CPUs; {n} samples, {args.repeats} repeats, numpy 64-64 MLP policy; clock: "
+          f"{'process CPU time' if args.cpu_time else 'wall'}")  # fmt: skip
     for (task, (domain, name)), steps in zip(P4_TASKS.items(), args.steps, strict=True):
+        if task not in args.tasks:
+            continue
         batched = supports(task, *effects()) is None
         arms: dict[str, Any] = {
             "today": lambda t=task, s=steps: _p4_evaluate(t, n, s, "per-env")[0],
