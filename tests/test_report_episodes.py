@@ -62,7 +62,8 @@ def test_more_episodes_on_the_target_are_counted_paired_and_reported() -> None:
     assert d.paired and d.n == 64
     # a gap between simulated conditions with different counts is paired over the 16 episodes they share
     g = report.gap("nominal", "sim", "real")
-    assert (g.paired, g.n_reference, g.n_target) == (True, 16, 16)
+    assert (g.paired, g.n_reference, g.n_target) == (True, 16, 64)
+    assert "(gap " in gap_phrase(g) and "paired over 16 runs)" in gap_phrase(g)
     ev = _evaluation(16, 64)
     assert g.absolute.value == pytest.approx(ev.returns["nominal"]["sim"].mean()
                                              - ev.returns["nominal"]["real"][:16].mean())  # fmt: skip
@@ -71,7 +72,7 @@ def test_more_episodes_on_the_target_are_counted_paired_and_reported() -> None:
     text = report.summary()
     assert "16 episode(s) per simulated condition (64 on real)" in text
     assert "per simulated condition (64 on real)" in report.to_markdown()
-    assert "is paired over the episodes they share (the first ones)" in report.to_markdown()
+    assert "is paired over the episodes both ran (the first min of the two counts" in report.to_markdown()
     data = json.loads(report.to_json())
     assert data["evaluation"]["episodes"] == 16
     assert data["evaluation"]["episodes_by_condition"] == {"sim": [16], "randomized": [16], "real": [64]}

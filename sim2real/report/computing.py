@@ -182,6 +182,7 @@ class Builder:
                     self.skip(f"no gap {ref!r} -> {target!r} for policy {policy!r}: returns missing.")
                     continue
                 paired = self.ev.condition(ref).simulated and tcond.simulated
+                counts = (int(a.size), int(b.size))
                 if paired and a.size != b.size:
                     # Row e of every simulated condition is the same initial state, so two conditions that ran
                     # different numbers of episodes (more on the target) are paired over the first ones they share.
@@ -214,8 +215,8 @@ class Builder:
                         absolute=g.absolute,
                         relative=g.relative,
                         paired=g.paired,
-                        n_reference=int(a.size),
-                        n_target=int(b.size),
+                        n_reference=counts[0],
+                        n_target=counts[1],
                         statistic=self.statistic,
                     )
                 )

@@ -95,7 +95,7 @@ def document(report: GapReport) -> list[_Block]:
             "Simulated conditions share initial states episode by episode, so gaps between them are paired"
             + (
                 "; a gap between two simulated conditions that ran different numbers of episodes (more on the "
-                "target) is paired over the episodes they share (the first ones), so its runs column says how many."
+                "target) is paired over the episodes both ran (the first min of the two counts in its runs column)."
                 if len({n for counts in report.episode_counts().values() for n in counts} | {report.episodes}) > 1
                 else "."
             ),

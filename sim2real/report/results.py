@@ -77,8 +77,8 @@ class GapStats:
         paired: True when both conditions are simulated (row ``e`` is the same initial state), so runs were
             resampled jointly (over the episodes both ran, the first ``min`` of their counts, when the counts
             differ); False for measured returns (resampled independently, counts may differ).
-        n_reference: runs on the reference that the gap uses.
-        n_target: runs on the target that the gap uses.
+        n_reference: runs on the reference.
+        n_target: runs on the target (a paired gap uses the first ``min(n_reference, n_target)`` of each).
         statistic: ``"mean"`` or ``"iqm"``.
     """
 
