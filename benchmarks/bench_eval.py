@@ -465,10 +465,10 @@ def _vec_rate(envs: Any, steps: int) -> float:
 
     actions = np.random.default_rng(0).uniform(-1, 1, (steps, *envs.action_space.shape)).astype(np.float32)
     envs.reset(seed=0)
-    start = time.perf_counter()
+    start = _clock()
     for t in range(steps):
         envs.step(actions[t])
-    rate = envs.num_envs * steps / (time.perf_counter() - start)
+    rate = envs.num_envs * steps / (_clock() - start)
     envs.close()
     return rate
 
@@ -481,8 +481,12 @@ def main_make_vec(argv: list[str] | None = None) -> None:
     parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--task", default="dmc/reacher-easy")
+    parser.add_argument("--cpu-time", action="store_true", help="time every arm by this process's CPU time")
     args = parser.parse_args(argv)
     n, task = args.samples, args.task
+    if args.cpu_time:
+        global _clock
+        _clock = time.process_time
     arms: dict[str, Any] = {
         "make_vec": lambda: s2r.make_vec(task, n, *effects(), seed=0),
         "hand": lambda: gym.vector.SyncVectorEnv([lambda i=i: _hand_dr_env(task, i, 0) for i in range(n)]),
@@ -493,7 +497,8 @@ def main_make_vec(argv: list[str] | None = None) -> None:
         "bare": lambda: gym.vector.SyncVectorEnv([lambda: s2r.make(task) for _ in range(n)]),
     }
     print(f"# bench_eval --make-vec  python {platform.python_version()}  gymnasium {gym.__version__}  "
-          f"{os.cpu_count()} CPUs; {task}, {n} sub-envs x {args.steps} steps, {args.repeats} repeats")  # fmt: skip
+          f"{os.cpu_count()} CPUs; {task}, {n} sub-envs x {args.steps} steps, {args.repeats} repeats; clock: "
+          f"{'process CPU time' if args.cpu_time else 'wall'}")  # fmt: skip
     rates: dict[str, list[float]] = {k: [] for k in arms}
     for r in range(args.repeats):
         for arm in list(arms) if r % 2 == 0 else list(arms)[::-1]:
