@@ -8,10 +8,10 @@ Measures in one run, side by side, PPO training (:func:`sim2real.agents.train`) 
   ``t_low`` -130 and ``t_high`` -105: about a random policy's return, so ranges grow early in training).
 
 Both arms draw the same effects through the same physics transform; what ADR adds is the boundary stream at reset,
-the reward sum per step and the controller's bookkeeping at each episode end. The arms alternate (dr, adr, dr,
-adr, ...) after one untimed warm-up run of each; repeat ``k`` of both uses seed ``k``. Frames/s are CPU frames/s
-(frames over ``time.process_time`` in :func:`train`, torch on one thread), the steadier figure on a shared box;
-wall frames/s are printed too. The ratio is the median of the per-repeat adr/dr ratios; the goal is >= 0.97.
+the reward sum per step and the controller's bookkeeping at each episode end. The arms alternate in ABBA order
+(dr, adr, adr, dr, dr, adr, ...) after one untimed warm-up run of each, so a drifting load cancels; repeat ``k`` of
+both uses seed ``k``. Frames/s are CPU frames/s (frames over ``time.process_time`` in :func:`train`, torch on one
+thread), the steadier figure on a shared box; wall frames/s are printed too. The ratio is the median of the per-repeat adr/dr ratios; the goal is >= 0.97.
 
 Training runs are short and PPO's own cost varies from run to run, so the env-step arm isolates what ADR changes:
 rollouts of the TorchRL training env (``GymWrapper`` + the physics transform, DR or ADR) under a fixed random
@@ -146,9 +146,14 @@ def main() -> None:
     run(args.task, min(args.frames, 1000), 99, controller(args.t_low, args.t_high, args.m))
     ratios, wall_ratios, rows = [], [], []
     for k in range(args.repeats):
-        dr_cpu, dr_wall, _ = run(args.task, args.frames, k, None)
-        adr = controller(args.t_low, args.t_high, args.m)
-        adr_cpu, adr_wall, result = run(args.task, args.frames, k, adr)
+        # ABBA order (dr first in even repeats, adr first in odd ones): a load that drifts during the run would
+        # otherwise always land on the arm that runs second.
+        if k % 2 == 0:
+            dr_cpu, dr_wall, _ = run(args.task, args.frames, k, None)
+            adr_cpu, adr_wall, result = run(args.task, args.frames, k, controller(args.t_low, args.t_high, args.m))
+        else:
+            adr_cpu, adr_wall, result = run(args.task, args.frames, k, controller(args.t_low, args.t_high, args.m))
+            dr_cpu, dr_wall, _ = run(args.task, args.frames, k, None)
         ratios.append(adr_cpu / dr_cpu)
         wall_ratios.append(adr_wall / dr_wall)
         rows.append((dr_cpu, adr_cpu, dr_wall, adr_wall))
