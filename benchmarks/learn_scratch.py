@@ -29,9 +29,15 @@ from sim2real.agents import as_policy, baseline_for
 
 def run_episodes(task: str, policy: object, episodes: int) -> tuple[np.ndarray, np.ndarray]:
     """(returns, successes) of ``policy`` over reset seeds 1000..1000+episodes-1 (successes NaN if not reported)."""
+    returns, successes, _ = run_episodes_with_distance(task, policy, episodes)
+    return returns, successes
+
+
+def run_episodes_with_distance(task: str, policy: object, episodes: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`run_episodes` plus each episode's final ``info["distance"]`` in metres (NaN if not reported)."""
     env = sim2real.make(task)
     act = as_policy(policy)
-    returns, successes = [], []
+    returns, successes, distances = [], [], []
     try:
         for i in range(episodes):
             obs, info = env.reset(seed=1000 + i)
@@ -42,9 +48,10 @@ def run_episodes(task: str, policy: object, episodes: int) -> tuple[np.ndarray, 
                 done = terminated or truncated
             returns.append(total)
             successes.append(float(info["is_success"]) if "is_success" in info else math.nan)
+            distances.append(float(info["distance"]) if "distance" in info else math.nan)
     finally:
         env.close()
-    return np.asarray(returns), np.asarray(successes)
+    return np.asarray(returns), np.asarray(successes), np.asarray(distances)
 
 
 def interval(values: np.ndarray) -> tuple[float, float, float]:
@@ -76,12 +83,15 @@ def main() -> None:
         print("learning curve (frames: mean training-episode return in the window):")
         print("  " + ", ".join(f"{f}: {r:.1f}" for f, r in curve(Path(args.log), args.bins)))
     for name, policy in (("learned", args.checkpoint), ("scripted", baseline_for(args.task))):
-        returns, success = run_episodes(args.task, policy, args.episodes)
+        returns, success, distance = run_episodes_with_distance(args.task, policy, args.episodes)
         mean, low, high = interval(returns)
         rate = "" if np.isnan(success).all() else f", success {int(np.nansum(success))}/{len(success)}"
         print(f"{name:<9} return {mean:8.2f} [{low:.2f}, {high:.2f}] (95% t, {args.episodes} episodes){rate}; "
               f"min {returns.min():.2f}")  # fmt: skip
         print("  returns: " + " ".join(f"{r:.1f}" for r in returns))
+        failed = distance[(success == 0) & np.isfinite(distance)]
+        if len(failed):
+            print("  final distance of failed episodes (m): " + " ".join(f"{d:.3f}" for d in failed))
 
 
 if __name__ == "__main__":
