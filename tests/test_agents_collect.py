@@ -46,7 +46,12 @@ def test_choose_collection_batched_and_its_description() -> None:
     ("source", "effects", "config", "reason"),
     [
         (REACHER, [], PPOConfig(engine="per-env"), "engine='per-env' was asked for"),
-        (REACHER, [s2r.ActionLatency(steps=1)], PPOConfig(), "ActionLatency is not batched"),
+        (
+            REACHER,
+            [s2r.ActionLatency(steps=1, jitter=s2r.Uniform(0.0, 2.0))],
+            PPOConfig(),
+            "ActionLatency with jitter is not batched",
+        ),
         ("dmc/jaco-reach_site", [], PPOConfig(), "no batched kernel for task 'dmc/jaco-reach_site'"),
         (
             REACHER,

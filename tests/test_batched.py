@@ -182,7 +182,7 @@ def test_errors_name_the_argument_and_what_is_allowed() -> None:
     assert supports("dmc/reacher-easy", s2r.ObservationNoise(s2r.Quantize(0.1))) == (
         "Quantize is not batched (only ['Gaussian', 'UniformNoise', 'Bias', 'Scale', 'Drift', 'Outlier'])"
     )
-    assert supports("dmc/reacher-easy", s2r.ActionLatency(steps=1)) == "ActionLatency is not batched"
+    assert supports("dmc/reacher-easy", s2r.SampleAndHold(steps=2)) == "SampleAndHold is not batched"
     assert "per-step" in str(supports("dmc/reacher-easy", s2r.Push(force=s2r.Uniform(0, 1), interval=10.0)))
     with pytest.raises(ValueError, match=r"`num_envs` must be an int >= 1. Received 0."):
         make_batched("dmc/reacher-easy", 0)
@@ -225,7 +225,7 @@ def test_evaluate_uses_the_engine_and_reports_byte_identical_results() -> None:
         "sim": "batched",
         "randomized": "batched",
         "noisy": "batched",
-        "delayed": "per-env",  # action latency is not batched: the fallback
+        "delayed": "batched",  # action latency too (tests/test_batched_latency.py)
         "ActuatorGain.scale=0.5": "batched",
         "ActuatorGain.scale=1": "batched",  # a sweep includes the nominal value
         "ActuatorGain.scale=1.5": "batched",

@@ -10,7 +10,8 @@ The engine's observations and rewards are float32 already, so there is no ``Doub
 What falls back to one env (``Collection.reason`` says which): ``engine="per-env"``, an env object instead of a
 task id, an ADR controller (it scores each episode from the env's own ``step``, which the engine bypasses, and
 pins one boundary per episode), and whatever :func:`sim2real.batched.supports` refuses (tasks without a batched
-kernel, per-step effects, visual effects, signal models it does not batch such as ``ActionLatency``).
+kernel, per-step effects, visual effects, signal models it does not batch such as ``SampleAndHold`` or a
+jittered latency).
 
 SAC keeps collecting one env step at a time (:mod:`sim2real.agents.sac_loop`): its runs are update-bound. In a
 default ``SACConfig(frames=4000)`` run on reacher-easy, env steps took 3.7% of the CPU time, the exploration

@@ -9,7 +9,9 @@ calls in the same order as the single env (dm-control's legacy step: ``mj_step2`
 substeps, ``mj_step1``; arm-reach: ``mj_step`` over its substeps, ``mj_forward``), copies the state each task
 needs into preallocated ``(N, ...)`` arrays, and computes every world's observation and reward with one numpy
 operation each (:mod:`sim2real.batched.kernels`); noise and observation latency run the same way
-(:mod:`sim2real.batched.signals`). ``threads=k`` splits the worlds' C calls over k threads.
+(:mod:`sim2real.batched.signals`). ``ActionLatency`` on the actuator command is applied inside each world's
+physics step as the single env's signal clock applies it (the delayed command from a preallocated ring, in two
+pieces when it arrives mid control step, with the C calls of the single env's split step). ``threads=k`` splits the worlds' C calls over k threads.
 
 Why not ``mujoco.rollout`` for the stepping: a rollout restarts each world from ``mjSTATE_FULLPHYSICS``, which
 leaves out the constraint solver's warm start (``qacc_warmstart``, reset to zero), and its outputs are the state
@@ -218,6 +220,8 @@ class BatchedEnv:
             for i, d in enumerate(self.datas)
         ]
         self._worlds = [(m, d, c, cp) for m, d, c, cp in zip(self.models, self.datas, self._ctrl, copies, strict=True)]
+        # ActionLatency on the actuator command: each world applies its delayed command inside its physics step.
+        self._delayed = self._signals is not None and self._signals.action_path == "ctrl"
         self._closed = False
 
     @property
@@ -262,9 +266,11 @@ class BatchedEnv:
         for i, s in zip(idx.tolist(), seeds, strict=True):
             obs, info = self.envs[i].reset(seed=s)
             self._out[i] = obs
-            self._obs[i] = self._physics[i]._last_obs
+            inner = self._physics[i]  # the layer under the signals: its observation is the clean one
+            clean = getattr(inner, "_last_obs", None)  # RandomizePhysics, the dm-control adapter
+            self._obs[i] = inner.unwrapped._get_obs() if clean is None else clean  # a bare gymnasium task
             if self._signals is not None:
-                self._signals.reset_world(i, self.envs[i], self._out[i])
+                self._signals.reset_world(i, self.envs[i], self._out[i], self.datas[i].ctrl)
             report = info["sim2real"]
             self._world_params[i] = report["params"]
             self._reset_diverged[i] = self._diverged[i] = bool(report["diverged"]) and self._end_diverged
@@ -350,6 +356,9 @@ class BatchedEnv:
         )
         jacobian = self._gathered.get("jacobian")
         table = self._worlds
+        if self._delayed:
+            self._advance_delayed(worlds, controls)
+            worlds = []
         for i in worlds:
             m, d, ctrl, copies = table[i]
             ctrl[...] = controls[i]
@@ -359,6 +368,62 @@ class BatchedEnv:
                     mujoco.mj_step(m, d, n_sub - 1)
             else:
                 mujoco.mj_step(m, d, n_sub)
+            if sync:
+                mujoco.mj_step1(m, d)
+            if forward:
+                mujoco.mj_forward(m, d)
+            for destination, source in copies:
+                destination[...] = source
+            if site >= 0:
+                mujoco.mj_jacSite(m, d, jacobian[i], None, site)  # type: ignore[index]
+
+    def _advance_delayed(self, worlds: list[int], controls: np.ndarray) -> None:
+        """:meth:`_advance` with ActionLatency on the actuator command, as the single env's signal clock applies it.
+
+        World ``i``'s command of control step ``k`` is sent at physics step ``k * n`` and applied from ``k * n + d``
+        on (``d = q * n + r`` physics steps, this episode's draw); until then the command at reset holds. With
+        ``r == 0`` a control step runs one command (the one sent ``q`` steps ago) with the task's own C calls; else
+        two pieces, ``r`` substeps of the older command and ``n - r`` of the newer, with the calls the single env's
+        runner makes for a split step (dm-control's legacy step keeps one ``mj_step2`` ... ``mj_step1`` bracket).
+        """
+        signals = self._signals
+        assert signals is not None  # _delayed implies signal models
+        split, sync, forward, n_sub, site = (
+            self._split_step,
+            self._sync_after,
+            self._forward_after,
+            self._n_sub,
+            self._site,
+        )
+        jacobian = self._gathered.get("jacobian")
+        table, steps = self._worlds, self._steps
+        ring, lags, rests = signals.command_ring, signals.command_lag, signals.command_rest
+        size = ring.shape[1]
+        for i in worlds:
+            m, d, ctrl, copies = table[i]
+            k = int(steps[i])  # commands this world sent before this one, in this episode
+            ring[i, k % size] = controls[i]
+            q, r = lags[i], rests[i]
+            if r == 0 or k < q:  # one command over the whole step (a slot not yet written: the reset command)
+                ctrl[...] = ring[i, (k - q) % size]
+                if split:
+                    mujoco.mj_step2(m, d)
+                    if n_sub > 1:
+                        mujoco.mj_step(m, d, n_sub - 1)
+                else:
+                    mujoco.mj_step(m, d, n_sub)
+            else:  # the older command for r substeps, then the one that arrives mid step
+                ctrl[...] = ring[i, (k - q - 1) % size]
+                if split:
+                    mujoco.mj_step2(m, d)
+                    if r > 1:
+                        mujoco.mj_step(m, d, r - 1)
+                else:
+                    mujoco.mj_step(m, d, r)
+                    if sync:
+                        mujoco.mj_step1(m, d)
+                ctrl[...] = ring[i, (k - q) % size]
+                mujoco.mj_step(m, d, n_sub - r)
             if sync:
                 mujoco.mj_step1(m, d)
             if forward:

@@ -5,10 +5,14 @@ its draws come from its own keyed streams, by the corruptor's own code: the epis
 block of ``BLOCK`` pre-drawn noise rows when a world's block runs out. Per step, one numpy operation per
 pipeline serves all worlds: ``x * G + F[world, row]`` over preallocated ``(N, BLOCK, size)`` blocks (a world
 without gain multiplies by 1.0, which is exact), then the pipeline's clip; observation latency reads a
-preallocated ``(N, R, size)`` ring at each world's own lag. What is supported (:func:`signals_reason`): noise
-pipelines of additive and multiplicative processes (fused by ``noise_models`` into one affine stage) and
-``ObservationLatency`` with a fixed per-episode lag; sample-and-hold, jitter, action latency and the
-element-wise processes (quantise, dropout, ...) keep the per-env path.
+preallocated ``(N, R, size)`` ring at each world's own lag. ``ActionLatency`` (fixed or drawn per episode, by
+each world's corruptor from its own stream) delays either the actuator command at physics rate (``"ctrl"``: the
+engine applies each world's delayed command from a preallocated ``(N, S, nu)`` ring inside its physics step,
+mid control step when the latency is not whole control steps) or, where the action does not map onto ``ctrl``,
+the action by whole control steps (``"action"``: a preallocated ``(N, S, act_dim)`` ring here). What is supported
+(:func:`signals_reason`): noise pipelines of additive and multiplicative processes (fused by ``noise_models``
+into one affine stage), ``ObservationLatency`` with a fixed per-episode lag and ``ActionLatency`` without jitter;
+sample-and-hold, jitter and the element-wise processes (quantise, dropout, ...) keep the per-env path.
 
 Example:
     >>> import sim2real as s2r
@@ -23,6 +27,7 @@ Example:
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -30,9 +35,9 @@ import numpy as np
 
 from noise_models.corruptor import ActionNoise, NoiseBlock, ObservationNoise
 from noise_models.processes import BLOCK, Bias, Drift, Gaussian, Outlier, Scale, UniformNoise
-from noise_models.timing import ObservationLatency
+from noise_models.timing import ActionLatency, ObservationLatency
 
-__all__ = ["BatchedSignals", "signals_reason"]
+__all__ = ["BatchedSignals", "action_latency_bound", "signals_reason"]
 
 #: Processes ``noise_models`` fuses into one affine stage (``x * G + F``): the ones batched here.
 AFFINE_PROCESSES = (Gaussian, UniformNoise, Bias, Scale, Drift, Outlier)
@@ -45,12 +50,18 @@ def signals_reason(models: Sequence[Any]) -> str | None:
             for process in model.processes:
                 if not isinstance(process, AFFINE_PROCESSES):
                     return f"{type(process).__name__} is not batched (only {[c.__name__ for c in AFFINE_PROCESSES]})"
-        elif isinstance(model, ObservationLatency):
+        elif isinstance(model, (ObservationLatency, ActionLatency)):
             if model.jitter is not None:
-                return "ObservationLatency with jitter is not batched"
+                return f"{type(model).__name__} with jitter is not batched"
         else:
             return f"{type(model).__name__} is not batched"
     return None
+
+
+def action_latency_bound(corruptor: Any) -> int:
+    """The longest action latency, in physics steps, any episode of a bound ``corruptor`` can draw."""
+    model = corruptor.timing[ActionLatency]
+    return int(model.check_capacity(model.step_scale(corruptor.timestep)))
 
 
 class _Pipes:
@@ -114,10 +125,46 @@ class BatchedSignals:
         self._lag = np.zeros(num_envs, np.int64)
         self._k = np.zeros(num_envs, np.int64)
         self._ring = np.zeros((num_envs, 1, 0), dtype=first.obs_dtype or np.float32)
+        self._rows = np.arange(num_envs)
+        # ActionLatency. On the "action" path (the action does not map onto ctrl: arm-reach's IK targets) each
+        # world's action waits ``lag`` whole control steps in a float64 ring, zeros until the first arrives, as
+        # in the corruptor's command buffer. On the "ctrl" path the engine applies each world's delayed actuator
+        # command inside its physics step from ``command_ring`` (see BatchedEnv._advance).
+        #: ``"ctrl"``, ``"action"`` or None (no ActionLatency): what the worlds delay.
+        self.action_path: str | None = envs[0].action_latency_path
+        longest = action_latency_bound(first) if self.action_path is not None else 0
+        n_sub = max(int(first.nominal_substeps), 1)
+        act_size = first.action_layout.size if self.action_path == "action" else 0
+        self._act_lag = np.zeros(num_envs, np.int64)
+        self._act_t = np.zeros(num_envs, np.int64)
+        self._act_ring = np.zeros((num_envs, math.floor(longest / n_sub + 0.5) + 1, act_size))
+        #: ``(N, S, nu)`` commands sent in each world's episode (slot ``k % S`` for control step ``k``): S is the
+        #: longest whole-control-step lag + 2, so a slot not yet written this episode holds the reset command.
+        self.command_ring = np.zeros((num_envs, longest // n_sub + 2, 0))
+        #: Each world's latency as (whole control steps, remaining physics steps) of this episode.
+        self.command_lag: list[int] = [0] * num_envs
+        self.command_rest: list[int] = [0] * num_envs
+        self._n_sub = n_sub
 
-    def reset_world(self, i: int, env: Any, first_obs: np.ndarray) -> None:
-        """Takes world ``i``'s state after its single env's reset (draws made, reset observation delivered)."""
+    def reset_world(self, i: int, env: Any, first_obs: np.ndarray, ctrl: np.ndarray | None = None) -> None:
+        """Takes world ``i``'s state after its single env's reset (draws made, reset observation delivered;
+        ``ctrl``: the world's actuator command at reset, which a delayed command replaces when it arrives)."""
         c = env.corruptor
+        if self.action_path == "action":
+            self._act_lag[i] = int(c.current_params["action_latency_control_steps"])
+            self._act_ring[i] = 0.0
+            self._act_t[i] = 0
+        elif self.action_path == "ctrl":
+            if ctrl is None:
+                raise ValueError(
+                    "`ctrl` must be the world's actuator command at reset with ActionLatency. Received None."
+                )
+            if self.command_ring.shape[2] != ctrl.size:
+                self.command_ring = np.zeros((self.num_envs, self.command_ring.shape[1], ctrl.size))
+            self.command_ring[i] = ctrl  # every slot: the reset command, until the first delayed command arrives
+            self.command_lag[i], self.command_rest[i] = divmod(
+                int(c.current_params["action_latency_steps"]), self._n_sub
+            )
         for pipes, block in zip(self._obs, c.noise_blocks("observation"), strict=True):
             pipes.take(i, c, block)
         for pipes, block in zip(self._act, c.noise_blocks("action"), strict=True):
@@ -143,13 +190,22 @@ class BatchedSignals:
         self._ring = ring
 
     def act(self, actions: np.ndarray, active: np.ndarray) -> np.ndarray:
-        """The actions the worlds' envs get (the policy's, through each world's action noise)."""
-        if not self._act:
+        """The actions the worlds' envs get (the policy's, through each world's action noise and, on the
+        ``"action"`` path, its action latency)."""
+        if not self._act and self.action_path != "action":
             return actions
         if type(actions) is not np.ndarray:
             actions = np.asarray(actions, dtype=self.action_dtype)
         for pipes in self._act:
             actions = pipes(actions, active)
+        if self.action_path == "action":
+            ring, t, rows = self._act_ring, self._act_t, self._rows
+            size = ring.shape[1]
+            slot = t % size
+            ring[rows, slot] = np.where(active[:, None], actions, ring[rows, slot])
+            # The action of ``lag`` control steps ago; before the first arrives, the zeros of a slot not yet written.
+            actions = ring[rows, (t - self._act_lag) % size].astype(self.action_dtype)
+            self._act_t = t + active
         return actions
 
     def observe(self, obs: np.ndarray, active: np.ndarray, previous: np.ndarray) -> np.ndarray:
