@@ -30,7 +30,7 @@ def _stack(kind: str) -> list:
         return [s2r.ActionLatency(steps=s2r.Choice([0, 3, 5, 7, 12]))]
     # The study's twin: a delay, sensor noise and physics scales (and action noise before the delay).
     return [
-        s2r.ActionLatency(steps=s2r.Uniform(0.0, 3.0)),
+        s2r.ActionLatency(seconds=s2r.Uniform(0.0, 0.06)),  # reacher: 0-3 physics steps; arm-reach: 0-3 control
         s2r.ObservationNoise(s2r.Gaussian(std=0.01), s2r.Bias(s2r.Uniform(-0.02, 0.02))),
         s2r.ActionNoise(s2r.Gaussian(std=0.05)),
         s2r.Damping(scale=s2r.Uniform(0.5, 2.0)),
@@ -91,7 +91,7 @@ def test_each_world_is_bitwise_its_single_env_with_action_latency(task: str, see
     drawn = _compare(task, seed, kind)
     if kind == "fixed":
         assert drawn == ({20.0} if task == "sim2real/arm-reach" else {2.0})  # 0.04 s in physics steps
-    elif kind in ("drawn", "mid-step"):
+    elif kind in ("drawn", "mid-step", "twin"):
         assert len(drawn) > 1  # the worlds drew different delays (per world, per episode)
     if kind == "mid-step":
         assert {d % 5 for d in drawn} - {0}  # some delay applied its command mid control step
