@@ -44,11 +44,16 @@ from sim2real.evaluation import evaluate, randomized
 GOAL = 10.0
 
 
+#: Signal models P4's --action-latency adds to every sim2real arm's effects (not to the SyncVectorEnv or limit arms).
+_EXTRA: list[Any] = []
+
+
 def effects() -> list[Any]:
     return [
         s2r.Mass(scale=s2r.Uniform(0.7, 1.3)),
         s2r.Damping(scale=s2r.Uniform(0.5, 2.0)),
         s2r.ActuatorGain(scale=s2r.Uniform(0.8, 1.2)),
+        *_EXTRA,
     ]
 
 
@@ -319,9 +324,15 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--quick", action="store_true", help="smoke test: 8 samples, 50 steps, 1 repeat")
     parser.add_argument("--cpu-time", action="store_true", help="time every arm by this process's CPU time")
     parser.add_argument("--tasks", nargs="+", default=list(P4_TASKS), choices=list(P4_TASKS))
+    parser.add_argument("--action-latency", type=float, default=None, metavar="SECONDS",
+                        help="add ActionLatency(seconds=SECONDS) to the sim2real arms' effects (issue 15: "
+                             "'today' is then the per-env fallback evaluate(engine='auto') took before it was batched)")  # fmt: skip
     args = parser.parse_args(argv)
     if args.quick:
         args.samples, args.steps, args.repeats = 8, [50, 20], 1
+    if args.action_latency is not None:
+        _EXTRA[:] = [s2r.ActionLatency(seconds=args.action_latency)]
+        print(f"# extra effects on the sim2real arms (not sync/limit): {_EXTRA}")
     if args.cpu_time:
         global _clock
         _clock = time.process_time
