@@ -23,7 +23,8 @@ from sim2real.agents.policy import BatchedPolicy, as_policy
 if TYPE_CHECKING:
     from sim2real.agents.checkpoint import Checkpoint, CheckpointError, load_checkpoint, save_checkpoint
     from sim2real.agents.cli import cli_train
-    from sim2real.agents.training import TrainResult, make_train_env, train
+    from sim2real.agents.collect import make_train_env
+    from sim2real.agents.training import TrainResult, train
 
 __all__ = [
     "ACTIVATIONS",
@@ -52,7 +53,7 @@ _LAZY = {
     "load_checkpoint": "sim2real.agents.checkpoint",
     "save_checkpoint": "sim2real.agents.checkpoint",
     "TrainResult": "sim2real.agents.training",
-    "make_train_env": "sim2real.agents.training",
+    "make_train_env": "sim2real.agents.collect",
     "train": "sim2real.agents.training",
     "cli_train": "sim2real.agents.cli",
 }

@@ -35,7 +35,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["Collection", "choose_collection", "make_collection_env", "worlds_for"]
+__all__ = ["Collection", "choose_collection", "make_collection_env", "make_train_env", "worlds_for"]
 
 BATCHED = "batched"
 PER_ENV = "per-env"
@@ -137,8 +137,6 @@ def make_collection_env(task_or_env: Any, effects: Sequence[Any], seed: int, col
         >>> env.close()
     """
     if collection.engine != BATCHED:
-        from sim2real.agents.training import make_train_env
-
         return make_train_env(task_or_env, effects, seed)
     from torchrl.envs import RewardSum, TransformedEnv
 
@@ -147,5 +145,49 @@ def make_collection_env(task_or_env: Any, effects: Sequence[Any], seed: int, col
 
     base = BatchedTorchRLEnv(task_or_env, collection.num_envs, *_flatten(effects), seed=seed)
     env = TransformedEnv(base, RewardSum(), auto_unwrap=False)
+    env.set_seed(seed)
+    return env
+
+
+def make_train_env(task_or_env: Any, effects: Sequence[Any] = (), seed: int = 0) -> Any:
+    """The TorchRL env ``train`` learns on: ``GymWrapper(make(task))`` (or the given env), ``sim2real.wrap``
+    with ``effects``, then ``DoubleToFloat`` and ``RewardSum`` (the episode return under ``"episode_reward"``).
+
+    Args:
+        task_or_env: a task id, a gymnasium env or a TorchRL ``EnvBase`` with a flat ``"observation"``.
+        effects: physics effects and signal models for :func:`sim2real.wrap`.
+        seed: seeds the env and the effect streams.
+
+    Raises:
+        TypeError: an unsupported env, or one without a single ``"observation"`` vector.
+        ValueError: an unknown task id.
+    """
+    import gymnasium as gym
+    from torchrl.envs import Compose, DoubleToFloat, EnvBase, GymWrapper, RewardSum, TransformedEnv
+
+    import sim2real
+
+    if isinstance(task_or_env, str):
+        env: Any = GymWrapper(sim2real.make(task_or_env))
+    elif isinstance(task_or_env, gym.Env):
+        env = GymWrapper(task_or_env)
+    elif isinstance(task_or_env, EnvBase):
+        env = task_or_env
+    else:
+        raise TypeError(
+            "`task_or_env` must be a task id (e.g. 'sim2real/arm-reach'), a gymnasium env or a TorchRL EnvBase. "
+            f"Received {type(task_or_env).__name__}."
+        )
+    if effects:
+        env = sim2real.wrap(env, *effects, seed=seed)
+    obs_spec = env.observation_spec.get("observation", None)
+    if obs_spec is None or len(obs_spec.shape) != 1:
+        keys = list(env.observation_spec.keys(True, True))
+        raise TypeError(
+            "`task_or_env` must give one flat `observation` vector (use flatten=True for dm-control). "
+            f"Received observation keys {keys}."
+        )
+    # auto_unwrap=False: keep a wrapped env intact instead of merging (and mutating) its transforms.
+    env = TransformedEnv(env, Compose(DoubleToFloat(), RewardSum()), auto_unwrap=False)
     env.set_seed(seed)
     return env

@@ -70,7 +70,7 @@ class _GymSteps:
 
 
 class _TorchRLSteps:
-    """The same interface over a TorchRL env (built by :func:`~sim2real.agents.training.make_train_env`)."""
+    """The same interface over a TorchRL env (built by :func:`~sim2real.agents.collect.make_train_env`)."""
 
     def __init__(self, env: Any) -> None:
         self.env = env

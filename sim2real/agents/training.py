@@ -25,7 +25,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
-from sim2real.agents.collect import Collection, choose_collection, make_collection_env
+from sim2real.agents.collect import Collection, choose_collection, make_collection_env, make_train_env
 from sim2real.agents.config import PPOConfig, SACConfig
 from sim2real.agents.loop_utils import env_bounds, log_row, progress_bar
 
@@ -83,50 +83,6 @@ def _task_id(task_or_env: Any) -> str | None:
         return task_or_env
     spec = getattr(task_or_env, "spec", None)
     return getattr(spec, "id", None) if spec is not None and not callable(spec) else None
-
-
-def make_train_env(task_or_env: Any, effects: Sequence[Any] = (), seed: int = 0) -> Any:
-    """The TorchRL env ``train`` learns on: ``GymWrapper(make(task))`` (or the given env), ``sim2real.wrap``
-    with ``effects``, then ``DoubleToFloat`` and ``RewardSum`` (the episode return under ``"episode_reward"``).
-
-    Args:
-        task_or_env: a task id, a gymnasium env or a TorchRL ``EnvBase`` with a flat ``"observation"``.
-        effects: physics effects and signal models for :func:`sim2real.wrap`.
-        seed: seeds the env and the effect streams.
-
-    Raises:
-        TypeError: an unsupported env, or one without a single ``"observation"`` vector.
-        ValueError: an unknown task id.
-    """
-    import gymnasium as gym
-    from torchrl.envs import Compose, DoubleToFloat, EnvBase, GymWrapper, RewardSum, TransformedEnv
-
-    import sim2real
-
-    if isinstance(task_or_env, str):
-        env: Any = GymWrapper(sim2real.make(task_or_env))
-    elif isinstance(task_or_env, gym.Env):
-        env = GymWrapper(task_or_env)
-    elif isinstance(task_or_env, EnvBase):
-        env = task_or_env
-    else:
-        raise TypeError(
-            "`task_or_env` must be a task id (e.g. 'sim2real/arm-reach'), a gymnasium env or a TorchRL EnvBase. "
-            f"Received {type(task_or_env).__name__}."
-        )
-    if effects:
-        env = sim2real.wrap(env, *effects, seed=seed)
-    obs_spec = env.observation_spec.get("observation", None)
-    if obs_spec is None or len(obs_spec.shape) != 1:
-        keys = list(env.observation_spec.keys(True, True))
-        raise TypeError(
-            "`task_or_env` must give one flat `observation` vector (use flatten=True for dm-control). "
-            f"Received observation keys {keys}."
-        )
-    # auto_unwrap=False: keep a wrapped env intact instead of merging (and mutating) its transforms.
-    env = TransformedEnv(env, Compose(DoubleToFloat(), RewardSum()), auto_unwrap=False)
-    env.set_seed(seed)
-    return env
 
 
 def _make_logger(logger: str | None, log_dir: str | os.PathLike[str] | None, run_id: str) -> Any:
