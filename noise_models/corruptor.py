@@ -27,13 +27,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from noise_models.fused import NoiseBlock, Pipeline
 from noise_models.pipelines import ActionNoise, ObservationNoise
-from noise_models.processes import BLOCK, Compile, Part
+from noise_models.processes import BLOCK
 from noise_models.seeding import SeedLike, StreamFactory, normalize_seed, reseeded_root
 from noise_models.timing import (
     ActionLatency,
@@ -52,190 +52,6 @@ __all__ = ["ActionNoise", "NoiseBlock", "ObservationNoise", "SignalCorruptor", "
 
 SignalModel = ObservationNoise | ActionNoise | ObservationLatency | ActionLatency | SampleAndHold | ControlJitter
 _MODEL_NAMES = "ObservationNoise, ActionNoise, ObservationLatency, ActionLatency, SampleAndHold, ControlJitter"
-
-
-# -- compiled runtime --------------------------------------------------------------------------
-
-
-try:  # the clip ufunc itself: np.clip's Python dispatch costs more than the clipping
-    # numpy's stubs do not declare the `clip` ufunc in umath, though numpy 2 exports it there.
-    from numpy._core.umath import clip as _clip  # type: ignore[attr-defined]
-except ImportError:  # pragma: no cover - numpy < 2
-    from numpy.core.umath import clip as _clip  # type: ignore[no-redef]
-
-
-class _Affine:
-    """Consecutive gain/offset/noise parts fused into ``x * G + F[r]`` with ``F`` drawn per block."""
-
-    def __init__(self, parts: list[Part], size: int, dtype: np.dtype) -> None:
-        self.parts = parts
-        self.size = size
-        self.dtype = dtype
-        self.F = np.zeros((BLOCK, size), dtype=dtype)
-        self.G: np.ndarray | None = None
-
-    def refill(self, block: int) -> None:
-        F = np.zeros((BLOCK, self.size))
-        G = np.ones(self.size)
-        for p in self.parts:
-            if p.kind == "gain":
-                F[:, p.sel] *= p.gain  # type: ignore[attr-defined]
-                G[p.sel] *= p.gain  # type: ignore[attr-defined]
-            elif p.kind == "add":
-                F[:, p.sel] += p.offset  # type: ignore[attr-defined]
-            else:
-                F[:, p.sel] += p.block(block)  # type: ignore[attr-defined]
-        self.F = F.astype(self.dtype)
-        self.rows = list(self.F)  # row views made once per block, not per step
-        self.G = None if bool((G == 1.0).all()) else G.astype(self.dtype)
-
-    def apply(self, x: np.ndarray, r: int) -> np.ndarray:
-        if self.G is None:
-            return x + self.rows[r]
-        w = x * self.G
-        w += self.rows[r]
-        return w
-
-
-class _Pipeline:
-    def __init__(
-        self,
-        noise: ObservationNoise | ActionNoise,
-        names: list[str],
-        layout: Layout,
-        dtype: np.dtype,
-        streams_ref: SignalCorruptor,
-    ) -> None:
-        self.noise = noise
-        self.names = names
-        self.layout = layout
-        self.dtype = dtype
-        self.owner = streams_ref
-        self.selects = [p.select if p.select is not None else noise.select for p in noise.processes]
-        self.indices = [layout.resolve(s, "select") for s in self.selects]
-        self.gens: list[np.random.Generator] = [streams_ref._streams.generator(n) for n in names]
-        self.stages: list[Any] = []
-        self.r = BLOCK
-        self.block = -1
-        clip = noise.clip and layout.low is not None
-        # Bounds in the signal's dtype: mixed-dtype ufuncs take numpy's slow casting path.
-        low = np.asarray(layout.low, dtype=dtype) if clip else None
-        high = np.asarray(layout.high, dtype=dtype) if clip else None
-        # Observations: only the entries some process selects are clipped, and only where the env's own
-        # value lies inside the bounds (see ObservationNoise); actions are clipped whole to the actuators' range.
-        self.guard = isinstance(noise, ObservationNoise)
-        if clip and self.guard:
-            chosen = np.zeros(layout.size, dtype=bool)
-            for idx in self.indices:
-                chosen[idx] = True
-            low = np.where(chosen, low, -np.inf).astype(dtype)  # type: ignore[arg-type]
-            high = np.where(chosen, high, np.inf).astype(dtype)  # type: ignore[arg-type]
-            if not (np.isfinite(low).any() or np.isfinite(high).any()):
-                low = high = None
-        self.low, self.high = low, high
-
-    def regenerate(self) -> None:
-        """New generators after the streams were re-rooted (``reset(seed=...)``)."""
-        self.gens = [self.owner._streams.generator(n) for n in self.names]
-
-    def begin(self, episode: int, report: dict[str, float]) -> None:
-        streams = self.owner._streams
-        parts: list[Part] = []
-        for proc, name, gen, idx, select in zip(
-            self.noise.processes, self.names, self.gens, self.indices, self.selects, strict=True
-        ):
-            streams.start(gen, name, episode, 0)
-
-            def block_rng(b: int, gen: np.random.Generator = gen, name: str = name) -> np.random.Generator:
-                streams.start(gen, name, episode, 1 + b)
-                return gen
-
-            prefix = name.partition("[")[0]  # reports use the plain name: obs_noise_std[3]
-            ctx = Compile(proc, prefix, self.layout, idx, gen, block_rng, report, selection_repr(select))
-            parts.append(proc.compile(ctx))
-        stages: list[Any] = []
-        for part in parts:
-            if part.kind == "op":
-                stages.append(part)
-            elif stages and isinstance(stages[-1], _Affine):
-                stages[-1].parts.append(part)
-            else:
-                stages.append(_Affine([part], self.layout.size, self.dtype))
-        self.stages = stages
-        self.first_affine = isinstance(stages[0], _Affine)
-        self.simple = 0  # decided after the first refill, when the gain is known (1: add, 2: add + clip)
-        self.block = -1
-        self.r = BLOCK
-
-    def _decide(self) -> None:
-        stage = self.stages[0]
-        plain = self.first_affine and len(self.stages) == 1 and stage.G is None
-        self.simple = (2 if self.low is not None else 1) if plain else 0
-
-    def _refill(self) -> None:
-        self.block += 1
-        for stage in self.stages:
-            stage.refill(self.block)
-        self.r = 0
-        self._decide()
-
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        r = self.r
-        if r == BLOCK:
-            self._refill()
-            r = 0
-        self.r = r + 1
-        simple = self.simple
-        if simple:  # one fused affine stage (no gain): one add per step, then the clip if any
-            w = x + self.stages[0].rows[r]
-            if simple == 2:
-                self._clip(x, w)
-            return w
-        if self.first_affine:
-            w = self.stages[0].apply(x, r)
-            rest = self.stages[1:]
-        else:
-            w = np.array(x, dtype=self.dtype)
-            rest = self.stages
-        for stage in rest:
-            if isinstance(stage, _Affine):
-                w = stage.apply(w, r)
-            else:
-                stage.apply(w, r)
-        if self.low is not None:
-            self._clip(x, w)
-        return w
-
-    def _clip(self, x: np.ndarray, w: np.ndarray) -> None:
-        low, high = self.low, self.high
-        if not self.guard:
-            _clip(w, low, high, out=w)
-            return
-        np.copyto(w, _clip(w, low, high), where=(x >= low) & (x <= high))
-
-
-@dataclass(frozen=True)
-class NoiseBlock:
-    """One noise pipeline fused into one affine stage, as of its current block, for code that runs many pipelines
-    at once (``sim2real.batched``): step ``t`` maps ``x`` to ``x * gain + offsets[row + t]`` (``gain`` None: 1.0),
-    then :meth:`clip`; ``row == BLOCK``: spent, :meth:`SignalCorruptor.next_noise_block` draws the next block.
-    ``offsets`` (``(BLOCK, size)``, read only) and ``gain`` are in the signal's dtype; ``low``/``high`` are the
-    clip bounds (None: none); ``guard``: clip only entries whose clean value lies inside them (observations)."""
-
-    offsets: np.ndarray
-    gain: np.ndarray | None
-    row: int
-    low: np.ndarray | None
-    high: np.ndarray | None
-    guard: bool
-
-    def clip(self, x: np.ndarray, w: np.ndarray) -> None:
-        """Clips the noisy ``w`` in place as the pipeline does (``x``: the clean signal; any leading batch axes)."""
-        if self.low is not None:
-            if self.guard:
-                np.copyto(w, _clip(w, self.low, self.high), where=(x >= self.low) & (x <= self.high))
-            else:
-                _clip(w, self.low, self.high, out=w)
 
 
 class SignalCorruptor:
@@ -398,11 +214,11 @@ class SignalCorruptor:
         self._action_flat = (action.size,) if action is not None else None
         self.obs_dtype, self.action_dtype = np.dtype(obs_dtype), np.dtype(action_dtype)
         self._obs_pipes = [
-            _Pipeline(n, names, obs, self.obs_dtype, self)  # type: ignore[arg-type]
+            Pipeline(n, names, obs, self.obs_dtype, self)  # type: ignore[arg-type]
             for n, names in zip(self.obs_noise, self.obs_names, strict=True)
         ]
         self._action_pipes = [
-            _Pipeline(n, names, action, self.action_dtype, self)  # type: ignore[arg-type]
+            Pipeline(n, names, action, self.action_dtype, self)  # type: ignore[arg-type]
             for n, names in zip(self.action_noise, self.action_names, strict=True)
         ]
         self._check_reports()
@@ -493,7 +309,7 @@ class SignalCorruptor:
         self._last_obs_time = 0
         self._last_out: Any = None
 
-    def _pipes(self, side: str) -> list[_Pipeline]:
+    def _pipes(self, side: str) -> list[Pipeline]:
         if side not in ("observation", "action"):
             raise ValueError(f"`side` must be one of ['observation', 'action']. Received {side!r}.")
         return self._obs_pipes if side == "observation" else self._action_pipes
@@ -504,21 +320,14 @@ class SignalCorruptor:
         Raises:
             ValueError: a pipeline that is not one affine stage (e.g. Quantize, Dropout; see NoiseBlock).
         """
-        return tuple(self._block(pipe) for pipe in self._pipes(side))
+        return tuple(pipe.noise_block() for pipe in self._pipes(side))
 
     def next_noise_block(self, side: str, k: int) -> NoiseBlock:
         """Draws the next block of the ``k``-th ``side`` pipeline from its own stream (as its step would when
         its block is spent) and returns it."""
         pipe = self._pipes(side)[k]
-        pipe._refill()
-        return self._block(pipe)
-
-    @staticmethod
-    def _block(pipe: _Pipeline) -> NoiseBlock:
-        if len(pipe.stages) != 1 or not isinstance(pipe.stages[0], _Affine):
-            raise ValueError(f"`{pipe.names[0]}`: the pipeline is not one affine stage (see NoiseBlock).")
-        stage = pipe.stages[0]
-        return NoiseBlock(stage.F, stage.G, pipe.r, pipe.low, pipe.high, pipe.guard)
+        pipe.refill()
+        return pipe.noise_block()
 
     def pipeline_sizes(self, side: str) -> tuple[int, ...]:
         """Signal length of each ``side`` pipeline (after :meth:`bind`)."""

@@ -1,0 +1,228 @@
+"""The compiled runtime of one noise pipeline (:class:`Pipeline`) and its public fused view (:class:`NoiseBlock`).
+
+:class:`~noise_models.corruptor.SignalCorruptor` owns the pipelines; this module is how one of them runs: consecutive
+additive and multiplicative processes fused into one affine map per step whose noise is pre-drawn in blocks of
+``BLOCK`` steps, then the pipeline's clip.
+
+Example:
+    >>> import numpy as np
+    >>> from noise_models import Gaussian, ObservationNoise
+    >>> from noise_models.corruptor import SignalCorruptor
+    >>> from noise_models.values import Layout
+    >>> c = SignalCorruptor([ObservationNoise(Gaussian(std=0.1))], seed=0)
+    >>> c.bind(obs=Layout(3), action=None, timestep=0.01, substeps=1)
+    >>> c.begin_episode()
+    >>> block = c.noise_blocks("observation")[0]
+    >>> block.offsets.shape[1], block.gain is None, block.low is None
+    (3, True, True)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from noise_models.pipelines import ActionNoise, ObservationNoise
+from noise_models.processes import BLOCK, Compile, Part
+from noise_models.values import Layout, selection_repr
+
+if TYPE_CHECKING:
+    from noise_models.corruptor import SignalCorruptor
+
+__all__ = ["NoiseBlock", "Pipeline"]
+
+
+# -- compiled runtime --------------------------------------------------------------------------
+
+
+try:  # the clip ufunc itself: np.clip's Python dispatch costs more than the clipping
+    # numpy's stubs do not declare the `clip` ufunc in umath, though numpy 2 exports it there.
+    from numpy._core.umath import clip as _clip  # type: ignore[attr-defined]
+except ImportError:  # pragma: no cover - numpy < 2
+    from numpy.core.umath import clip as _clip  # type: ignore[no-redef]
+
+
+class _Affine:
+    """Consecutive gain/offset/noise parts fused into ``x * G + F[r]`` with ``F`` drawn per block."""
+
+    def __init__(self, parts: list[Part], size: int, dtype: np.dtype) -> None:
+        self.parts = parts
+        self.size = size
+        self.dtype = dtype
+        self.F = np.zeros((BLOCK, size), dtype=dtype)
+        self.G: np.ndarray | None = None
+
+    def refill(self, block: int) -> None:
+        F = np.zeros((BLOCK, self.size))
+        G = np.ones(self.size)
+        for p in self.parts:
+            if p.kind == "gain":
+                F[:, p.sel] *= p.gain  # type: ignore[attr-defined]
+                G[p.sel] *= p.gain  # type: ignore[attr-defined]
+            elif p.kind == "add":
+                F[:, p.sel] += p.offset  # type: ignore[attr-defined]
+            else:
+                F[:, p.sel] += p.block(block)  # type: ignore[attr-defined]
+        self.F = F.astype(self.dtype)
+        self.rows = list(self.F)  # row views made once per block, not per step
+        self.G = None if bool((G == 1.0).all()) else G.astype(self.dtype)
+
+    def apply(self, x: np.ndarray, r: int) -> np.ndarray:
+        if self.G is None:
+            return x + self.rows[r]
+        w = x * self.G
+        w += self.rows[r]
+        return w
+
+
+class Pipeline:
+    """One pipeline of a :class:`~noise_models.corruptor.SignalCorruptor`, compiled for its layout and dtype."""
+
+    def __init__(
+        self,
+        noise: ObservationNoise | ActionNoise,
+        names: list[str],
+        layout: Layout,
+        dtype: np.dtype,
+        streams_ref: SignalCorruptor,
+    ) -> None:
+        self.noise = noise
+        self.names = names
+        self.layout = layout
+        self.dtype = dtype
+        self.owner = streams_ref
+        self.selects = [p.select if p.select is not None else noise.select for p in noise.processes]
+        self.indices = [layout.resolve(s, "select") for s in self.selects]
+        self.gens: list[np.random.Generator] = [streams_ref._streams.generator(n) for n in names]
+        self.stages: list[Any] = []
+        self.r = BLOCK
+        self.block = -1
+        clip = noise.clip and layout.low is not None
+        # Bounds in the signal's dtype: mixed-dtype ufuncs take numpy's slow casting path.
+        low = np.asarray(layout.low, dtype=dtype) if clip else None
+        high = np.asarray(layout.high, dtype=dtype) if clip else None
+        # Observations: only the entries some process selects are clipped, and only where the env's own
+        # value lies inside the bounds (see ObservationNoise); actions are clipped whole to the actuators' range.
+        self.guard = isinstance(noise, ObservationNoise)
+        if clip and self.guard:
+            chosen = np.zeros(layout.size, dtype=bool)
+            for idx in self.indices:
+                chosen[idx] = True
+            low = np.where(chosen, low, -np.inf).astype(dtype)  # type: ignore[arg-type]
+            high = np.where(chosen, high, np.inf).astype(dtype)  # type: ignore[arg-type]
+            if not (np.isfinite(low).any() or np.isfinite(high).any()):
+                low = high = None
+        self.low, self.high = low, high
+
+    def regenerate(self) -> None:
+        """New generators after the streams were re-rooted (``reset(seed=...)``)."""
+        self.gens = [self.owner._streams.generator(n) for n in self.names]
+
+    def begin(self, episode: int, report: dict[str, float]) -> None:
+        streams = self.owner._streams
+        parts: list[Part] = []
+        for proc, name, gen, idx, select in zip(
+            self.noise.processes, self.names, self.gens, self.indices, self.selects, strict=True
+        ):
+            streams.start(gen, name, episode, 0)
+
+            def block_rng(b: int, gen: np.random.Generator = gen, name: str = name) -> np.random.Generator:
+                streams.start(gen, name, episode, 1 + b)
+                return gen
+
+            prefix = name.partition("[")[0]  # reports use the plain name: obs_noise_std[3]
+            ctx = Compile(proc, prefix, self.layout, idx, gen, block_rng, report, selection_repr(select))
+            parts.append(proc.compile(ctx))
+        stages: list[Any] = []
+        for part in parts:
+            if part.kind == "op":
+                stages.append(part)
+            elif stages and isinstance(stages[-1], _Affine):
+                stages[-1].parts.append(part)
+            else:
+                stages.append(_Affine([part], self.layout.size, self.dtype))
+        self.stages = stages
+        self.first_affine = isinstance(stages[0], _Affine)
+        self.simple = 0  # decided after the first refill, when the gain is known (1: add, 2: add + clip)
+        self.block = -1
+        self.r = BLOCK
+
+    def _decide(self) -> None:
+        stage = self.stages[0]
+        plain = self.first_affine and len(self.stages) == 1 and stage.G is None
+        self.simple = (2 if self.low is not None else 1) if plain else 0
+
+    def refill(self) -> None:
+        self.block += 1
+        for stage in self.stages:
+            stage.refill(self.block)
+        self.r = 0
+        self._decide()
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        r = self.r
+        if r == BLOCK:
+            self.refill()
+            r = 0
+        self.r = r + 1
+        simple = self.simple
+        if simple:  # one fused affine stage (no gain): one add per step, then the clip if any
+            w = x + self.stages[0].rows[r]
+            if simple == 2:
+                self._clip(x, w)
+            return w
+        if self.first_affine:
+            w = self.stages[0].apply(x, r)
+            rest = self.stages[1:]
+        else:
+            w = np.array(x, dtype=self.dtype)
+            rest = self.stages
+        for stage in rest:
+            if isinstance(stage, _Affine):
+                w = stage.apply(w, r)
+            else:
+                stage.apply(w, r)
+        if self.low is not None:
+            self._clip(x, w)
+        return w
+
+    def noise_block(self) -> NoiseBlock:
+        """This pipeline as one :class:`NoiseBlock` (its current block; raises ValueError when it is not one
+        affine stage)."""
+        if len(self.stages) != 1 or not isinstance(self.stages[0], _Affine):
+            raise ValueError(f"`{self.names[0]}`: the pipeline is not one affine stage (see NoiseBlock).")
+        stage = self.stages[0]
+        return NoiseBlock(stage.F, stage.G, self.r, self.low, self.high, self.guard)
+
+    def _clip(self, x: np.ndarray, w: np.ndarray) -> None:
+        low, high = self.low, self.high
+        if not self.guard:
+            _clip(w, low, high, out=w)
+            return
+        np.copyto(w, _clip(w, low, high), where=(x >= low) & (x <= high))
+
+
+@dataclass(frozen=True)
+class NoiseBlock:
+    """One noise pipeline fused into one affine stage, as of its current block, for code that runs many pipelines
+    at once (``sim2real.batched``): step ``t`` maps ``x`` to ``x * gain + offsets[row + t]`` (``gain`` None: 1.0),
+    then :meth:`clip`; ``row == BLOCK``: spent, :meth:`SignalCorruptor.next_noise_block` draws the next block.
+    ``offsets`` (``(BLOCK, size)``, read only) and ``gain`` are in the signal's dtype; ``low``/``high`` are the
+    clip bounds (None: none); ``guard``: clip only entries whose clean value lies inside them (observations)."""
+
+    offsets: np.ndarray
+    gain: np.ndarray | None
+    row: int
+    low: np.ndarray | None
+    high: np.ndarray | None
+    guard: bool
+
+    def clip(self, x: np.ndarray, w: np.ndarray) -> None:
+        """Clips the noisy ``w`` in place as the pipeline does (``x``: the clean signal; any leading batch axes)."""
+        if self.low is not None:
+            if self.guard:
+                np.copyto(w, _clip(w, self.low, self.high), where=(x >= self.low) & (x <= self.high))
+            else:
+                _clip(w, self.low, self.high, out=w)
