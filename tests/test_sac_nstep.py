@@ -79,7 +79,8 @@ def test_sac_update_discounts_an_m_step_transition_by_gamma_to_the_m() -> None:
     for gamma, steps in ((0.9, torch.full((32,), 2.0)), (0.81, None), (0.9, torch.ones(32)), (0.9, None)):
         update = _update(gamma)
         torch.manual_seed(5)
-        losses = update.step(*batch, steps)
+        obs, act, rew, nxt, term = batch
+        losses = update.step(obs, act, rew, nxt, term, steps)
         runs.append((losses, [p.detach().clone() for p in update._sources]))
     torch.testing.assert_close(runs[0][0], runs[1][0], rtol=1e-6, atol=1e-7)
     assert torch.equal(runs[2][0], runs[3][0])
@@ -94,6 +95,7 @@ def test_target_entropy_sets_the_temperature_gradient() -> None:
         update = _update(0.9, target)
         torch.manual_seed(5)
         update.step(*_batch())
+        assert update.log_alpha.grad is not None
         grads.append(float(update.log_alpha.grad))
     assert update.target_entropy == -1.0 and _update(0.9).target_entropy == -2.0
     assert grads[0] - grads[1] == pytest.approx(1.0, abs=1e-5)
