@@ -165,3 +165,39 @@ def test_evaluate_runs_action_latency_batched_and_byte_identical() -> None:
     assert set(auto.engines.values()) == {"batched"}
     assert set(per_env.engines.values()) == {"per-env"}
     assert auto.to_json() == per_env.to_json()  # bitwise: returns, lengths, draws
+
+
+def test_torchrl_env_with_action_latency_is_bitwise_the_single_envs() -> None:
+    torch = pytest.importorskip("torch")
+    from tensordict import TensorDict
+
+    from sim2real.batched.torchrl_env import BatchedTorchRLEnv
+
+    effects = _stack("twin")
+    env = BatchedTorchRLEnv("dmc/reacher-easy", 3, *effects, seed=8, time_limit=0.3)
+    singles = [s2r.wrap(s2r.make("dmc/reacher-easy", time_limit=0.3), *effects, seed=(8, i)) for i in range(3)]
+    env.set_seed(40)
+    td = env.reset()
+    for i, single in enumerate(singles):
+        obs, info = single.reset(seed=40 + i)
+        assert np.array_equal(td["observation"][i].numpy(), obs)
+        assert td["sim2real_params"][i].tolist() == [info["sim2real"]["params"][k] for k in env.param_names]
+    assert "action_latency_steps" in env.param_names
+    rng = np.random.default_rng(3)
+    for _ in range(15):
+        actions = rng.uniform(-1, 1, (3, 2)).astype(np.float32)
+        out = env.step(TensorDict({"action": torch.as_tensor(actions)}, batch_size=[3]))["next"]
+        assert out["reward"].shape == (3, 1) and out["reward"].dtype == torch.float32
+        for i, single in enumerate(singles):
+            obs, reward, terminated, truncated, _ = single.step(actions[i])
+            assert np.array_equal(out["observation"][i].numpy(), obs)
+            assert float(out["reward"][i]) == reward
+            assert bool(out["done"][i]) == (terminated or truncated) and bool(out["truncated"][i]) == truncated
+    # A partial reset: world 2's new draws reach the params of the steps that follow (not the old episode's).
+    td = env.reset(TensorDict({"_reset": torch.tensor([[False], [False], [True]])}, batch_size=[3]))
+    _, info = singles[2].reset()
+    expected = [info["sim2real"]["params"][k] for k in env.param_names]
+    assert td["sim2real_params"][2].tolist() == expected
+    out = env.step(TensorDict({"action": torch.zeros(3, 2)}, batch_size=[3]))["next"]
+    assert out["sim2real_params"][2].tolist() == expected
+    env.close()

@@ -83,6 +83,8 @@ class BatchedTorchRLEnv(EnvBase):
         )
         self._reset_seed: int | None = None
         self._diverged = np.zeros(n, bool)
+        self._on_cpu = self.device is None or torch.device(self.device).type == "cpu"
+        self._params_tensor = self._params({})  # the draws in use: rebuilt at every reset, shared by the steps
 
     @staticmethod
     def _param_names(single: Any) -> tuple[str, ...]:
@@ -104,21 +106,35 @@ class BatchedTorchRLEnv(EnvBase):
         values = np.stack(columns, axis=1) if columns else np.zeros((n, 0))
         return torch.as_tensor(values, dtype=torch.float64, device=self.device)
 
+    def _tensor(self, array: np.ndarray) -> torch.Tensor:
+        """A fresh numpy array as a tensor on the env's device (shared memory on the CPU: no copy)."""
+        tensor = torch.from_numpy(array)
+        return tensor if self._on_cpu else tensor.to(self.device)
+
     def _out(
         self, obs: np.ndarray, terminated: np.ndarray, truncated: np.ndarray, reward: np.ndarray | None
     ) -> TensorDictBase:
+        # Every array here is fresh (the engine returns copies), so the tensors share its memory; the shapes are
+        # the specs' already, so nothing is reshaped (EnvBase's per-step spec lookups are skipped, _step_proc_data).
         n = self.engine.num_envs
         out = {
-            "observation": torch.as_tensor(obs, device=self.device),
-            "terminated": torch.as_tensor(terminated, device=self.device).view(n, 1),
-            "truncated": torch.as_tensor(truncated, device=self.device).view(n, 1),
-            "done": torch.as_tensor(terminated | truncated, device=self.device).view(n, 1),
-            PARAMS_KEY: self._params(self.engine.params),
-            DIVERGED_KEY: torch.as_tensor(self._diverged.copy(), device=self.device).view(n, 1),
+            "observation": self._tensor(obs),
+            "terminated": self._tensor(terminated.reshape(n, 1)),
+            "truncated": self._tensor(truncated.reshape(n, 1)),
+            "done": self._tensor((terminated | truncated).reshape(n, 1)),
+            PARAMS_KEY: self._params_tensor,
+            DIVERGED_KEY: self._tensor(self._diverged.reshape(n, 1).copy()),
         }
         if reward is not None:
-            out["reward"] = torch.as_tensor(reward, dtype=torch.float32, device=self.device).view(n, 1)
+            out["reward"] = self._tensor(reward.astype(np.float32).reshape(n, 1))
         return TensorDict(out, batch_size=self.batch_size, device=self.device)
+
+    def _step_proc_data(self, next_tensordict_out: TensorDictBase) -> TensorDictBase:
+        # EnvBase reshapes rewards to the spec and fills missing done keys here, looking specs up on every step;
+        # _out emits every done key and the reward in their spec shapes, so only the optional type checks remain.
+        if self.run_type_checks:
+            return super()._step_proc_data(next_tensordict_out)
+        return next_tensordict_out
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
         n = self.engine.num_envs
@@ -131,6 +147,7 @@ class BatchedTorchRLEnv(EnvBase):
             seed, self._reset_seed = self._reset_seed, None
             obs, _ = self.engine.reset(seed=seed)
             self._diverged[:] = False
+        self._params_tensor = self._params(self.engine.params)
         none = np.zeros(n, bool)
         return self._out(obs, none, none, None)
 
