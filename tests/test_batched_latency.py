@@ -201,3 +201,27 @@ def test_torchrl_env_with_action_latency_is_bitwise_the_single_envs() -> None:
     out = env.step(TensorDict({"action": torch.zeros(3, 2)}, batch_size=[3]))["next"]
     assert out["sim2real_params"][2].tolist() == expected
     env.close()
+
+
+def test_threads_and_uneven_steps_keep_each_worlds_command_ring() -> None:
+    # Worlds split over threads, and a mask that steps some worlds and not others: each world's ring advances only
+    # with its own steps, as its single env's does when only the masked-in worlds are stepped.
+    effects = _stack("mid-step")
+    options = OPTIONS["dmc/manipulator-bring_ball"]
+    singles = [s2r.wrap(s2r.make("dmc/manipulator-bring_ball", **options), *effects, seed=(1, i)) for i in range(5)]
+    expected = [[env.reset(seed=i)[0]] for i, env in enumerate(singles)]
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, (12, 5, 5)).astype(np.float32)
+    masks = [np.arange(5) % 2 == t % 2 if t < 6 else np.ones(5, bool) for t in range(12)]
+    for t in range(12):
+        for i, env in enumerate(singles):
+            expected[i].append(env.step(actions[t, i])[0] if masks[t][i] else expected[i][-1])
+    for threads in (1, 2):
+        envs = make_batched("dmc/manipulator-bring_ball", 5, *effects, seed=1, threads=threads, **options)
+        obs, params = envs.reset(seed=0)
+        assert len(set(params["action_latency_steps"].tolist())) > 1
+        for t in range(12):
+            obs = envs.step(actions[t], mask=masks[t])[0]
+            for i in range(5):
+                assert np.array_equal(obs[i], expected[i][t + 1]), (threads, t, i)
+        envs.close()

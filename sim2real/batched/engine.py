@@ -396,16 +396,19 @@ class BatchedEnv:
             self._site,
         )
         jacobian = self._gathered.get("jacobian")
-        table, steps = self._worlds, self._steps
-        ring, lags, rests = signals.command_ring, signals.command_lag, signals.command_rest
+        table, ring = self._worlds, signals.command_ring
         size = ring.shape[1]
-        for i in worlds:
+        # All the worlds' ring writes and reads at once: k = the commands a world sent before this one this episode.
+        idx = np.asarray(worlds, dtype=np.int64)
+        k, q, rests = self._steps[idx], signals.command_lag[idx], signals.command_rest[idx]
+        ring[idx, k % size] = controls[idx]
+        newer = ring[idx, (k - q) % size]  # a slot not yet written this episode holds the reset command
+        older = ring[idx, (k - q - 1) % size]
+        whole = ((rests == 0) | (k < q)).tolist()
+        for j, i in enumerate(worlds):
             m, d, ctrl, copies = table[i]
-            k = int(steps[i])  # commands this world sent before this one, in this episode
-            ring[i, k % size] = controls[i]
-            q, r = lags[i], rests[i]
-            if r == 0 or k < q:  # one command over the whole step (a slot not yet written: the reset command)
-                ctrl[...] = ring[i, (k - q) % size]
+            if whole[j]:  # one command over the whole step
+                ctrl[...] = newer[j]
                 if split:
                     mujoco.mj_step2(m, d)
                     if n_sub > 1:
@@ -413,7 +416,8 @@ class BatchedEnv:
                 else:
                     mujoco.mj_step(m, d, n_sub)
             else:  # the older command for r substeps, then the one that arrives mid step
-                ctrl[...] = ring[i, (k - q - 1) % size]
+                r = int(rests[j])
+                ctrl[...] = older[j]
                 if split:
                     mujoco.mj_step2(m, d)
                     if r > 1:
@@ -422,7 +426,7 @@ class BatchedEnv:
                     mujoco.mj_step(m, d, r)
                     if sync:
                         mujoco.mj_step1(m, d)
-                ctrl[...] = ring[i, (k - q) % size]
+                ctrl[...] = newer[j]
                 mujoco.mj_step(m, d, n_sub - r)
             if sync:
                 mujoco.mj_step1(m, d)

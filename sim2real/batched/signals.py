@@ -142,8 +142,8 @@ class BatchedSignals:
         #: longest whole-control-step lag + 2, so a slot not yet written this episode holds the reset command.
         self.command_ring = np.zeros((num_envs, longest // n_sub + 2, 0))
         #: Each world's latency as (whole control steps, remaining physics steps) of this episode.
-        self.command_lag: list[int] = [0] * num_envs
-        self.command_rest: list[int] = [0] * num_envs
+        self.command_lag = np.zeros(num_envs, np.int64)
+        self.command_rest = np.zeros(num_envs, np.int64)
         self._n_sub = n_sub
 
     def reset_world(self, i: int, env: Any, first_obs: np.ndarray, ctrl: np.ndarray | None = None) -> None:
