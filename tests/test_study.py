@@ -24,7 +24,7 @@ def test_quick_study_writes_the_report(quick: Path) -> None:
         p.name for p in quick.iterdir()) == ["figures", "report.html", "report.json", "report.md", "sysid"]  # fmt: skip
     report = json.loads((quick / "report.json").read_text())
     html = (quick / "report.html").read_text()
-    for role in ("nominal", "randomized", "calibrated", "scripted"):
+    for role in ("nominal", "randomized", "calibrated", "adr", "scripted"):
         assert role in report["evaluation"]["policies"]
         assert f"{role}" in html
     assert {"returns.png", "sysid_fit.png"} <= {p.name for p in (quick / "figures").iterdir()}
@@ -71,7 +71,8 @@ def test_same_seed_reproduces_the_report_json_bitwise(quick: Path, tmp_path: Pat
     assert again.summary.startswith("Before calibration, the nominal policy returns")
     assert "on the real twin" in again.summary and "calibrated sim it was trained on" in again.summary
     # The checkpoints the package ships were trained under exactly this study's configurations.
-    assert all(again.policies[r].startswith("shipped checkpoint") for r in ("nominal", "randomized", "calibrated"))
+    roles = ("nominal", "randomized", "calibrated", "adr")
+    assert all(again.policies[r].startswith("shipped checkpoint") for r in roles)
 
 
 def test_interrupt_leaves_nothing_half_written(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -105,6 +106,7 @@ def test_profile_and_errors() -> None:
 
     assert shipped(profile, "nominal", None) is not None
     assert shipped(profile, "randomized", effects_yaml(profile.randomized)) is not None
+    assert shipped(profile, "adr", effects_yaml(profile.adr_signals)) is not None  # ADR from the nominal point
     with pytest.raises(
         ValueError,
         match=r"`task` must be one of \[.*'dmc/reacher-easy'.*\] \(tasks with a bundled study\). Received 'dmc/cheetah-run'.",
