@@ -225,3 +225,36 @@ def test_threads_and_uneven_steps_keep_each_worlds_command_ring() -> None:
             for i in range(5):
                 assert np.array_equal(obs[i], expected[i][t + 1]), (threads, t, i)
         envs.close()
+
+
+def test_ppo_collection_with_action_latency_is_batched_and_each_world_its_single_env() -> None:
+    """PPO's collector now takes the engine for a delayed actuator: each world draws, observes and is rewarded as
+    ``wrap(make(task), *effects, seed=(seed, i))`` reset with ``seed + i``."""
+    torch = pytest.importorskip("torch")
+    from sim2real.agents import PPOConfig
+    from sim2real.agents.collect import Collection, choose_collection, make_collection_env
+
+    effects = _stack("twin")
+    assert choose_collection("dmc/reacher-easy", effects, PPOConfig(num_envs=4)).engine == ("batched")
+    seed, n, steps = 3, 3, 12
+    env = make_collection_env("dmc/reacher-easy", effects, seed, Collection("batched", n, None, steps))
+    actions = torch.as_tensor(np.random.default_rng(1).uniform(-1, 1, (steps, n, 2)), dtype=torch.float32)
+    step = iter(range(steps))
+
+    def policy(td: object) -> object:
+        td["action"] = actions[next(step)]  # type: ignore[index]
+        return td
+
+    try:
+        data = env.rollout(steps, policy, break_when_any_done=False)
+    finally:
+        env.close()
+    for i in range(n):
+        single = s2r.wrap(s2r.make("dmc/reacher-easy"), *effects, seed=(seed, i))
+        obs, _ = single.reset(seed=seed + i)
+        assert np.array_equal(data["observation"][i, 0].numpy(), obs)
+        for t in range(steps):
+            obs, reward, *_ = single.step(actions[t, i].numpy())
+            assert np.array_equal(data["next", "observation"][i, t].numpy(), obs), (i, t)
+            assert data["next", "reward"][i, t].item() == np.float32(reward)
+        single.close()
