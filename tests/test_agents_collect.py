@@ -174,3 +174,49 @@ def test_csv_logger_records_the_collection(tmp_path) -> None:
     assert res.log_dir is not None
     text = "\n".join(p.read_text() for p in res.log_dir.rglob("*") if p.is_file())
     assert "batched engine, 4 worlds x 50 steps per batch" in text
+
+
+def test_train_env_carries_the_tasks_success_flag_and_adr_scores_it() -> None:
+    """arm-reach reports info["is_success"]; TorchRL's GymWrapper dropped it, so ADR's 'auto'/'success' metric
+    saw no success flag on the training env (a 'success' metric raised, 'auto' silently scored the return)."""
+    import torch
+
+    from randomizers import ADR
+    from sim2real.agents import PPOConfig, train
+    from sim2real.agents.baselines import ReachController
+    from sim2real.agents.collect import make_train_env
+
+    env = make_train_env("sim2real/arm-reach", [], 3)
+    controller = ReachController(kp=5.0)
+    td = env.reset()
+    flags, dones = [], []
+    for _ in range(200):
+        obs = td["observation"].numpy()
+        td.set("action", torch.as_tensor(controller(obs), dtype=torch.float32))
+        td = env.step(td)
+        flags.append(bool(td["next", "is_success"]))
+        dones.append(bool(td["next", "terminated"]))
+        if dones[-1]:
+            break
+        td = td["next"]
+    env.close()
+    assert flags[-1] and dones[-1] and not any(flags[:-1]), (flags, dones)  # success ends the episode
+    assert "is_success" not in make_train_env("dmc/reacher-easy", [], 0).rollout(2)["next"]
+
+    adr = """
+effects:
+  - {type: Damping, scale: [0.2, 5.0]}
+delta: 0.1
+t_low: -1.0
+t_high: 0.0
+m: 1
+p_boundary: 1.0
+metric: success
+"""
+    cfg = PPOConfig(frames=400, frames_per_batch=200, minibatch_size=100, epochs=1, obs_norm_frames=0, adr=adr)
+    result = train("sim2real/arm-reach", cfg, seed=0, progress=False, logger=None)
+    state = ADR.from_state(result.adr)
+    assert state.frames == 400
+    # Every finished episode is scored on its success flag (a 'success' metric raised before: no flag) and, with
+    # t_high 0, widens its pinned boundary: the nominal point plus one change per 200-step episode.
+    assert len(state.history.frames) == 3

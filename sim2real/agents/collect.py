@@ -168,9 +168,9 @@ def make_train_env(task_or_env: Any, effects: Sequence[Any] = (), seed: int = 0)
     import sim2real
 
     if isinstance(task_or_env, str):
-        env: Any = GymWrapper(sim2real.make(task_or_env))
+        env: Any = _with_success(GymWrapper(sim2real.make(task_or_env)))
     elif isinstance(task_or_env, gym.Env):
-        env = GymWrapper(task_or_env)
+        env = _with_success(GymWrapper(task_or_env))
     elif isinstance(task_or_env, EnvBase):
         env = task_or_env
     else:
@@ -191,3 +191,36 @@ def make_train_env(task_or_env: Any, effects: Sequence[Any] = (), seed: int = 0)
     env = TransformedEnv(env, Compose(DoubleToFloat(), RewardSum()), auto_unwrap=False)
     env.set_seed(seed)
     return env
+
+
+def _with_success(env: Any) -> Any:
+    """``env`` (a TorchRL ``GymWrapper``) carrying the task's ``info["is_success"]`` as an ``"is_success"`` entry when
+    its gymnasium env sets one at step (``sim2real/arm-reach``), so episode metrics such as ADR's ``"auto"`` see the
+    task's success instead of falling back to the return. Whether the task sets it is read from the info of one
+    unseeded reset (the task's reset reports the keys its steps carry; the run seeds the env before it collects, so
+    the probe changes no trajectory: tests/test_agents_collect.py)."""
+    base = env._env
+    _, info = base.reset()
+    if "is_success" not in info:
+        return env
+    return env.set_info_dict_reader(_SuccessReader())
+
+
+class _SuccessReader:
+    """TorchRL info reader: ``info["is_success"]`` (a Python or numpy bool, False when absent) as ``"is_success"``."""
+
+    def __init__(self) -> None:
+        import torch
+        from torchrl.data import Composite, Unbounded
+
+        self._spec = Composite(is_success=Unbounded(shape=(), dtype=torch.bool))
+        self._torch = torch
+
+    @property
+    def info_spec(self) -> Any:
+        return self._spec
+
+    def __call__(self, info_dict: Any, tensordict: Any) -> Any:
+        flag = bool(info_dict.get("is_success", False)) if isinstance(info_dict, dict) else False
+        tensordict.set("is_success", self._torch.tensor(flag))
+        return tensordict

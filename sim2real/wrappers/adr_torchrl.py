@@ -1,8 +1,8 @@
 """TorchRL: :class:`AutoRandomizePhysicsTransform`, the physics transform with an ADR controller behind it.
 
 The pinned value travels in ``"sim2real_params"`` like every draw. The episode's reward is summed from the
-``"reward"`` the base env returns (before any reward transform appended later); a ``"success"`` entry, when the env
-has one, is the episode's success flag. The episode ends on ``"done"``.
+``"reward"`` the base env returns (before any reward transform appended later); a ``"success"`` (or ``"is_success"``)
+entry, when the env has one, is the episode's success flag. The episode ends on ``"done"``.
 
 Example:
     >>> from torchrl.envs import DMControlEnv, TransformedEnv
@@ -59,6 +59,8 @@ class AutoRandomizePhysicsTransform(RandomizePhysicsTransform):
         if tally.running and (done.item() if done.numel() == 1 else bool(done.any())):
             tally.running = False
             success = next_tensordict.get("success", None)
+            if success is None:
+                success = next_tensordict.get("is_success", None)  # a gymnasium task's info["is_success"]
             flag = None if success is None else bool(success.any())
             randomizer: ADRRandomizer = self.randomizer  # type: ignore[assignment]
             randomizer.end_episode(Episode(tally.episode_return, tally.length, flag))
