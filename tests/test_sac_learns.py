@@ -1,7 +1,7 @@
 """SAC learns sim2real/arm-reach from scratch on a small budget, judged over several training seeds.
 
 The budget (:data:`SAC_LEARN_CONFIG`) is a cut-down :file:`sim2real/agents/recipes/sac-arm-reach.yaml`. The
-thresholds come from the spread measured over training seeds with ``benchmarks/learn_spread_sac.py`` (numbers in
+thresholds come from the spread measured over training seeds with ``benchmarks/learn_spread.py --algo sac`` (numbers in
 the test's docstring), not from one lucky seed.
 """
 
@@ -86,7 +86,7 @@ def sac_trained(seed: int) -> tuple[float, float]:
 def test_sac_learns_arm_reach() -> None:
     """5k frames of SAC (64x64, gamma 0.7) move the arm clearly closer than random actions, on every seed.
 
-    Measured with this config (benchmarks/learn_spread_sac.py --seeds 0-5, 2026-11-23; returns are minus the summed
+    Measured with this config (benchmarks/learn_spread.py --algo sac --seeds 0-5, 2026-11-23; returns are minus the summed
     distance in metres over up to 200 steps, uniform random actions: -100.2), the gain over random was +32.1,
     +33.9, +33.1, +27.5, +46.0, +37.3 for seeds 0-5: mean +35.0, sd 6.2, every seed above +27 (the PPO test's 20k
     frames gave +35.5 to -8.5, sd 15.9). So each of two seeds must gain more than 15 (mean - 3.2 sd: a normal
