@@ -231,6 +231,8 @@ def test_a_policy_slamming_into_a_limit_exits_3(tmp_path: Path, capsys: pytest.C
     assert hits["slam"]["worst"] > 10 and hits["slam"]["violated"] and hits["slam"]["limit"] == 0
     markdown = (tmp_path / "report" / "report.md").read_text()
     assert "## Safety" in markdown and "VIOLATED (limit 0)" in markdown
+    # the arm steps 10 physics steps per control step (its timestep 0.002 s, control period 0.02 s)
+    assert "Sampled once per control step, every 10 physics steps: a peak inside the substeps is not seen." in markdown
     assert "<h2 id='safety'>Safety</h2>" in (tmp_path / "report" / "report.html").read_text()
 
 

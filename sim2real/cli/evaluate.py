@@ -62,7 +62,7 @@ def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
         sheet = None
         notes.append(f"no contact sheet of the visual effects: {err}")
     report = GapReport.build(evaluation, fit=fit, contact_sheet=sheet, rng=spec.seed, notes=tuple(notes), **options)
-    table = None if limits is None else SafetyTable.build(evaluation, limits)
+    table = None if limits is None else SafetyTable.build(evaluation, limits, substeps=_substeps(spec.task))
     if table is not None:
         report = dataclasses.replace(report, safety=table)
     files = writing(args.out, lambda: report.write(Path(args.out)))
@@ -76,6 +76,19 @@ def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
     for violation in table.violations:  # one line each, for a CI log; exit 3 gates the pipeline
         print(f"sim2real evaluate: safety: {violation.message}", file=sys.stderr)
     return 3
+
+
+def _substeps(task: Any) -> int | None:
+    """Physics steps per control step of the spec's task: what the Safety section's once-per-control-step sampling
+    sees (the same reading the study makes)."""
+    from sim2real.safety import physics_substeps
+    from sim2real.tasks import make
+
+    env = make(task)
+    try:
+        return physics_substeps(env)
+    finally:
+        env.close()
 
 
 def _limits(path: str | None) -> Any:
