@@ -42,8 +42,9 @@ def _nested(data: Mapping[str, Mapping[str, Any]], dtype: Any) -> Mapping[str, M
 class Evaluation:
     """Episode returns of every policy on every condition, from :func:`~sim2real.evaluation.evaluate`.
 
-    ``returns[policy][condition]`` is a read-only ``(episodes,)`` float64 array in episode order (row ``e``
-    is the episode reset with ``episode_seed(seed, e)`` in every simulated condition); a measured condition
+    ``returns[policy][condition]`` is a read-only float64 array in episode order (row ``e`` is the episode reset
+    with ``episode_seed(seed, e)`` in every simulated condition), ``(episodes,)`` long unless a condition was run
+    for more episodes afterwards (the study's twin: :func:`sim2real.study.precision.extend`); a measured condition
     holds the measured returns instead, and only for the policies the CSV names. ``successes`` has the same
     layout when the task reports ``info["is_success"]`` (empty otherwise); ``lengths`` holds episode lengths.
     ``draws[condition][address]`` holds the value each episode drew (the same for every policy).
@@ -51,7 +52,8 @@ class Evaluation:
     Attributes:
         task: the task id.
         seed: the root seed.
-        episodes: episodes per (policy, simulated condition).
+        episodes: episodes per (policy, simulated condition) of the run; a condition extended afterwards holds more
+            (the length of its arrays).
         max_steps: the cap on episode length, or None (the task's own limit).
         policies: policy names, in order.
         conditions: the conditions, in order.
