@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from typing import Any
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -39,3 +40,17 @@ def assert_restored(before: dict[str, np.ndarray], model: mujoco.MjModel, twin: 
     own = model_arrays(twin)
     expected = {k: (own[k] if own[k].tobytes() != v.tobytes() else v) for k, v in before.items()}
     assert_same_model(expected, model)
+
+
+def reset_and_compare(batched: Any, singles: list[Any], seeds: list[int] | None) -> tuple[np.ndarray, dict[str, Any]]:
+    """Resets batched worlds and their single envs with ``seeds`` and checks world ``i`` against env ``i``: the same
+    first observation and bitwise the same reported draws. Returns the batched reset's (obs, params)."""
+    obs, params = batched.reset(seed=seeds)
+    for i, env in enumerate(singles):
+        o, info = env.reset(seed=None if seeds is None else seeds[i])
+        assert np.array_equal(o, obs[i])
+        reported = info["sim2real"]["params"]
+        assert sorted(reported) == sorted(params)
+        for key, value in reported.items():
+            assert params[key][i] == value, key  # bitwise, the same draw
+    return obs, params

@@ -9,6 +9,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import reset_and_compare
 
 import sim2real as s2r
 from sim2real.batched import BatchedEnv, BatchedVectorEnv, make_batched, supports
@@ -59,14 +60,7 @@ def _compare(task: str, seed: int, kind: int, episodes: int, num: int = 3) -> in
         for episode in range(episodes):
             # First episode: explicit reset seeds; later ones: each world continues its own streams.
             seeds = [1000 * seed + i for i in range(num)] if episode == 0 else None
-            obs, params = batched.reset(seed=seeds)
-            for i, env in enumerate(singles):
-                o, info = env.reset(seed=None if seeds is None else seeds[i])
-                assert np.array_equal(o, obs[i])
-                reported = info["sim2real"]["params"]
-                assert sorted(reported) == sorted(params)
-                for key, value in reported.items():
-                    assert params[key][i] == value, key  # bitwise, the same draw
+            obs, _ = reset_and_compare(batched, singles, seeds)
             ended = np.zeros(num, bool)
             while not ended.all():
                 actions = rng.uniform(-scale, scale, (num, batched.action_dim)).astype(np.float32)

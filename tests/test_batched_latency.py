@@ -8,6 +8,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np
 import pytest
+from conftest import reset_and_compare
 
 import sim2real as s2r
 from sim2real.batched import BatchedVectorEnv, make_batched, supports
@@ -50,14 +51,7 @@ def _compare(task: str, seed: int, kind: str, episodes: int = 3, num: int = 3) -
     try:
         for episode in range(episodes):
             seeds = [100 * seed + i for i in range(num)] if episode == 0 else None
-            obs, params = batched.reset(seed=seeds)
-            for i, env in enumerate(singles):
-                o, info = env.reset(seed=None if seeds is None else seeds[i])
-                assert np.array_equal(o, obs[i])
-                reported = info["sim2real"]["params"]
-                assert sorted(reported) == sorted(params)
-                for key, value in reported.items():
-                    assert params[key][i] == value, key  # bitwise, the same draw
+            obs, params = reset_and_compare(batched, singles, seeds)
             drawn |= set(params["action_latency_steps"].tolist())
             for t in range(15):
                 actions = rng.uniform(-scale, scale, (num, batched.action_dim)).astype(np.float32)
