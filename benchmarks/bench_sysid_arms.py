@@ -18,21 +18,33 @@ true, horizon=<the fit's>)``, averaged as an RMS over runs; ``SD/CRLB_whole`` us
 the first state a nuisance): the bound of single shooting, which multiple shooting gives up on drifting arms. Goals: pooled coverage in [0.90, 0.98] and
 SD/CRLB <= 1.2 on the arms; SD/CRLB <= 1.1 per parameter on the manipulator and <= 6 s per manipulator fit.
 
+Next to every SD/CRLB the script prints its 95% interval from the chi-square law of a sample variance,
+``(n-1) s^2 / sd^2 ~ chi2(n-1)``, with the CRLB taken as known (an RMS over the runs of a deterministic bound; it
+varies by a few percent between runs, far less than the SD does). Chi-square rather than a bootstrap over fits:
+with 10-40 fits a percentile bootstrap of an SD is too narrow (it cannot see the tail it did not sample), while
+the chi-square interval is exact for normal estimates. Because it is not robust to heavy tails, the script also
+prints the excess kurtosis of the errors and the largest |z| = |estimate - truth| / CRLB, so an SD driven by a
+few outlier fits shows instead of hiding inside the interval.
+
 Usage:
     python benchmarks/bench_sysid_arms.py --fits 8          # 8 fits per arm and 8 manipulator fits
     python benchmarks/bench_sysid_arms.py --fits 2 --arms 1 # smoke test
     python benchmarks/bench_sysid_arms.py --fits 10 --arm 1 --no-manipulator  # only the 6-DoF servo arm
+    python benchmarks/bench_sysid_arms.py --fits 30 --workers 2 --save /tmp/mc.npz  # 2 processes, keep every run
 """
 
 from __future__ import annotations
 
 import argparse
 import copy
+import os
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
+from scipy import stats
 
 from sysid import FitResult, ParameterSpace, fit, record_log
 from sysid.logs import TrajectoryLog, channel_names
@@ -50,6 +62,21 @@ MANIPULATOR_PARAMS = [f"dof_damping[arm_{j}]" for j in ("root", "shoulder", "elb
 
 
 @dataclass(frozen=True)
+class Run:
+    """One Monte Carlo fit: estimates, interval, CRLB SDs (fit's segments, whole episodes), cost, verdicts."""
+
+    estimates: np.ndarray  # (P,)
+    lo: np.ndarray  # (P,)
+    hi: np.ndarray  # (P,)
+    crlb: np.ndarray  # (2, P)
+    seconds: float
+    cpu_seconds: float
+    horizon: int
+    ok: bool
+    contact_rows: int
+
+
+@dataclass(frozen=True)
 class Case:
     """One Monte Carlo case: its name, addresses, truth and the per-run results."""
 
@@ -59,7 +86,8 @@ class Case:
     estimates: np.ndarray  # (runs, P)
     inside: np.ndarray  # (runs, P) bool
     crlb: np.ndarray  # (runs, 2, P): with the fit's segments, with whole episodes
-    seconds: np.ndarray  # (runs,)
+    seconds: np.ndarray  # (runs,) wall
+    cpu_seconds: np.ndarray  # (runs,) CPU of the fitting process (all its rollout threads)
     horizons: tuple[int, ...]
     ok: tuple[bool, ...]
     contact_rows: tuple[int, ...]
@@ -93,40 +121,46 @@ def _crlb(
     return np.array(out)
 
 
-def run_arm(dof: int, seed: int, actuators: str, frictionloss: float | None, fits: int) -> Case:
+def _timed_fit(
+    log: TrajectoryLog,
+    model: mujoco.MjModel | str,
+    params: list[str],
+    truth_model: mujoco.MjModel,
+    truth: np.ndarray,
+) -> Run:
+    wall, cpu = time.perf_counter(), time.process_time()
+    result = fit(log, model, params, progress=False)
+    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    return Run(
+        estimates=np.asarray(result.estimates),
+        lo=np.asarray(result.ci95[:, 0]),
+        hi=np.asarray(result.ci95[:, 1]),
+        crlb=_crlb(log, truth_model, params, truth, result),
+        seconds=wall,
+        cpu_seconds=cpu,
+        horizon=int(result.quality.horizon),
+        ok=bool(result.ok),
+        contact_rows=int(result.quality.contact_rows),
+    )
+
+
+def arm_truth(index: int) -> tuple[str, mujoco.MjModel, np.ndarray, str]:
+    """MJCF, truth model, true dampings and case name of ``ARMS[index]``."""
+    dof, seed, actuators, frictionloss = ARMS[index]
     xml = generate_arm(dof=dof, seed=seed, actuators=actuators, frictionloss=frictionloss)  # type: ignore[arg-type]
     truth_model = mujoco.MjModel.from_xml_string(xml)
     space = ParameterSpace(truth_model, PARAMS)
     truth = space.nominal * np.random.default_rng(seed).uniform(0.8, 1.3, space.size)
     space.writer(truth_model)(truth)
-    rows = []
-    for run in range(fits):
-        log = excitation_log(truth_model, duration=8.0, seed=1000 * seed + run)
-        started = time.perf_counter()
-        result = fit(log, xml, PARAMS, progress=False)
-        seconds = time.perf_counter() - started
-        crlb = _crlb(log, truth_model, PARAMS, truth, result)
-        rows.append((result, seconds, crlb))
     fr = f"fl={frictionloss:g}" if frictionloss is not None else "fl=random"
-    return _case(f"arm{dof}-{actuators}-s{seed}-{fr}", truth, rows)
+    return xml, truth_model, truth, f"arm{dof}-{actuators}-s{seed}-{fr}"
 
 
-def _case(name: str, truth: np.ndarray, rows: list[tuple[FitResult, float, np.ndarray]]) -> Case:
-    est = np.array([r.estimates for r, _, _ in rows])
-    lo = np.array([r.ci95[:, 0] for r, _, _ in rows])
-    hi = np.array([r.ci95[:, 1] for r, _, _ in rows])
-    return Case(
-        name=name,
-        addresses=tuple(str(a) for a in rows[0][0].addresses),
-        truth=truth,
-        estimates=est,
-        inside=(lo <= truth) & (truth <= hi),
-        crlb=np.array([c for _, _, c in rows]),
-        seconds=np.array([s for _, s, _ in rows]),
-        horizons=tuple(r.quality.horizon for r, _, _ in rows),
-        ok=tuple(r.ok for r, _, _ in rows),
-        contact_rows=tuple(r.quality.contact_rows for r, _, _ in rows),
-    )
+def arm_run(index: int, run: int) -> Run:
+    """Monte Carlo run ``run`` of ``ARMS[index]``: a fresh 8 s log (seed ``1000 * arm seed + run``), the fit."""
+    xml, truth_model, truth, _ = arm_truth(index)
+    log = excitation_log(truth_model, duration=8.0, seed=1000 * ARMS[index][1] + run)
+    return _timed_fit(log, xml, PARAMS, truth_model, truth)
 
 
 def manipulator_model() -> mujoco.MjModel:
@@ -138,78 +172,181 @@ def manipulator_model() -> mujoco.MjModel:
     return copy.deepcopy(handle.model)
 
 
-def run_manipulator(fits: int) -> Case:
+def manipulator_truth() -> tuple[mujoco.MjModel, mujoco.MjModel, np.ndarray]:
+    """Nominal model, truth model and true dampings of the manipulator case."""
     nominal = manipulator_model()
     truth_model = copy.deepcopy(nominal)
     space = ParameterSpace(truth_model, MANIPULATOR_PARAMS)
     truth = space.nominal * np.array([0.8, 1.3, 1.15, 0.9])
     space.writer(truth_model)(truth)
+    return nominal, truth_model, truth
+
+
+def manipulator_log(truth_model: mujoco.MjModel, run: int) -> TrajectoryLog:
+    """The 3 s multisine log of manipulator run ``run`` (seed ``500 + run``), noisy on every row."""
     n_sub, steps = 10, 300  # 0.01 s control step, 3 s
-    rows = []
-    for run in range(fits):
-        rng = np.random.default_rng(500 + run)
-        t = np.arange(steps) * n_sub * nominal.opt.timestep
-        ctrl = np.zeros((steps, nominal.nu))
-        for j in range(nominal.nu):
-            for f in rng.uniform(0.3, 3.0, 4):
-                ctrl[:, j] += 0.25 * np.sin(2 * np.pi * f * t + rng.uniform(0, 2 * np.pi))
-        ctrl = np.clip(ctrl, -1.0, 1.0)
-        log = record_log(truth_model, ctrl, n_substeps=n_sub, noise_std=SIGMA, rng=rng)
-        started = time.perf_counter()
-        result = fit(log, nominal, MANIPULATOR_PARAMS, progress=False)
-        seconds = time.perf_counter() - started
-        crlb = _crlb(log, truth_model, MANIPULATOR_PARAMS, truth, result)
-        rows.append((result, seconds, crlb))
-    return _case("dmc/manipulator-bring_ball", truth, rows)
+    rng = np.random.default_rng(500 + run)
+    t = np.arange(steps) * n_sub * truth_model.opt.timestep
+    ctrl = np.zeros((steps, truth_model.nu))
+    for j in range(truth_model.nu):
+        for f in rng.uniform(0.3, 3.0, 4):
+            ctrl[:, j] += 0.25 * np.sin(2 * np.pi * f * t + rng.uniform(0, 2 * np.pi))
+    ctrl = np.clip(ctrl, -1.0, 1.0)
+    return record_log(truth_model, ctrl, n_substeps=n_sub, noise_std=SIGMA, rng=rng)
+
+
+def manipulator_run(run: int) -> Run:
+    """Monte Carlo run ``run`` of the manipulator case."""
+    nominal, truth_model, truth = manipulator_truth()
+    return _timed_fit(manipulator_log(truth_model, run), nominal, MANIPULATOR_PARAMS, truth_model, truth)
+
+
+def _call(job: tuple[str, int, int]) -> Run:
+    kind, index, run = job
+    return manipulator_run(run) if kind == "manipulator" else arm_run(index, run)
+
+
+def run_jobs(jobs: list[tuple[str, int, int]], workers: int) -> list[Run]:
+    """Runs the jobs, results in job order, in ``workers`` processes (each fit keeps its rollout threads)."""
+    if workers <= 1:
+        return [_call(j) for j in jobs]
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        return list(pool.map(_call, jobs))
+
+
+def _case(name: str, addresses: list[str], truth: np.ndarray, rows: list[Run]) -> Case:
+    lo = np.array([r.lo for r in rows])
+    hi = np.array([r.hi for r in rows])
+    return Case(
+        name=name,
+        addresses=tuple(addresses),
+        truth=truth,
+        estimates=np.array([r.estimates for r in rows]),
+        inside=(lo <= truth) & (truth <= hi),
+        crlb=np.array([r.crlb for r in rows]),
+        seconds=np.array([r.seconds for r in rows]),
+        cpu_seconds=np.array([r.cpu_seconds for r in rows]),
+        horizons=tuple(r.horizon for r in rows),
+        ok=tuple(r.ok for r in rows),
+        contact_rows=tuple(r.contact_rows for r in rows),
+    )
+
+
+def sd_ratio_interval(sd: np.ndarray, crlb: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """95% chi-square interval of SD/CRLB for an SD over ``n`` estimates (normal errors, CRLB known).
+
+    Example:
+        >>> lo, hi = sd_ratio_interval(np.array([1.0]), np.array([1.0]), 30)
+        >>> round(float(lo[0]), 3), round(float(hi[0]), 3)
+        (0.796, 1.344)
+    """
+    lo = sd * np.sqrt((n - 1) / stats.chi2.ppf(0.975, n - 1))
+    hi = sd * np.sqrt((n - 1) / stats.chi2.ppf(0.025, n - 1))
+    return lo / crlb, hi / crlb
 
 
 def report(case: Case) -> dict[str, float]:
     err = case.estimates - case.truth
-    sd = err.std(axis=0, ddof=1) if len(err) > 1 else np.full(err.shape[1], np.nan)
+    n = len(err)
+    sd = err.std(axis=0, ddof=1) if n > 1 else np.full(err.shape[1], np.nan)
     crlb = np.sqrt(np.mean(case.crlb[:, 0] ** 2, axis=0))
     whole = np.sqrt(np.mean(case.crlb[:, 1] ** 2, axis=0))
     ratio = sd / crlb
+    r_lo, r_hi = sd_ratio_interval(sd, crlb, n) if n > 1 else (ratio, ratio)
     bias = err.mean(axis=0) / crlb
+    z = err / crlb
+    kurt = stats.kurtosis(err, axis=0) if n > 3 else np.full(err.shape[1], np.nan)
     print(
-        f"\n{case.name}: {len(err)} fits, {np.median(case.seconds):.1f} s/fit (median), horizons {case.horizons}, "
-        f"ok {sum(case.ok)}/{len(case.ok)}, contact rows left out {case.contact_rows}"
+        f"\n{case.name}: {n} fits, {np.median(case.seconds):.1f} s/fit wall, {np.median(case.cpu_seconds):.1f} "
+        f"CPU-s/fit (medians), horizons {sorted(set(case.horizons))}, ok {sum(case.ok)}/{len(case.ok)}, "
+        f"contact rows left out {sum(case.contact_rows)}"
     )
-    print(f"  {'parameter':<32}{'truth':>9}{'coverage':>10}{'SD/CRLB':>9}{'bias/CRLB':>11}{'SD/CRLB_whole':>15}")
+    print(
+        f"  {'parameter':<28}{'truth':>9}{'coverage':>10}{'SD/CRLB':>9}{'95% interval':>16}{'bias/CRLB':>11}"
+        f"{'max|z|':>8}{'kurt':>7}{'SD/CRLB_whole':>15}"
+    )
     for i, a in enumerate(case.addresses):
+        interval = f"[{r_lo[i]:.2f}, {r_hi[i]:.2f}]"
         print(
-            f"  {a:<32}{case.truth[i]:>9.4g}{case.inside[:, i].mean():>10.2f}{ratio[i]:>9.2f}{bias[i]:>+11.2f}"
-            f"{sd[i] / whole[i]:>15.2f}",
+            f"  {a:<28}{case.truth[i]:>9.4g}{case.inside[:, i].mean():>10.2f}{ratio[i]:>9.2f}{interval:>16}"
+            f"{bias[i]:>+11.2f}{np.abs(z[:, i]).max():>8.1f}{kurt[i]:>+7.1f}{sd[i] / whole[i]:>15.2f}",
             flush=True,
         )
-    return {"coverage": float(case.inside.mean()), "max_ratio": float(np.nanmax(ratio)), "n": case.inside.size}
+    return {
+        "coverage": float(case.inside.mean()),
+        "max_ratio": float(np.nanmax(ratio)),
+        "n": case.inside.size,
+        "above": int(np.sum(r_lo > 1.2)),
+        "undecided": int(np.sum((r_lo <= 1.2) & (r_hi > 1.2))),
+    }
+
+
+def save_cases(path: str, cases: list[Case]) -> None:
+    """Writes every case's per-run arrays to ``path`` (.npz, via a temporary file and a rename)."""
+    arrays: dict[str, np.ndarray] = {}
+    for k, c in enumerate(cases):
+        arrays[f"{k}_name"] = np.array(c.name)
+        arrays[f"{k}_addresses"] = np.array(c.addresses)
+        for field in ("truth", "estimates", "inside", "crlb", "seconds", "cpu_seconds"):
+            arrays[f"{k}_{field}"] = np.asarray(getattr(c, field))
+        arrays[f"{k}_horizons"] = np.array(c.horizons)
+        arrays[f"{k}_ok"] = np.array(c.ok)
+        arrays[f"{k}_contact_rows"] = np.array(c.contact_rows)
+    tmp = f"{path}.tmp.npz"
+    np.savez(tmp, **arrays)  # type: ignore[arg-type]
+    os.replace(tmp, path)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--fits", type=int, default=8, help="Monte Carlo fits per arm and for the manipulator")
+    parser.add_argument("--first", type=int, default=0, help="index of the first run (shifts the log seeds)")
     parser.add_argument("--arms", type=int, default=len(ARMS), help="how many of the generated arms to run")
     parser.add_argument("--arm", type=int, default=None, help="run only this arm (index into ARMS)")
     parser.add_argument("--no-manipulator", action="store_true")
+    parser.add_argument("--workers", type=int, default=1, help="processes running fits side by side")
+    parser.add_argument("--save", default=None, help="write every run's estimates and intervals to this .npz")
     args = parser.parse_args()
+    if args.fits < 1 or args.workers < 1:
+        parser.error(f"--fits and --workers must be >= 1. Received {args.fits} and {args.workers}.")
+    if args.arm is not None and not 0 <= args.arm < len(ARMS):
+        parser.error(f"--arm must be in 0..{len(ARMS) - 1}. Received {args.arm}.")
     started = time.perf_counter()
-    inside, ratios = [], []
-    chosen = ARMS[: args.arms] if args.arm is None else (ARMS[args.arm],)
-    for dof, seed, actuators, fl in chosen:
-        case = run_arm(dof, seed, actuators, fl, args.fits)
+    runs = range(args.first, args.first + args.fits)
+    chosen = list(range(min(args.arms, len(ARMS)))) if args.arm is None else [args.arm]
+    jobs = [("arm", i, r) for i in chosen for r in runs]
+    if not args.no_manipulator:
+        jobs += [("manipulator", -1, r) for r in runs]
+    results = run_jobs(jobs, args.workers)
+    cases = []
+    for k, i in enumerate(chosen):
+        xml, _, truth, name = arm_truth(i)
+        addresses = [str(a) for a in ParameterSpace(mujoco.MjModel.from_xml_string(xml), PARAMS).addresses]
+        cases.append(_case(name, addresses, truth, results[k * args.fits : (k + 1) * args.fits]))
+    if not args.no_manipulator:
+        _, _, truth = manipulator_truth()
+        cases.append(_case("dmc/manipulator-bring_ball", MANIPULATOR_PARAMS, truth, results[-args.fits :]))
+    if args.save:
+        save_cases(args.save, cases)
+    inside, ratios, above, undecided = [], [], 0, 0
+    for case in cases[: len(chosen)]:
         summary = report(case)
         inside.append(case.inside.ravel())
         ratios.append(summary["max_ratio"])
+        above += int(summary["above"])
+        undecided += int(summary["undecided"])
     pooled = float(np.concatenate(inside).mean()) if inside else float("nan")
     line = (
         f"RESULT arms={len(chosen)} fits_per_arm={args.fits} pooled_coverage={pooled:.3f} "
-        f"(n={sum(i.size for i in inside)}) max_sd_over_crlb={max(ratios) if ratios else float('nan'):.2f}"
+        f"(n={sum(i.size for i in inside)}) max_sd_over_crlb={max(ratios) if ratios else float('nan'):.2f} "
+        f"params_sd_over_crlb_above_1.2_at_95%={above} undecided={undecided}"
     )
     if not args.no_manipulator:
-        case = run_manipulator(args.fits)
-        summary = report(case)
+        summary = report(cases[-1])
         line += (
             f" manipulator_coverage={summary['coverage']:.3f} manipulator_max_sd_over_crlb={summary['max_ratio']:.2f}"
-            f" manipulator_s_per_fit={np.median(case.seconds):.2f}"
+            f" manipulator_s_per_fit={np.median(cases[-1].seconds):.2f}"
+            f" manipulator_cpu_s_per_fit={np.median(cases[-1].cpu_seconds):.2f}"
         )
     print(f"\n{line} total_s={time.perf_counter() - started:.0f}")
 
