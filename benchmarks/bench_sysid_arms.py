@@ -39,7 +39,7 @@ import argparse
 import copy
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 
 import mujoco
@@ -206,12 +206,33 @@ def _call(job: tuple[str, int, int]) -> Run:
     return manipulator_run(run) if kind == "manipulator" else arm_run(index, run)
 
 
+def _progress(done: int, total: int, job: tuple[str, int, int], run: Run, started: float) -> None:
+    kind, index, number = job
+    what = "manipulator" if kind == "manipulator" else f"arm {index}"
+    print(
+        f"  [{done}/{total}] {what} run {number}: {run.seconds:.1f} s, ok {run.ok}, "
+        f"{time.perf_counter() - started:.0f} s elapsed",
+        flush=True,
+    )
+
+
 def run_jobs(jobs: list[tuple[str, int, int]], workers: int) -> list[Run]:
     """Runs the jobs, results in job order, in ``workers`` processes (each fit keeps its rollout threads)."""
+    started = time.perf_counter()
     if workers <= 1:
-        return [_call(j) for j in jobs]
+        out = []
+        for k, job in enumerate(jobs):
+            out.append(_call(job))
+            _progress(k + 1, len(jobs), job, out[-1], started)
+        return out
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        return list(pool.map(_call, jobs))
+        futures = {pool.submit(_call, job): k for k, job in enumerate(jobs)}
+        results: dict[int, Run] = {}
+        for future in as_completed(futures):
+            k = futures[future]
+            results[k] = future.result()
+            _progress(len(results), len(jobs), jobs[k], results[k], started)
+    return [results[k] for k in range(len(jobs))]
 
 
 def _case(name: str, addresses: list[str], truth: np.ndarray, rows: list[Run]) -> Case:
