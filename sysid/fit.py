@@ -46,18 +46,18 @@ from typing import Any, Literal
 
 import mujoco
 import numpy as np
-from scipy import stats
 from scipy.stats import qmc
 
 from noise_models.timing import convert_time
+from sysid._noise import difference_sigma, residual_sigma
 from sysid._problem import Problem, make_segments
 from sysid._solver import COST_ATOL, Progress, State, fd_steps, lm
-from sysid.covariance import combine, hac_covariance, identifiability
+from sysid._statistics import estimate_statistics
 from sysid.events import contact_rows, moved_trees, sensor_trees, split_ranges, state_trees
 from sysid.logs import LogError, TrajectoryLog, channel_names, load_log, validate_log
 from sysid.params import ModelPool, ParameterSpace
 from sysid.profile import ProfileCheck, flat_parameters, profile_intervals
-from sysid.quality import INFORMATIVE_SHARE, assess, pooled_ljung_box
+from sysid.quality import assess, pooled_ljung_box
 from sysid.result import FitResult
 from sysid.shooting import divergence_curve, divergence_horizon
 
@@ -138,41 +138,6 @@ def _split(
     if cut - a < 4 or b - cut < 4:
         return [(a, b, a, b)], []
     return [(a, cut, a, b)], [(cut, b, a, b)]
-
-
-def _difference_sigma(problem: Problem) -> np.ndarray:
-    """Model-free noise level per channel: the k-th difference of white noise has variance C(2k, k)·σ².
-
-    A smooth signal adds to every order but less to higher ones (a sampled velocity with fast content inflates
-    the second difference several-fold), so the smallest estimate over orders 2–6 is taken.
-    """
-    out = []
-    for y, seg in zip(problem.channel_measurements(), problem.channel_segments(), strict=True):
-        pieces = [y[seg == s] for s in np.unique(seg)]
-        estimates = []
-        for k in range(2, 7):
-            dk = [np.diff(ys, k) for ys in pieces if ys.size >= k + 1]
-            flat = np.concatenate(dk) if dk else np.zeros(0)
-            if flat.size >= 8 or (k == 2 and flat.size):
-                estimates.append(math.sqrt(float(np.mean(flat**2)) / math.comb(2 * k, k)))
-        sigma = min(estimates) if estimates else 0.0
-        floor = 1e-9 * (float(np.std(y)) + 1e-9)
-        out.append(max(sigma, floor, 1e-12))
-    return np.asarray(out)
-
-
-def _residual_sigma(
-    problem: Problem, values: np.ndarray, delay: int, obs_delay: int, x0: np.ndarray, unknowns: int
-) -> np.ndarray:
-    pred, sens = problem.simulate(values, delay, x0)
-    errors = problem.channel_errors(*problem.raw_residuals(pred, sens, obs_delay))
-    total = sum(e.size for e in errors)
-    out = []
-    for e, y in zip(errors, problem.channel_measurements(), strict=True):
-        dof = max(1.0, e.size * (1.0 - unknowns / max(total, 1)))
-        sigma = math.sqrt(float(np.sum(e**2)) / dof)
-        out.append(max(sigma, 1e-9 * (float(np.std(y)) + 1e-9), 1e-12))
-    return np.asarray(out)
 
 
 def _starts(space: ParameterSpace, theta0: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
@@ -367,7 +332,7 @@ def fit(
         return Problem(log, model, space, seg, signals, fit_x0, obs_margin, nthread, pool, state_mask), fit_x0
 
     final, fitted = build(fixed_horizon)
-    sigma = _difference_sigma(final)
+    sigma = difference_sigma(final)
     known = dict(noise_std or {})
     names = channel_names(model)
     every_channel = [n for signal in signals for n in names[signal]]
@@ -461,7 +426,7 @@ def fit(
         for _ in range(2):
             if all(name in known for name in final.channels):
                 break
-            new_sigma = _residual_sigma(final, st.theta, st.delay, st.obs, st.x0, unknowns)
+            new_sigma = residual_sigma(final, st.theta, st.delay, st.obs, st.x0, unknowns)
             for c, name in enumerate(final.channels):
                 if name not in known:
                     sigma[c] = new_sigma[c]
@@ -507,60 +472,9 @@ def fit(
         r, jac = st.r, st.jac  # the last solve ended on a Jacobian at the estimate
     else:
         r, jac = final.jacobian(st.theta, st.delay, st.obs, st.x0, fd_steps(st.theta, lower, upper, fd_step), fitted)
-    cost = 0.5 * float(r @ r)
-    p = space.size
-    jp = jac[:, :p]
-    if fitted and jac.shape[1] > p:
-        # Profile out each segment's initial state: its columns touch only that segment's rows. Small
-        # column-scaled normal equations per segment (LAPACK's threaded QR of even a 500x22 block took ~0.3 s on
-        # the loaded 2-core box).
-        jp = jp.copy()
-        for k, idx in enumerate(final.segment_rows()):
-            jx = jac[idx, p + k * final.nxa : p + (k + 1) * final.nxa]
-            scale = np.maximum(np.linalg.norm(jx, axis=0), 1e-300)
-            jx = jx / scale
-            try:
-                coef = np.linalg.solve(jx.T @ jx, jx.T @ jp[idx])
-            except np.linalg.LinAlgError:
-                coef = np.linalg.lstsq(jx, jp[idx], rcond=None)[0]
-            jp[idx] -= jx @ coef
-    fisher = jp.T @ jp
-    # Share of each parameter's information that each channel carries: whiteness is judged where it matters.
-    per_channel = np.zeros((len(final.channels), p))
-    np.add.at(per_channel, final.channel_of_residual(), jp**2)
-    share = per_channel / np.maximum(np.diag(fisher), 1e-300)
-    informative = tuple(
-        name for c, name in enumerate(final.channels) if p == 0 or float(share[c].max()) >= INFORMATIVE_SHARE
-    )
-    cov_unit, cond, warns = identifiability(space.addresses, fisher, st.theta, lower, upper)
-    n_res = int(r.size)
-    dof = max(1, n_res - unknowns)
-    s2 = 2.0 * cost / dof
-    crlb = np.sqrt(np.maximum(np.diag(cov_unit), 0.0))
-    # Coloured residuals (unmodelled dynamics) make s²(JᵀJ)⁻¹ too small: widen to the sandwich where larger.
-    hac = hac_covariance(jp, r, *final.residual_keys(), unknowns)
-    covariance, inflation = combine(cov_unit * s2, hac)
-    stderr = np.sqrt(np.maximum(np.diag(covariance), 0.0))
-    tq = float(stats.t.ppf(0.975, dof))
-    ci95 = np.stack([st.theta - tq * stderr, st.theta + tq * stderr], axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        corr = covariance / np.outer(stderr, stderr)
-    corr = np.where(np.isfinite(corr), corr, 0.0)
-    np.fill_diagonal(corr, 1.0)
-    for i in range(p):
-        for j in range(i + 1, p):
-            if abs(corr[i, j]) > 0.99 and not any(space.addresses[i] in w and space.addresses[j] in w for w in warns):
-                warns.append(
-                    f"strongly correlated: {space.addresses[i]} and {space.addresses[j]} (correlation "
-                    f"{corr[i, j]:+.3f}); the data mostly fix a combination of the two."
-                )
-    span = upper - lower
-    at_bounds = np.flatnonzero((st.theta - lower <= 1e-6 * span) | (upper - st.theta <= 1e-6 * span))
-    for i in map(int, at_bounds):
-        warns.append(
-            f"{space.addresses[i]} = {st.theta[i]:.6g} sits at its bound [{lower[i]:.6g}, {upper[i]:.6g}]; widen "
-            "`bounds` or check the model."
-        )
+    summary = estimate_statistics(final, st.theta, r, jac, lower, upper, fitted, unknowns)
+    cost, s2, stderr, ci95 = summary.cost, summary.s2, summary.stderr, summary.ci95
+    warns = list(summary.warnings)
     if max_iter > 0 and not converged:
         warns.append(f"the local stage stopped after {iterations} iterations without meeting its tolerances.")
     profiles: tuple[ProfileCheck, ...] = ()
@@ -632,14 +546,14 @@ def fit(
     quality = assess(
         fit_percent,
         whiteness,
-        tuple(space.addresses[int(i)] for i in at_bounds),
-        cond,
+        tuple(space.addresses[int(i)] for i in summary.at_bounds),
+        summary.condition,
         not any(w.startswith("not identifiable") for w in warns),
         validation_ratio,
-        dict(zip(space.addresses, inflation.tolist(), strict=True)),
+        dict(zip(space.addresses, summary.inflation.tolist(), strict=True)),
         0 if fixed_horizon is None else int(fixed_horizon),
         seg_final.count,
-        informative,
+        summary.informative,
         contact_count,
         profiles,
     )
@@ -665,9 +579,9 @@ def fit(
         estimates=st.theta,
         stderr=stderr,
         ci95=ci95,
-        crlb_sd=crlb,
-        covariance=covariance,
-        correlation=corr,
+        crlb_sd=summary.crlb,
+        covariance=summary.covariance,
+        correlation=summary.correlation,
         bounds=np.stack([lower, upper], axis=1),
         latency=fitted_latency,
         timestep=timestep,
@@ -676,10 +590,10 @@ def fit(
         fit_percent=fit_percent,
         whiteness_pvalue=whiteness,
         warnings=tuple(warns),
-        condition_number=cond,
+        condition_number=summary.condition,
         cost=cost,
-        n_residuals=n_res,
-        dof=dof,
+        n_residuals=summary.n_residuals,
+        dof=summary.dof,
         iterations=iterations,
         converged=converged or max_iter == 0,
         wall_time=_time.perf_counter() - started,
