@@ -214,6 +214,11 @@ def _progress(done: int, total: int, job: tuple[str, int, int], run: Run, starte
         f"{time.perf_counter() - started:.0f} s elapsed",
         flush=True,
     )
+    # Every run's numbers in the log too, so an interrupted Monte Carlo can still be analysed.
+    fields = {"estimates": run.estimates, "lo": run.lo, "hi": run.hi, "crlb": run.crlb[0], "crlb_whole": run.crlb[1]}
+    print(
+        f"  RUN {kind} {index} {number} " + " ".join(f"{k}={v.tolist()!r}".replace(" ", "") for k, v in fields.items())
+    )
 
 
 def run_jobs(jobs: list[tuple[str, int, int]], workers: int) -> list[Run]:
@@ -335,10 +340,13 @@ def main() -> None:
     started = time.perf_counter()
     runs = range(args.first, args.first + args.fits)
     chosen = list(range(min(args.arms, len(ARMS)))) if args.arm is None else [args.arm]
-    jobs = [("arm", i, r) for i in chosen for r in runs]
+    # Run-major order, so every arm has as many finished runs as the others when the Monte Carlo is cut short.
+    order = [("arm", i, r) for r in runs for i in chosen]
     if not args.no_manipulator:
-        jobs += [("manipulator", -1, r) for r in runs]
-    results = run_jobs(jobs, args.workers)
+        order += [("manipulator", -1, r) for r in runs]
+    done = dict(zip(order, run_jobs(order, args.workers), strict=True))
+    jobs = [("arm", i, r) for i in chosen for r in runs] + [j for j in order if j[0] == "manipulator"]
+    results = [done[j] for j in jobs]
     cases = []
     for k, i in enumerate(chosen):
         xml, _, truth, name = arm_truth(i)
