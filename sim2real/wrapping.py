@@ -83,10 +83,14 @@ def wrap(env: Any, *effects: Any, adr: ADR | None = None, seed: SeedLike = None)
             and model draws from its own stream keyed by (seed, name, episode).
 
     Returns:
-        gymnasium -> :class:`~sim2real.wrappers.RandomizePhysics` (physics) inside
-        :class:`~sim2real.wrappers.CorruptSignals` (signals); dm_env -> the ``*DmEnv`` twins; TorchRL ->
-        ``TransformedEnv`` with :class:`~sim2real.wrappers.RandomizePhysicsTransform` and
-        :class:`~sim2real.wrappers.CorruptSignalsTransform` appended. Only the layers needed are added.
+        gymnasium -> :class:`~sim2real.wrappers.RandomizePhysics` (physics only),
+        :class:`~sim2real.wrappers.CorruptSignals` (signals only) or, with both, one
+        :class:`~sim2real.wrappers.RandomizeAndCorrupt` layer that behaves bitwise as the second around the first
+        (:mod:`sim2real.wrappers.fused`); dm_env -> the ``*DmEnv`` twins; TorchRL -> ``TransformedEnv`` with
+        :class:`~sim2real.wrappers.RandomizePhysicsTransform`, :class:`~sim2real.wrappers.CorruptSignalsTransform`
+        or, with both, :class:`~sim2real.wrappers.RandomizeAndCorruptTransform` appended. With ``adr``, physics and
+        signals stay two layers. Wrapping a wrapped env again adds layers (``wrap(wrap(env, *physics), *signals)``
+        is the two-layer composition).
 
     Raises:
         TypeError: unsupported env kind, or physics effects on an env without MuJoCo.
@@ -124,6 +128,10 @@ def wrap(env: Any, *effects: Any, adr: ADR | None = None, seed: SeedLike = None)
             from sim2real.wrappers.adr import AutoRandomizePhysics
 
             env = AutoRandomizePhysics(env, flat, adr, seed)
+        elif flat and signals:  # one fused layer on the hot path instead of two
+            from sim2real.wrappers.fused import RandomizeAndCorrupt
+
+            return RandomizeAndCorrupt(env, flat, signals, seed)
         elif flat or not signals:
             env = RandomizePhysics(env, flat, seed)
         return CorruptSignals(env, signals, seed) if signals else env
@@ -137,9 +145,13 @@ def wrap(env: Any, *effects: Any, adr: ADR | None = None, seed: SeedLike = None)
             from sim2real.wrappers.adr import make_adr_transform
 
             transforms.append(make_adr_transform(flat, adr, seed))
+        elif flat and signals:  # one fused transform instead of two
+            from sim2real.wrappers.fused_torchrl import RandomizeAndCorruptTransform
+
+            transforms.append(RandomizeAndCorruptTransform(flat, signals, seed))
         elif flat or not signals:
             transforms.append(RandomizePhysicsTransform(flat, seed))
-        if signals:
+        if signals and not (flat and adr is None):
             transforms.append(CorruptSignalsTransform(signals, seed))
         if not isinstance(env, TransformedEnv):
             # One transform stays reachable as ``env.transform`` itself (several become a Compose).
@@ -157,6 +169,10 @@ def wrap(env: Any, *effects: Any, adr: ADR | None = None, seed: SeedLike = None)
             from sim2real.wrappers.adr import AutoRandomizePhysicsDmEnv
 
             env = AutoRandomizePhysicsDmEnv(env, flat, adr, seed)
+        elif flat and signals:  # one fused layer instead of two
+            from sim2real.wrappers.fused import RandomizeAndCorruptDmEnv
+
+            return RandomizeAndCorruptDmEnv(env, flat, signals, seed)
         elif flat or not signals:
             env = RandomizePhysicsDmEnv(env, flat, seed)
         return CorruptSignalsDmEnv(env, signals, seed) if signals else env

@@ -336,7 +336,7 @@ def test_torchrl_check_env_specs_full_stack() -> None:
     env = s2r.wrap(GymWrapper(s2r.make(TASK)), s2r.Damping(scale=Uniform(0.5, 2.0)), *ALL, seed=0)
     check_env_specs(env, seed=0)
     td = env.rollout(5)
-    names = env.transform[-1].param_names
+    names = env.transform.signal_param_names  # one fused transform since issue 15 (was the Compose's second)
     assert td["sim2real_signal_params"].shape == (5, len(names)) and "action_latency_steps" in names
     env = s2r.wrap(DMControlEnv("reacher", "easy"), *ALL, seed=0)
     check_env_specs(env, seed=0)

@@ -92,7 +92,8 @@ class BatchedTorchRLEnv(EnvBase):
         the nominal model, the signal ones from a throwaway draw of a copy of world 0's corruptor (the worlds'
         own streams are not touched)."""
         corruptor = getattr(single, "corruptor", None)
-        physics = single if corruptor is None else single.env
+        # Two layers (CorruptSignals around the physics layer) or one fused layer that has both.
+        physics = single if corruptor is None or hasattr(single, "randomizer") else single.env
         names = list(physics.randomizer.nominal_params())
         if corruptor is not None:
             probe = copy.deepcopy(corruptor)

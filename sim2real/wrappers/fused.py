@@ -1,0 +1,368 @@
+"""One wrapper layer for physics randomisation and signal models together: :class:`RandomizeAndCorrupt`
+(gymnasium) and :class:`RandomizeAndCorruptDmEnv` (dm_env).
+
+:func:`sim2real.wrap` returns these when it is given both physics effects and signal models. Each behaves exactly
+as the two layers it replaces, :class:`~sim2real.wrappers.CorruptSignals` around
+:class:`~sim2real.wrappers.RandomizePhysics` (and the ``*DmEnv`` twins): the same draws from the same keyed
+streams, observations, rewards, reset semantics and ``info["sim2real"]`` (tested bitwise against the two layers),
+with one Python layer on the step path instead of two and the episode's merged report built once per episode
+instead of copied and merged on every step. Stack :func:`sim2real.wrap` twice (physics, then signals) to get the
+two layers.
+
+Example:
+    >>> import sim2real
+    >>> from noise_models import Gaussian, ObservationLatency, ObservationNoise
+    >>> from randomizers import Damping, Uniform
+    >>> env = sim2real.wrap(sim2real.make("dmc/reacher-easy"), Damping(scale=Uniform(0.5, 2.0)),
+    ...                     ObservationNoise(Gaussian(std=0.01)), ObservationLatency(steps=2), seed=0)
+    >>> type(env).__name__
+    'RandomizeAndCorrupt'
+    >>> obs, info = env.reset(seed=0)
+    >>> sorted(info["sim2real"]["params"])[:3]
+    ['dof_damping[shoulder]', 'dof_damping[wrist]', 'obs_latency']
+    >>> env.close()  # restores the nominal model bitwise
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import dm_env
+import gymnasium as gym
+import mujoco
+import numpy as np
+
+from noise_models import SignalModel
+from noise_models.timing import elapsed_steps
+from randomizers import Effect, PhysicsRandomizer
+from randomizers.seeding import SeedLike
+from sim2real.wrappers.gym import merge_report, observe_again, require_physics
+from sim2real.wrappers.signals import CorruptSignals, CorruptSignalsDmEnv, wrong_action_shape
+
+__all__ = ["RandomizeAndCorrupt", "RandomizeAndCorruptDmEnv"]
+
+
+class RandomizeAndCorrupt(CorruptSignals):
+    """Physics effects drawn at every reset (or on their schedule) and written into the env's MuJoCo model, and
+    noise and timing models on its observations and actions, in one gymnasium wrapper.
+
+    Everything :class:`~sim2real.wrappers.RandomizePhysics` and :class:`~sim2real.wrappers.CorruptSignals` say
+    holds here: ``info["sim2real"]`` holds ``params`` (physics addresses, then the signal models' names),
+    ``events``, ``episode`` (the physics episode), ``diverged``, ``reapplied`` and, with ControlJitter or
+    ActionLatency, ``substeps`` / ``action_latency_path``; a reset or step that diverges is flagged and ends the
+    episode as there. ``env`` is the wrapped env itself (:meth:`release` hands it back with the nominal model
+    restored).
+
+    Args:
+        env: a gymnasium env with MuJoCo inside (see :func:`sim2real.find_physics`) and Box (or Dict of Box)
+            observations and a Box action space.
+        effects: physics effects from :mod:`randomizers`.
+        models: ObservationNoise, ActionNoise, ObservationLatency, ActionLatency, SampleAndHold, ControlJitter.
+        seed: root seed of every stream; ``reset(seed=s)`` re-roots them at ``(seed, s)``.
+    """
+
+    def __init__(
+        self, env: gym.Env, effects: Sequence[Effect], models: Sequence[SignalModel], seed: SeedLike = None
+    ) -> None:
+        # Recorded first (the first record wins): a spec'd env is recreated with both lists.
+        gym.utils.RecordConstructorArgs.__init__(self, effects=tuple(effects), models=tuple(models), seed=seed)
+        # The physics layer's set-up comes first, as when RandomizePhysics is built inside CorruptSignals.
+        self.randomizer = PhysicsRandomizer(effects, seed)
+        self._handle = require_physics(env, self.randomizer.effects)
+        self._hook = self._handle.attach(self.randomizer)
+        self._step_effects = self.randomizer.has_step_effects
+        self._read_warnings = self._handle.source == "gymnasium"
+        self._diverged = False
+        self._reapplied: tuple[str, ...] = ()
+        self._reset_diverged = False
+        self._last_obs: Any = None  # the env's own (clean) last observation
+        self._physics_closed = False
+        self._merged: dict[str, Any] = {}
+        self._merged_from: tuple[Any, Any] = (None, None)
+        super().__init__(env, models, seed)
+
+    @property
+    def current_params(self) -> dict[str, float]:
+        """Address or name -> value in use this episode: the physics draws, then the signal models' (a new dict)."""
+        return dict(self._params())
+
+    @property
+    def physics_params(self) -> dict[str, float]:
+        """Address -> physics value in use this episode (what ``RandomizePhysics.current_params`` gives)."""
+        return self.randomizer.current_params
+
+    @property
+    def signal_params(self) -> dict[str, float]:
+        """Name -> signal model value drawn for this episode (what ``CorruptSignals.current_params`` gives)."""
+        return self.corruptor.current_params
+
+    @property
+    def reapplied(self) -> tuple[str, ...]:
+        """Addresses whose draws the task's own reset overwrote and that were written again (this episode)."""
+        return self._reapplied
+
+    def _params(self) -> dict[str, Any]:
+        # Merged once per pair of dicts: both are replaced (never mutated) when their values change.
+        phys, signals = self.randomizer.current_params, self.corruptor.current_params
+        if self._merged_from[0] is not phys or self._merged_from[1] is not signals:
+            merged = phys.copy()
+            merged.update(signals)
+            self._merged = merged
+            self._merged_from = (phys, signals)
+        return self._merged
+
+    def _physics_report(self) -> dict[str, Any]:
+        r = self.randomizer
+        return {
+            "params": r.current_params.copy(),
+            "events": r.events,
+            "episode": r.episode,
+            "diverged": self._diverged,
+            "reapplied": self._reapplied,
+        }
+
+    def _full_report(self, info: dict[str, Any]) -> None:
+        """``info["sim2real"]`` as the two layers leave it; fresh dicts on every call (users keep infos)."""
+        if "sim2real" in info:  # a report of an inner wrapper: merged as the two layers merge it
+            merge_report(info, self._physics_report())
+            self._report(info)
+            return
+        r = self.randomizer
+        report = {
+            "params": self._params().copy(),
+            "events": r.events,
+            "episode": r.episode,
+            "diverged": self._diverged,
+            "reapplied": self._reapplied,
+        }
+        if self._jitter:
+            report["substeps"] = self.clock._target
+        if self.clock.action_path is not None:
+            report["action_latency_path"] = self.clock.action_path
+        info["sim2real"] = report
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
+        c = self.corruptor
+        self.clock._in_step = False  # in case the last step raised
+        c.begin_episode(seed)
+        randomizer = self.randomizer
+        randomizer.begin_episode(seed)
+        if self._hook is None:
+            randomizer.apply()
+        obs, info = self.env.reset(seed=seed, options=options)
+        # As RandomizePhysics: draws the task's own reset overwrote are written again, the state it chose kept.
+        self._reapplied = randomizer.reapply_overwritten()
+        if self._reapplied:
+            mujoco.mj_forward(self._handle.model, self._handle.data)
+            fresh = observe_again(self.env)
+            if fresh is not None:
+                obs = fresh
+        self._last_obs = obs
+        self._diverged = self._reset_diverged = bool(info.pop("diverged", False)) or (
+            self._read_warnings and self._handle.diverged()
+        )
+        self.clock.begin_episode()
+        if self._has_obs:
+            obs = self._obs_out(c.first_observation(self._obs_in(obs)), obs)
+        self._full_report(info)
+        return obs, info
+
+    def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
+        c = self.corruptor
+        clock = self.clock
+        if self._has_action:
+            if type(action) is not np.ndarray:
+                action = np.asarray(action, dtype=c.action_dtype)
+            if action.shape != self._act_shape:
+                raise ValueError(wrong_action_shape(action.shape, self._act_shape))
+            codec = self._act_codec
+            action = c.act(action) if codec is None else c.act(action.reshape(-1)).reshape(codec)
+        clock._control += 1
+        clock._passed = 0
+        clock._in_step = True
+        reward: Any
+        info: dict[str, Any]
+        if self._reset_diverged:  # nothing to step: the reset diverged
+            obs, reward, terminated, truncated, info = self._last_obs, 0.0, False, True, {}
+        else:
+            if self._step_effects:
+                self.randomizer.step()
+            obs, reward, terminated, truncated, info = self.env.step(action)
+            if info.get("diverged", False) or (self._read_warnings and self._handle.diverged()):
+                obs, truncated, self._diverged = self._last_obs, True, True
+            self._last_obs = obs
+        clock._in_step = False
+        if self._has_obs:
+            now = 0
+            if self._obs_time:
+                handle = clock.handle
+                now = clock._control if handle is None else elapsed_steps(clock._t0, handle.data.time, clock.physics_dt)
+            if self._obs_codec is None:
+                obs = c.observe(obs, now)
+            else:
+                obs = self._obs_out(c.observe(self._obs_in(obs), now), obs)
+        self._full_report(info)
+        return obs, reward, terminated, truncated, info
+
+    def restore_nominal(self) -> None:
+        """Writes every touched model field back to its nominal value (bitwise)."""
+        self.randomizer.restore_nominal()
+
+    def release(self) -> gym.Env:
+        """Detaches from the wrapped env and returns it, still open, for reuse: physics stepping is no longer
+        intercepted, the nominal model is restored bitwise and the recompile hook removed."""
+        env = super().release()  # the signal clock first, as the outer of the two layers lets go first
+        if not self._physics_closed:
+            self._physics_closed = True
+            self._handle.detach(self.randomizer, self._hook)
+        return env
+
+
+class RandomizeAndCorruptDmEnv(CorruptSignalsDmEnv):
+    """:class:`RandomizeAndCorrupt` for dm_env environments (dm-control suite and composer): one layer doing what
+    :class:`~sim2real.wrappers.CorruptSignalsDmEnv` around :class:`~sim2real.wrappers.RandomizePhysicsDmEnv`
+    does. The draws are on :attr:`current_params` (physics, then signals), ``diverged`` and ``reapplied`` as on
+    ``RandomizePhysicsDmEnv``.
+
+    Args:
+        env: a dm-control suite or composer environment.
+        effects: physics effects from :mod:`randomizers`.
+        models: ObservationNoise, ActionNoise, ObservationLatency, ActionLatency, SampleAndHold, ControlJitter.
+        seed: root seed of every stream (dm_env has no per-reset seed).
+
+    Example:
+        >>> from dm_control import suite
+        >>> from noise_models import Gaussian, ObservationNoise
+        >>> from randomizers import Damping, Uniform
+        >>> env = RandomizeAndCorruptDmEnv(suite.load("reacher", "easy"), [Damping(scale=Uniform(0.5, 2.0))],
+        ...                                [ObservationNoise(Gaussian(std=0.01), select="velocity")], seed=0)
+        >>> timestep = env.reset()
+        >>> sorted(env.current_params)[:3]
+        ['dof_damping[shoulder]', 'dof_damping[wrist]', 'obs_noise_std[velocity]']
+        >>> env.close()
+    """
+
+    def __init__(
+        self, env: dm_env.Environment, effects: Sequence[Effect], models: Sequence[SignalModel], seed: SeedLike = None
+    ) -> None:
+        if not isinstance(env, dm_env.Environment):
+            raise TypeError(f"`env` must be a dm_env.Environment. Received {type(env).__name__}.")
+        self.randomizer = PhysicsRandomizer(effects, seed)
+        self._handle = require_physics(env, self.randomizer.effects)
+        self._hook = self._handle.attach(self.randomizer)
+        self._step_effects = self.randomizer.has_step_effects
+        self._last_obs: Any = None
+        self._physics_reset_next = True  # RandomizePhysicsDmEnv's own flag
+        self.diverged = False
+        self.reapplied: tuple[str, ...] = ()
+        self._physics_closed = False
+        super().__init__(env, models, seed)
+
+    @property
+    def current_params(self) -> dict[str, float]:
+        """Address or name -> value in use this episode: the physics draws, then the signal models'."""
+        merged = dict(self.randomizer.current_params)
+        merged.update(self.corruptor.current_params)
+        return merged
+
+    @property
+    def physics(self) -> Any:
+        return self._env.physics
+
+    def _physics_reset(self) -> dm_env.TimeStep:
+        """RandomizePhysicsDmEnv.reset."""
+        self.randomizer.begin_episode()
+        if self._hook is None:
+            self.randomizer.apply()
+        from dm_control.rl.control import PhysicsError
+
+        try:
+            timestep = self._env.reset()
+        except PhysicsError:
+            from sim2real.adapters import suite_observation
+
+            try:
+                observation = suite_observation(self._env)
+            except Exception:  # a diverged physics may fail anywhere; the fallback covers it
+                observation = None
+            self._last_obs = observation
+            self._physics_reset_next = False
+            self.diverged = True
+            return dm_env.restart(observation)
+        self.reapplied = self.randomizer.reapply_overwritten()
+        if self.reapplied:
+            from sim2real.adapters import suite_observation
+
+            mujoco.mj_forward(self._handle.model, self._handle.data)
+            observation = suite_observation(self._env)
+            if observation is not None:
+                timestep = timestep._replace(observation=observation)
+        self._last_obs = timestep.observation
+        self._physics_reset_next = False
+        self.diverged = False
+        return timestep
+
+    def _physics_step(self, action: Any) -> dm_env.TimeStep:
+        """RandomizePhysicsDmEnv.step."""
+        from dm_control.rl.control import PhysicsError
+
+        if self._physics_reset_next:
+            return self._physics_reset()
+        if self.diverged:  # the reset diverged: end the episode without stepping
+            self._physics_reset_next = True
+            return dm_env.truncation(0.0, self._last_obs)
+        if self._step_effects:
+            self.randomizer.step()
+        try:
+            timestep = self._env.step(action)
+            failed = self._handle.diverged()
+        except PhysicsError:
+            failed = True
+        if failed:
+            self.diverged = True
+            self._physics_reset_next = True
+            return dm_env.truncation(0.0, self._last_obs)
+        self._last_obs = timestep.observation
+        self._physics_reset_next = timestep.last()
+        return timestep
+
+    def reset(self) -> dm_env.TimeStep:
+        self.corruptor.begin_episode()
+        timestep = self._physics_reset()
+        self.clock.begin_episode()
+        self._reset_next_step = False
+        return self._observation(timestep, True)
+
+    def step(self, action: Any) -> dm_env.TimeStep:
+        if self._reset_next_step:
+            return self.reset()
+        if self._has_action:
+            action = np.asarray(action, dtype=self.corruptor.action_dtype)
+            if action.shape != self._action_shape:
+                raise ValueError(wrong_action_shape(action.shape, self._action_shape))
+            action = self.corruptor.act(action.reshape(-1)).reshape(self._action_shape)
+        self.clock.begin_step()
+        try:
+            timestep = self._physics_step(action)
+        finally:
+            self.clock._in_step = False
+        if timestep.first():  # the physics layer reset itself after a last step: a new episode of draws
+            self.corruptor.begin_episode()
+            self.clock.begin_episode()
+            return self._observation(timestep, True)
+        self._reset_next_step = timestep.last()
+        return self._observation(timestep, False)
+
+    def restore_nominal(self) -> None:
+        """Writes every touched model field back to its nominal value (bitwise)."""
+        self.randomizer.restore_nominal()
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self.clock.close()
+        if not self._physics_closed:
+            self._physics_closed = True
+            self._handle.detach(self.randomizer, self._hook)
+        self._env.close()

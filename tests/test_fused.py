@@ -1,0 +1,266 @@
+"""One fused layer (issue 15): ``wrap(env, *physics, *signals)`` returns one wrapper / transform that is bitwise the
+two layers it replaces (``wrap(wrap(env, *physics), *signals)``) for gymnasium, dm_env and TorchRL: observations,
+rewards, ends, infos and draws, over several seeds and resets, with noise and latency, on a task we ship and on an
+arm generated here."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+import sim2real as s2r
+from noise_models import (
+    ActionLatency,
+    ActionNoise,
+    Bias,
+    ControlJitter,
+    Gaussian,
+    ObservationLatency,
+    ObservationNoise,
+    SampleAndHold,
+)
+from randomizers import Uniform
+from sim2real.mjcf_env import MjcfEnv
+from sim2real.wrappers import CorruptSignals, RandomizeAndCorrupt, RandomizePhysics
+
+# A 3-joint arm with a slide joint, joint limits, a position servo next to motors, a free ball that it can hit
+# and a touch sensor: nothing like the shipped tasks.
+GENERATED_ARM = """
+<mujoco model="generated">
+  <option timestep="0.004" gravity="0 0 -9.81"/>
+  <worldbody>
+    <geom name="floor" type="plane" size="2 2 0.1"/>
+    <body name="base" pos="0 0 0.3">
+      <joint name="lift" type="slide" axis="0 0 1" range="-0.2 0.2" damping="2"/>
+      <geom name="base_geom" type="box" size="0.05 0.05 0.05" mass="1.5"/>
+      <body name="upper" pos="0 0 0.05">
+        <joint name="shoulder" type="hinge" axis="0 1 0" range="-1.5 1.5" damping="0.3"/>
+        <geom name="upper_geom" type="capsule" fromto="0 0 0 0.3 0 0" size="0.03" mass="0.6"/>
+        <body name="fore" pos="0.3 0 0">
+          <joint name="elbow" type="hinge" axis="0 1 0" damping="0.2"/>
+          <geom name="fore_geom" type="capsule" fromto="0 0 0 0.25 0 0" size="0.025" mass="0.4"/>
+          <site name="tip" pos="0.25 0 0" size="0.02"/>
+        </body>
+      </body>
+    </body>
+    <body name="ball" pos="0.4 0 0.1">
+      <freejoint/>
+      <geom name="ball_geom" type="sphere" size="0.05" mass="0.2"/>
+    </body>
+  </worldbody>
+  <actuator>
+    <position name="lift_servo" joint="lift" kp="80" ctrlrange="-0.2 0.2"/>
+    <motor name="shoulder_motor" joint="shoulder" gear="5" ctrlrange="-1 1" ctrllimited="true"/>
+    <motor name="elbow_motor" joint="elbow" gear="3" ctrlrange="-1 1" ctrllimited="true"/>
+  </actuator>
+  <sensor>
+    <touch name="tip_touch" site="tip"/>
+    <framepos name="tip_pos" objtype="site" objname="tip"/>
+  </sensor>
+</mujoco>
+"""
+
+PHYSICS = (
+    s2r.Friction(scale=Uniform(0.5, 1.5)),
+    s2r.Mass(scale=Uniform(0.8, 1.2), bodies="*"),
+    s2r.Damping(scale=Uniform(0.5, 2.0)),
+    s2r.ActuatorGain(scale=Uniform(0.9, 1.1)),
+)
+
+STACKS: dict[str, tuple[Any, ...]] = {
+    "noise+latency": (
+        ObservationNoise(Gaussian(std=0.01), Bias(Uniform(-0.02, 0.02))),
+        ActionNoise(Gaussian(std=0.05)),
+        ObservationLatency(steps=3),
+        ActionLatency(seconds=0.02),
+    ),
+    "mid-step latency+hold": (
+        ObservationNoise(Gaussian(std=0.02)),
+        ActionLatency(steps=3),
+        SampleAndHold(steps=4),
+    ),
+    "jitter": (ObservationNoise(Gaussian(std=0.01)), ActionLatency(steps=2), ControlJitter(delta=Uniform(-1.0, 1.0))),
+}
+
+
+def _arm() -> MjcfEnv:
+    return MjcfEnv(xml=GENERATED_ARM, control_timestep=0.02, max_episode_steps=12)
+
+
+def _make(task: str) -> Any:
+    return _arm() if task == "generated" else s2r.make(task)
+
+
+def _assert_same_info(a: Any, b: Any) -> None:
+    assert a == b  # nested dicts of floats, tuples and bools compare exactly
+    assert list(a.get("sim2real", {}).get("params", {})) == list(b.get("sim2real", {}).get("params", {}))
+
+
+def _run_gym(env: Any, actions: np.ndarray, seeds: list[int | None]) -> list[Any]:
+    out: list[Any] = []
+    for seed in seeds:
+        obs, info = env.reset(seed=seed)
+        out.append(("reset", obs.copy(), info))
+        for a in actions:
+            obs, reward, terminated, truncated, info = env.step(a)
+            out.append(("step", obs.copy(), reward, terminated, truncated, info))
+            if terminated or truncated:
+                break
+    return out
+
+
+@pytest.mark.parametrize("task", ["dmc/reacher-easy", "generated"])
+@pytest.mark.parametrize("stack", list(STACKS))
+def test_gym_fused_is_bitwise_the_two_layers(task: str, stack: str) -> None:
+    signals = STACKS[stack]
+    fused = s2r.wrap(_make(task), *PHYSICS, *signals, seed=7)
+    layered = s2r.wrap(s2r.wrap(_make(task), *PHYSICS, seed=7), *signals, seed=7)
+    assert type(fused) is RandomizeAndCorrupt and fused.env is fused.unwrapped
+    assert type(layered) is CorruptSignals and type(layered.env) is RandomizePhysics
+    rng = np.random.default_rng(0)
+    space = fused.action_space
+    actions = rng.uniform(space.low, space.high, size=(15, *space.shape)).astype(space.dtype)
+    seeds: list[int | None] = [3, None, 11, None]
+    a, b = _run_gym(fused, actions, seeds), _run_gym(layered, actions, seeds)
+    assert len(a) == len(b) > 30
+    for x, y in zip(a, b, strict=True):
+        assert x[0] == y[0]
+        np.testing.assert_array_equal(x[1], y[1], strict=True)
+        assert x[2:-1] == y[2:-1]
+        _assert_same_info(x[-1], y[-1])
+    assert fused.current_params == {**layered.env.current_params, **layered.current_params}
+    model = s2r.find_physics(fused).model  # type: ignore[union-attr]
+    nominal = s2r.find_physics(_make(task)).model  # type: ignore[union-attr]
+    base = fused.release()
+    assert base is fused.env
+    np.testing.assert_array_equal(model.body_mass, nominal.body_mass)  # the nominal model, bitwise
+    np.testing.assert_array_equal(model.dof_damping, nominal.dof_damping)
+    layered.close()
+
+
+def test_gym_fused_keeps_the_reports_of_a_diverged_reset_and_step() -> None:
+    """A reset that diverges under an extreme draw: the next step ends the episode, in both, identically."""
+    physics = (s2r.Stiffness(set=1e12),)
+    signals = (ObservationNoise(Gaussian(std=0.01)), ActionLatency(steps=2))
+    fused = s2r.wrap(_arm(), *physics, *signals, seed=1)
+    layered = s2r.wrap(s2r.wrap(_arm(), *physics, seed=1), *signals, seed=1)
+    actions = np.ones((6, 3), np.float32)
+    a, b = _run_gym(fused, actions, [0, 1]), _run_gym(layered, actions, [0, 1])
+    assert any(x[-1]["sim2real"]["diverged"] for x in a)
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x[1], y[1], strict=True)
+        assert x[2:-1] == y[2:-1]
+        _assert_same_info(x[-1], y[-1])
+
+
+def test_gym_fused_spec_make_and_errors() -> None:
+    signals = (ObservationNoise(Bias(0.25)), ActionNoise(Gaussian(std=0.1)))
+    env = s2r.wrap(s2r.make("gym/Reacher-v5"), *PHYSICS[:2], *signals, seed=3)
+    assert isinstance(env, RandomizeAndCorrupt)
+    twin = env.spec.make()  # type: ignore[union-attr]
+    assert type(twin) is RandomizeAndCorrupt and twin.randomizer.effects == env.randomizer.effects
+    o1, i1 = env.reset(seed=2)
+    o2, i2 = twin.reset(seed=2)
+    np.testing.assert_array_equal(o1, o2)
+    assert i1 == i2
+    with pytest.raises(ValueError, match=r"`action` must have the shape of the env's action space, \(2,\)"):
+        env.step(np.zeros(3, np.float32))
+    env.close()
+    twin.close()
+
+
+# -- dm_env ---------------------------------------------------------------------------------------------------
+
+
+def _dm(task: str) -> Any:
+    from sim2real.tasks.suite import suite_env
+
+    domain, name = task.split("-")
+    return suite_env(domain, name, textures=False)
+
+
+@pytest.mark.parametrize("task", ["reacher-easy", "manipulator-bring_ball"])
+def test_dm_env_fused_is_bitwise_the_two_layers(task: str) -> None:
+    from sim2real.wrappers import CorruptSignalsDmEnv, RandomizeAndCorruptDmEnv, RandomizePhysicsDmEnv
+
+    signals = STACKS["noise+latency"]
+    fused = s2r.wrap(_dm(task), *PHYSICS, *signals, seed=5)
+    layered = CorruptSignalsDmEnv(RandomizePhysicsDmEnv(_dm(task), PHYSICS, seed=5), signals, seed=5)
+    assert type(fused) is RandomizeAndCorruptDmEnv
+    assert fused.physics is fused._env.physics
+    for env in (fused, layered):  # the same initial states (the tasks' own RandomState)
+        env.task.random.seed(42)
+    spec = fused.action_spec()
+    actions = np.random.default_rng(1).uniform(spec.minimum, spec.maximum, size=(40, *spec.shape))
+    n_steps = 0
+    for episode in range(3):
+        ta, tb = fused.reset(), layered.reset()
+        assert fused.current_params == layered.current_params and fused.diverged == layered.diverged
+        for k in range(len(actions) if episode < 2 else 5):
+            for key in ta.observation:
+                np.testing.assert_array_equal(ta.observation[key], tb.observation[key], strict=True)
+            assert (ta.step_type, ta.reward, ta.discount) == (tb.step_type, tb.reward, tb.discount)
+            ta, tb = fused.step(actions[k]), layered.step(actions[k])
+            n_steps += 1
+    assert n_steps == 85
+    fused.close()
+    layered.close()
+
+
+# -- TorchRL --------------------------------------------------------------------------------------------------
+
+
+def _torchrl_env(task: str) -> Any:
+    from torchrl.envs import GymWrapper
+
+    return GymWrapper(_make(task))
+
+
+@pytest.mark.parametrize("task", ["dmc/reacher-easy", "generated"])
+def test_torchrl_fused_is_bitwise_the_compose_of_two(task: str) -> None:
+    import torch
+    from torchrl.envs import Compose, TransformedEnv
+    from torchrl.envs.utils import check_env_specs
+
+    from sim2real.wrappers import CorruptSignalsTransform, RandomizeAndCorruptTransform, RandomizePhysicsTransform
+
+    signals = STACKS["noise+latency"]
+    fused = s2r.wrap(_torchrl_env(task), *PHYSICS, *signals, seed=9)
+    layered = TransformedEnv(
+        _torchrl_env(task), Compose(RandomizePhysicsTransform(PHYSICS, 9), CorruptSignalsTransform(signals, 9))
+    )
+    assert type(fused.transform) is RandomizeAndCorruptTransform
+    for env in (fused, layered):  # on both: it resets them, and the episode counters must stay level
+        check_env_specs(env, seed=0)
+    assert fused.full_observation_spec == layered.full_observation_spec
+    assert fused.transform.param_names == layered.transform[0].param_names
+    assert fused.transform.signal_param_names == layered.transform[1].param_names
+    torch.manual_seed(0)
+    actions = fused.full_action_spec["action"].rand((25,))
+
+    def policy_of(env: Any) -> Any:
+        steps = iter(actions)
+
+        def policy(td: Any) -> Any:
+            td.set("action", next(steps).clone())
+            return td
+
+        return policy
+
+    for seed in (1, 2):
+        fused.set_seed(seed)
+        layered.set_seed(seed)
+        ta = fused.rollout(25, policy_of(fused), break_when_any_done=False)
+        tb = layered.rollout(25, policy_of(layered), break_when_any_done=False)
+        assert set(ta.keys(True, True)) == set(tb.keys(True, True))
+        for key in ta.keys(True, True):
+            assert ta.get(key).dtype == tb.get(key).dtype
+            assert torch.equal(ta.get(key), tb.get(key)), key
+    assert fused.transform.current_params == {
+        **layered.transform[0].current_params,
+        **layered.transform[1].current_params,
+    }
+    fused.close()
+    layered.close()
