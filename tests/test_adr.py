@@ -494,6 +494,7 @@ def test_cli_train_adr_logs_ranges_checkpoints_the_state_and_errors_exit_2(tmp_p
     agent = tmp_path / "ppo.yaml"
     agent.write_text(
         "algo: ppo\nframes: 600\nframes_per_batch: 300\nminibatch_size: 150\nepochs: 1\nobs_norm_frames: 0\n"
+        "num_envs: 3\n"  # 3 batched worlds x 200 steps: each ends one episode
     )
     out = tmp_path / "policy.pt"
     argv = ["train", "--task", "sim2real/arm-reach", "--adr", str(good), "--agent-config", str(agent)]
@@ -502,11 +503,13 @@ def test_cli_train_adr_logs_ranges_checkpoints_the_state_and_errors_exit_2(tmp_p
     checkpoint = load_checkpoint(out)
     assert checkpoint.adr is not None and checkpoint.effects is None
     assert checkpoint.config == PPOConfig(
-        frames=600, frames_per_batch=300, minibatch_size=150, epochs=1, obs_norm_frames=0, adr=ADR_YAML
+        frames=600, frames_per_batch=300, minibatch_size=150, epochs=1, obs_norm_frames=0, adr=ADR_YAML, num_envs=3
     )
     adr = ADR.from_state(checkpoint.adr)
-    assert adr.frames == 600  # three 200-step episodes
-    assert len(adr.history.frames) == 4  # every finished episode was pinned (p_boundary 1) and widened (m 1)
+    assert adr.frames == 600  # three 200-step episodes, one per world, ending on the same step
+    # Every finished episode was pinned (p_boundary 1) and widened its boundary (m 1), unless an earlier world's
+    # result of the same step had already moved that boundary (a stale result, dropped).
+    assert len(adr.history.frames) == 1 + 3 - adr.stale
     ranges = ", ".join(f"{key} [{lo:g}, {hi:g}]" for key, (lo, hi) in adr.ranges.items())
     assert f"adr: entropy {adr.entropy():.3f} nats/dim; {ranges}" in summary
     (run,) = (tmp_path / "runs").iterdir()

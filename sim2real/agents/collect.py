@@ -8,10 +8,10 @@ policy forward and one engine step per N frames instead of N TorchRL env steps, 
 The engine's observations and rewards are float32 already, so there is no ``DoubleToFloat`` on this path.
 
 What falls back to one env (``Collection.reason`` says which): ``engine="per-env"``, an env object instead of a
-task id, an ADR controller (it scores each episode from the env's own ``step``, which the engine bypasses, and
-pins one boundary per episode), and whatever :func:`sim2real.batched.supports` refuses (tasks without a batched
-kernel, per-step effects, visual effects, signal models it does not batch such as ``SampleAndHold`` or a
-jittered latency).
+task id, and whatever :func:`sim2real.batched.supports` refuses (tasks without a batched kernel, per-step effects,
+visual effects, signal models it does not batch such as ``SampleAndHold`` or a jittered latency). An ADR
+controller is batched too: every world pins its own boundaries from its own stream and reports its episodes to the
+one controller, in world order (:mod:`sim2real.batched.adr`).
 
 SAC keeps collecting one env step at a time (:mod:`sim2real.agents.sac_loop`): its runs are update-bound. In a
 default ``SACConfig(frames=4000)`` run on reacher-easy, env steps took 3.7% of the CPU time, the exploration
@@ -98,7 +98,6 @@ def choose_collection(task_or_env: Any, effects: Sequence[Any], config: Any) -> 
         A :class:`Collection`: batched when ``config.engine`` is ``"auto"`` and the engine supports the task and
         effects, else per-env with the reason.
     """
-    from randomizers import ADR
     from sim2real.batched import supports
     from sim2real.wrapping import _flatten
 
@@ -110,11 +109,6 @@ def choose_collection(task_or_env: Any, effects: Sequence[Any], config: Any) -> 
             "task id"
         )
     flat = _flatten(effects)
-    if any(isinstance(e, ADR) for e in flat):
-        return _per_env(
-            "ADR scores each episode from the env's own step and pins one boundary per episode; the batched "
-            "engine steps the worlds below it"
-        )
     reason = supports(task_or_env, *flat)
     if reason is not None:
         return _per_env(reason)

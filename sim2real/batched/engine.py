@@ -42,6 +42,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from sim2real.batched.adr import BatchedADR, adr_of
 from sim2real.batched.kernels import KERNELS, Kernel, kernel_for
 from sim2real.batched.signals import BatchedSignals, signals_reason
 
@@ -58,7 +59,7 @@ def supports(task: Any, *effects: Any, options: Mapping[str, Any] | None = None)
         >>> supports("dmc/jaco-reach_site")
         "no batched kernel for task 'dmc/jaco-reach_site'"
     """
-    from randomizers import Effect, Interval, Push
+    from randomizers import ADR, Effect, Interval, Push
     from sim2real.wrapping import _flatten
 
     if not isinstance(task, str) or task not in KERNELS:
@@ -67,7 +68,8 @@ def supports(task: Any, *effects: Any, options: Mapping[str, Any] | None = None)
     unknown = sorted(set(options or {}) - set(allowed))
     if unknown:
         return f"task options {unknown} are not batched (allowed: {list(allowed)})"
-    flat = _flatten(effects)
+    # An ADR controller's effects are drawn at reset like any other (sim2real.batched.adr reports the episodes).
+    flat = [x for e in _flatten(effects) for x in (e.effects if isinstance(e, ADR) else (e,))]
     reason = signals_reason([e for e in flat if not isinstance(e, Effect)])
     if reason is not None:
         return reason
@@ -93,7 +95,9 @@ class BatchedEnv:
     Args:
         task: a task id with a batched kernel (:data:`sim2real.batched.kernels.KERNELS`).
         num_envs: worlds N.
-        effects: physics effects from :mod:`randomizers` (drawn per episode; per-step effects are refused).
+        effects: physics effects from :mod:`randomizers` (drawn per episode; per-step effects are refused), signal
+            models, and at most one :class:`~randomizers.ADR` controller shared by all worlds (each pins its own
+            boundaries; the episodes are reported in world order, :mod:`sim2real.batched.adr`).
         seed: root seed; world ``i`` draws from the streams of ``(seed, i)``.
         envs: N envs from :func:`sim2real.make` to use as the worlds instead of making new ones (evaluation
             reuses its envs across conditions); :meth:`close` then releases them, restored and still open.
@@ -200,6 +204,9 @@ class BatchedEnv:
         # Signal models: each env's outermost wrapper is CorruptSignals, its RandomizePhysics just inside.
         self._signals = BatchedSignals(n, self.envs) if hasattr(self.envs[0], "corruptor") else None
         self._physics = [env.env if self._signals is not None else env for env in self.envs]
+        # ADR: a world's reset draws its pin through its own ADR layer; the step bypasses that layer, so the episode
+        # sums and the reports to the shared controller happen here (sim2real.batched.adr).
+        self._adr = BatchedADR(self._physics, kernel.reports_success) if adr_of(effects) is not None else None
         self._out = np.zeros((n, self.kernel.obs_dim), np.float32)  # what the policy sees
         self._steps = np.zeros(n, np.int64)
         self._reset_diverged = np.zeros(n, bool)
@@ -275,6 +282,8 @@ class BatchedEnv:
             self._world_params[i] = report["params"]
             self._reset_diverged[i] = self._diverged[i] = bool(report["diverged"]) and self._end_diverged
             self._steps[i] = 0
+            if self._adr is not None:
+                self._adr.start(i)
             m, d = self.models[i], self.datas[i]
             for destination, source in self._worlds[i][3]:
                 destination[...] = source
@@ -339,6 +348,8 @@ class BatchedEnv:
         truncated = (keep & (self._steps >= self.step_limit)) | diverged | stuck
         self._diverged |= diverged
         self._reset_diverged &= ~stuck
+        if self._adr is not None:  # after every world's step, in world order (then the collector's resets)
+            self._adr.observe(reward, terminated, terminated | truncated, signalled, stuck)
         if signals is not None:
             self._out = signals.observe(self._obs, signalled, self._out)
         else:
