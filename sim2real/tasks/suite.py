@@ -12,7 +12,8 @@ What is left of building an env is made cheap too:
 * ``textures=False`` (:mod:`sim2real.tasks.models`): the template is compiled without textures, whose copy is
   most of a copy's cost (reacher's skybox is 11.8 MB). For envs that are never rendered.
 * reacher reads its two geoms by cached index instead of through the named indexer on every step
-  (:func:`fast_reacher_physics`; bitwise the same values).
+  (:func:`fast_reacher_physics`; bitwise the same values), and manipulator its observation and reward
+  (:func:`sim2real.tasks.fast_manipulator.fast_bring`; bitwise the same values).
 
 Example:
     >>> env = suite_env("reacher", "easy", textures=False)
@@ -116,6 +117,10 @@ def _template(domain: str, task: str, time_limit: float | None, textures: bool) 
     if domain == "reacher":
         base = fast_reacher_physics()
         new_task.__class__ = fast_reacher_task()
+    elif domain == "manipulator":
+        from sim2real.tasks.fast_manipulator import fast_bring
+
+        new_task.__class__ = fast_bring()
     if textures:
         model = env.physics.model
     else:
