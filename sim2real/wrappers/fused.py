@@ -33,7 +33,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from noise_models import SignalModel
+from noise_models import SampleAndHold, SignalModel
 from noise_models.timing import elapsed_steps
 from randomizers import Effect, PhysicsRandomizer
 from randomizers.seeding import SeedLike
@@ -81,6 +81,7 @@ class RandomizeAndCorrupt(CorruptSignals):
         self._merged: dict[str, Any] = {}
         self._merged_from: tuple[Any, Any] = (None, None)
         super().__init__(env, models, seed)
+        self._needs_now = self._obs_time
 
     @property
     def current_params(self) -> dict[str, float]:
@@ -163,6 +164,8 @@ class RandomizeAndCorrupt(CorruptSignals):
             self._read_warnings and self._handle.diverged()
         )
         self.clock.begin_episode()
+        # The corruptor reads the step's time only for sample-and-hold or a latency without one fixed lag.
+        self._needs_now = self._obs_time and (SampleAndHold in c.timing or c.observation_lag is None)
         if self._has_obs:
             obs = self._obs_out(c.first_observation(self._obs_in(obs)), obs)
         self._full_report(info)
@@ -195,14 +198,31 @@ class RandomizeAndCorrupt(CorruptSignals):
         clock._in_step = False
         if self._has_obs:
             now = 0
-            if self._obs_time:
+            if self._needs_now:
                 handle = clock.handle
                 now = clock._control if handle is None else elapsed_steps(clock._t0, handle.data.time, clock.physics_dt)
             if self._obs_codec is None:
                 obs = c.observe(obs, now)
             else:
                 obs = self._obs_out(c.observe(self._obs_in(obs), now), obs)
-        self._full_report(info)
+        if "sim2real" in info or self._extra_report:
+            self._full_report(info)
+            return obs, reward, terminated, truncated, info
+        # _full_report's common case, inline (this is the hot path).
+        r = self.randomizer
+        merged_from = self._merged_from
+        merged = (
+            self._merged
+            if merged_from[0] is r.current_params and merged_from[1] is c.current_params
+            else self._params()
+        )
+        info["sim2real"] = {
+            "params": merged.copy(),
+            "events": r.events,
+            "episode": r.episode,
+            "diverged": self._diverged,
+            "reapplied": self._reapplied,
+        }
         return obs, reward, terminated, truncated, info
 
     def restore_nominal(self) -> None:
