@@ -11,10 +11,11 @@ Stages (each prints its progress and time):
    simulator: each fitted value rounded to ``digits`` significant digits and randomised by
    ``max(relative_width, 2 stderr / estimate)`` around it, the fitted action latency and sensor noise,
    plus the profile's ``keep`` randomisation (what the fit does not cover).
-3. **policies** - a nominal, a randomised, a calibrated and an ADR PPO policy (automatic domain randomisation
-   from the nominal point, the profile's ``adr`` section), loaded from the checkpoints the package ships when they
-   were trained under exactly the same configuration (``manifest.json`` holds the ``sim2real train`` command that
-   reproduces each), trained otherwise; plus the task's scripted baseline.
+3. **policies** - a nominal, a randomised, a calibrated and an ADR policy trained with the profile's ``agent``
+   (ADR: automatic domain randomisation from the nominal point, the profile's ``adr`` section), loaded from the
+   checkpoints the package ships when they were trained under exactly the same configuration (``manifest.json``
+   holds the ``sim2real train`` command that reproduces each and its wall and CPU time), trained otherwise; plus
+   the task's scripted baseline.
 4. **evaluate** - every policy on the nominal sim, the randomised sim, the calibrated sim, the ADR policy's
    final ranges, the twin, and one-parameter sweeps and a two-parameter grid: the profile becomes an ordinary
    evaluation spec (:meth:`StudyProfile.spec_config` -> :func:`sim2real.spec.load_spec` -> ``EvaluationSpec.run``).

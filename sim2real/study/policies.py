@@ -18,8 +18,14 @@ Example:
 from __future__ import annotations
 
 import json
+import os
+import shlex
+import shutil
+import subprocess
+import sys
 import tempfile
-from collections.abc import Sequence
+import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -29,12 +35,14 @@ from sim2real.study.profile import BUDGETS, DEFAULT_TASK, StudyProfile, load_pro
 __all__ = [
     "ADR_FILE",
     "ROLES",
+    "TrainingTime",
     "adr_simulator",
     "effects_file",
     "prepare_checkpoints",
     "role_agent",
     "shipped",
     "study_roles",
+    "train_checkpoints",
     "train_one",
     "write_manifest",
 ]
@@ -170,22 +178,106 @@ def prepare_checkpoints(task: str = DEFAULT_TASK, *, seed: int = 0, budget: str 
             atomic_write(folder / ADR_FILE, str(profile.adr))
             config += f" --adr {ADR_FILE}"
         commands.append(
-            f"sim2real train --task {profile.task} --agent-config agent.yaml{config} --seed 0 --out {role}.pt --no-log"
+            f"sim2real train --task {profile.task} --algo {profile.agent.algo} --agent-config agent.yaml{config} "
+            f"--seed 0 --out {role}.pt --no-log"
         )
     return commands
 
 
-def write_manifest(task: str = DEFAULT_TASK, commands: Sequence[str] = ()) -> Path:
-    """Maintainers: records the shipped checkpoints of ``task`` (role, file, effects YAML, agent config and the
-    command) in ``checkpoints/manifest.json``; a checkpoint is used only when all of these match."""
+@dataclass(frozen=True)
+class TrainingTime:
+    """What one training command cost, as recorded in the manifest.
+
+    Attributes:
+        wall_s: wall-clock seconds of the command's process, start to exit.
+        cpu_s: CPU seconds (user + system) of that process and its children; None when it was not measured.
+    """
+
+    wall_s: float
+    cpu_s: float | None = None
+
+
+def command_role(command: str) -> str:
+    """The role a ``sim2real train`` command of :func:`prepare_checkpoints` trains (its ``--out <role>.pt``).
+
+    Example:
+        >>> command_role("sim2real train --task dmc/reacher-easy --algo sac --seed 0 --out adr.pt --no-log")
+        'adr'
+    """
+    args = shlex.split(command)
+    out = args[args.index("--out") + 1] if "--out" in args[:-1] else ""
+    role = out.removesuffix(".pt")
+    if role not in ROLES or not out.endswith(".pt"):
+        raise ValueError(f"`command` must end its output in --out <role>.pt, role one of {list(ROLES)}. "
+                         f"Received {command!r}.")  # fmt: skip
+    return role
+
+
+def train_checkpoints(
+    commands: Sequence[str], folder: str | os.PathLike[str], *, parallel: int = 2, niceness: int = 0
+) -> dict[str, TrainingTime]:
+    """Maintainers: runs the ``sim2real train`` commands of :func:`prepare_checkpoints` in ``folder`` (which holds
+    their config files), ``parallel`` at a time, and returns each role's wall and CPU time for
+    :func:`write_manifest`. ``sim2real`` is this interpreter's console script; ``niceness`` is added to each
+    process's nice value.
+
+    Raises:
+        ValueError: a command is not a ``sim2real train ... --out <role>.pt`` command, or ``parallel`` < 1.
+        RuntimeError: a command exited non-zero (its exit code and stderr's last line are in the message).
+    """
+    if isinstance(parallel, bool) or not isinstance(parallel, int) or parallel < 1:
+        raise ValueError(f"`parallel` must be an int >= 1. Received {parallel!r}.")
+    script = Path(sys.executable).parent / "sim2real"
+    program = str(script) if script.is_file() else (shutil.which("sim2real") or "sim2real")
+    pending = []
+    for command in commands:
+        args = shlex.split(command)
+        if args[:2] != ["sim2real", "train"]:
+            raise ValueError(f"`commands` must be `sim2real train` commands. Received {command!r}.")
+        pending.append((command_role(command), [program, *args[1:]]))
+    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    running: dict[int, tuple[str, subprocess.Popen[bytes], float]] = {}
+    times: dict[str, TrainingTime] = {}
+    while pending or running:
+        while pending and len(running) < parallel:
+            role, argv = pending.pop(0)
+            proc = subprocess.Popen(argv, cwd=folder, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                                    preexec_fn=(lambda: os.nice(niceness)) if niceness else None)  # fmt: skip
+            running[proc.pid] = (role, proc, time.perf_counter())
+        pid, status, usage = os.wait4(-1, 0)  # the rusage of exactly that child (and its waited-for children)
+        if pid not in running:
+            continue
+        role, proc, start = running.pop(pid)
+        wall = time.perf_counter() - start
+        code = os.waitstatus_to_exitcode(status)
+        proc.returncode = code
+        err = proc.stderr.read().decode(errors="replace").strip().splitlines() if proc.stderr else []
+        if proc.stderr:
+            proc.stderr.close()
+        if code != 0:
+            for _, other, _ in running.values():
+                other.terminate()
+            raise RuntimeError(f"training {role!r} exited with {code}: {err[-1] if err else '(no stderr)'}")
+        times[role] = TrainingTime(wall_s=round(wall, 1), cpu_s=round(usage.ru_utime + usage.ru_stime, 1))
+    return times
+
+
+def write_manifest(
+    task: str = DEFAULT_TASK, commands: Sequence[str] = (), times: Mapping[str, TrainingTime] | None = None
+) -> Path:
+    """Maintainers: records the shipped checkpoints of ``task`` (role, file, effects YAML, agent config, the
+    command and, from ``times`` (:func:`train_checkpoints`), its wall and CPU seconds) in
+    ``checkpoints/manifest.json``; a checkpoint is used only when role, effects and agent match. A checkpoint
+    already listed keeps its command and times unless new ones are given."""
     from randomizers.files import atomic_write
     from sim2real.agents import load_checkpoint
     from sim2real.agents.adr_training import adr_config_text
 
     profile = load_profile(task)
     folder = profile.folder / "checkpoints"
-    # A checkpoint already listed keeps its command unless a new one is given.
-    previous = {(e.get("role"), e.get("run_id")): e.get("command", "") for e in _manifest(profile)}
+    # A checkpoint already listed keeps its command and times unless new ones are given.
+    previous: dict[tuple[Any, Any], dict[str, Any]] = {(e.get("role"), e.get("run_id")): e for e in _manifest(profile)}
+    times = dict(times or {})
     entries = []
     for role in ROLES:
         path = folder / f"{role}.pt"
@@ -199,8 +291,15 @@ def write_manifest(task: str = DEFAULT_TASK, commands: Sequence[str] = ()) -> Pa
         adr_file = folder / ADR_FILE
         if role == "adr" and (not adr_file.is_file() or ckpt.config.adr != adr_config_text(adr_file.read_text())):
             raise ValueError(f"{path} was trained under another ADR config than {adr_file}.")
+        before = previous.get((role, ckpt.run_id), {})
+        timing: dict[str, Any] = (
+            {"train_wall_s": times[role].wall_s, "train_cpu_s": times[role].cpu_s}
+            if role in times
+            else {k: before[k] for k in ("train_wall_s", "train_cpu_s") if k in before}
+        )
         entries.append(
             {
+                **timing,
                 "role": role,
                 "file": path.name,
                 "task": profile.task,
@@ -208,9 +307,7 @@ def write_manifest(task: str = DEFAULT_TASK, commands: Sequence[str] = ()) -> Pa
                 "agent": ckpt.config.to_dict(),
                 "seed": ckpt.seed,
                 "run_id": ckpt.run_id,
-                "command": next(
-                    (c for c in commands if f"--out {role}.pt" in c), previous.get((role, ckpt.run_id), "")
-                ),
+                "command": next((c for c in commands if f"--out {role}.pt" in c), before.get("command", "")),
             }
         )
     path = folder / "manifest.json"

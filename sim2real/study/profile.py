@@ -30,7 +30,7 @@ class Budget:
         grid_points: points kept per grid axis (None: all).
         log_episodes, log_steps: excitation episodes and control steps recorded on the twin.
         fit_starts: independent sysid multi-starts (seeds), run on the backend.
-        train_frames: frames for policies that must be trained (None: the profile's PPO frames).
+        train_frames: frames for policies that must be trained (None: the profile's agent frames).
         retrain: train every policy even when a shipped checkpoint matches.
         num_resamples: bootstrap resamples of every interval.
         precision: the goal half-width of the headline's interval (calibrated - randomized on the twin) as a
@@ -76,7 +76,7 @@ class StudyProfile:
         relative_width, digits: the calibrated ranges' rule (:meth:`sysid.FitResult.to_effects`).
         keep: randomisation kept on top of the fit.
         sweeps, grid: the report's one-parameter sweeps and two-parameter grid (evaluation-spec items).
-        agent: the PPO settings of the shipped checkpoints.
+        agent: the agent config (PPO or SAC) of the shipped checkpoints.
         folder: the profile's folder.
         safety: the safety envelope the study measures and reports (``safety.yaml`` next to ``study.yaml``, a
             :func:`sim2real.safety.load_limits` file), or None when the profile has none.

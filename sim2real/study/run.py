@@ -208,7 +208,8 @@ def _run(
             checkpoints[job.role] = path
         sources["scripted"] = repr(baseline_for(profile.task))
 
-    stages.run("policies", f"{', '.join(roles)} PPO policies and the scripted baseline", policies_stage)
+    label = f"{', '.join(roles)} {profile.agent.algo.upper()} policies and the scripted baseline"
+    stages.run("policies", label, policies_stage)
     # The conditions are an ordinary evaluation spec: the same parser as `sim2real evaluate --config`.
     policies: dict[str, Any] = {role: {"checkpoint": checkpoints[role]} for role in roles}
     policies["scripted"] = "baseline"
