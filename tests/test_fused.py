@@ -232,6 +232,8 @@ def test_torchrl_fused_is_bitwise_the_compose_of_two(task: str) -> None:
         _torchrl_env(task), Compose(RandomizePhysicsTransform(PHYSICS, 9), CorruptSignalsTransform(signals, 9))
     )
     assert type(fused.transform) is RandomizeAndCorruptTransform
+    twin = fused.transform.clone()  # its physics half answers to the clone, not to the original
+    assert twin.physics is not fused.transform.physics and twin.physics.__dict__["_owner"] is twin
     for env in (fused, layered):  # on both: it resets them, and the episode counters must stay level
         check_env_specs(env, seed=0)
     assert fused.full_observation_spec == layered.full_observation_spec

@@ -137,6 +137,14 @@ class RandomizeAndCorruptTransform(CorruptSignalsTransform):
         observation_spec = self.physics.transform_observation_spec(observation_spec)
         return super().transform_observation_spec(observation_spec)
 
+    def clone(self) -> RandomizeAndCorruptTransform:
+        # Transform.clone copies __dict__ shallowly: the clone's physics half must answer to the clone.
+        other = super().clone()
+        part = self.physics.clone()
+        part.__dict__["_owner"] = other
+        other.__dict__["_physics"] = part
+        return other
+
     def restore_nominal(self) -> None:
         """Writes every touched model field back to its nominal value (bitwise)."""
         self.physics.restore_nominal()
