@@ -4,7 +4,9 @@ Each wrapper is its API's physics wrapper (same reports, divergence handling and
 :class:`randomizers.adr_randomizer.ADRRandomizer`; on top it sums the episode's reward and, when the episode
 ends (terminated, truncated, diverged, or ``last()`` on dm_env), hands the finished :class:`~randomizers.Episode`
 to the controller. An episode cut short by a ``reset()`` before it ended is not reported. Many wrappers may share
-one controller in a process (``sim2real.make_vec``): results reach it in the order the episodes end.
+one controller in a process (``sim2real.make_vec``): results reach it in the order the episodes end. The batched
+engine resets its worlds through these wrappers but steps below them, so it sums and reports the episodes itself
+(:mod:`sim2real.batched.adr`).
 
 Example:
     >>> import sim2real
