@@ -97,7 +97,7 @@ def lm(
             theta, st.delay, st.obs, x0, fd_steps(theta, lower, upper, fd_step), fit_x0, fit_params
         )
     fresh = True
-    stopped_small = False
+    stopped_small, last_decrease = False, math.inf
     cost = 0.5 * float(r @ r)
     rows = problem.segment_rows() if fit_x0 else []
     while iterations < max_iter:
@@ -139,17 +139,17 @@ def lm(
         fresh = False
         if decrease <= max(ftol * max(cost, 1e-300), atol) or step_small:
             converged = True
-            stopped_small = True
+            stopped_small, last_decrease = True, decrease
             break
         r, jac = problem.jacobian(
             theta, st.delay, st.obs, x0, fd_steps(theta, lower, upper, fd_step), fit_x0, fit_params
         )
         fresh = True
     keep = fresh and fit_params and p == p_all
-    # A final step that lowered ½χ² by under `atol` moved the parameters by about sqrt(2 atol) standard errors or
-    # less (0.14 at COST_ATOL; not offered for looser solves): the Jacobian one iterate back describes the
-    # estimate to ~1e-5 relative in its standard errors, so the statistics need not roll out a Jacobian again.
-    near = stopped_small and fit_params and p == p_all and atol <= COST_ATOL
+    # A final Gauss–Newton step that lowered ½χ² by d moved the unknowns by about sqrt(2 d) standard errors; for
+    # d <= COST_ATOL that is under 0.14, and the Jacobian one iterate back describes the estimate to ~1e-5
+    # relative in its standard errors, so the statistics need not roll out a Jacobian again.
+    near = stopped_small and fit_params and p == p_all and last_decrease <= COST_ATOL
     return State(
         theta,
         x0,
