@@ -31,6 +31,7 @@ Usage:
     python benchmarks/bench_sysid_arms.py --fits 2 --arms 1 # smoke test
     python benchmarks/bench_sysid_arms.py --fits 10 --arm 1 --no-manipulator  # only the 6-DoF servo arm
     python benchmarks/bench_sysid_arms.py --fits 30 --workers 2 --save /tmp/mc.npz  # 2 processes, keep every run
+    python benchmarks/bench_sysid_arms.py --time-manipulator 0,4,5  # only time the manipulator fit on 3 logs
 """
 
 from __future__ import annotations
@@ -104,8 +105,11 @@ def _crlb(
     """(2, P): CRLB SDs with the fit's segments, and with whole episodes (one initial state per episode)."""
     noise = _known_noise(truth_model)
     noise.update({k: v for k, v in result.noise_std.items() if k not in noise})  # sensors: as fitted
-    out = []
+    out: list[np.ndarray] = []
     for horizon in (result.quality.horizon or None, None):
+        if out and horizon is None and result.quality.horizon == 0:
+            out.append(out[0])  # the fit used whole episodes: the two bounds are one
+            continue
         at_truth = fit(
             log,
             truth_model,
@@ -199,6 +203,40 @@ def manipulator_run(run: int) -> Run:
     """Monte Carlo run ``run`` of the manipulator case."""
     nominal, truth_model, truth = manipulator_truth()
     return _timed_fit(manipulator_log(truth_model, run), nominal, MANIPULATOR_PARAMS, truth_model, truth)
+
+
+def time_manipulator(runs: list[int]) -> None:
+    """Times the default manipulator fit alone on the logs of ``runs``: wall, CPU, physics steps rolled out.
+
+    The step count (every row of every ``mujoco.rollout`` call the fit makes, times its physics steps) is the
+    load-independent cost; wall and CPU seconds depend on what else runs on the box.
+    """
+    from sysid._problem import Problem
+
+    steps = [0]
+    original = Problem.rollout
+
+    def counting(self: Problem, models: list, states: np.ndarray, controls: np.ndarray) -> tuple:
+        steps[0] += states.shape[0] * self.L * self.n_sub
+        return original(self, models, states, controls)
+
+    Problem.rollout = counting  # type: ignore[method-assign]
+    nominal, truth_model, _ = manipulator_truth()
+    try:
+        for run in runs:
+            log = manipulator_log(truth_model, run)
+            steps[0] = 0
+            wall, cpu = time.perf_counter(), time.process_time()
+            result = fit(log, nominal, MANIPULATOR_PARAMS, progress=False)
+            wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+            print(
+                f"manipulator run {run} (seed {500 + run}): wall {wall:.2f} s, CPU {cpu:.2f} s, physics steps "
+                f"{steps[0]}, load {os.getloadavg()[0]:.1f}, estimates {result.estimates.tolist()}, "
+                f"stderr {result.stderr.tolist()}",
+                flush=True,
+            )
+    finally:
+        Problem.rollout = original  # type: ignore[method-assign]
 
 
 def _call(job: tuple[str, int, int]) -> Run:
@@ -332,7 +370,20 @@ def main() -> None:
     parser.add_argument("--no-manipulator", action="store_true")
     parser.add_argument("--workers", type=int, default=1, help="processes running fits side by side")
     parser.add_argument("--save", default=None, help="write every run's estimates and intervals to this .npz")
+    parser.add_argument(
+        "--time-manipulator",
+        default=None,
+        metavar="RUNS",
+        help="only time the manipulator fit on these comma-separated runs (e.g. 0,4,5) and exit",
+    )
     args = parser.parse_args()
+    if args.time_manipulator is not None:
+        try:
+            chosen_runs = [int(r) for r in args.time_manipulator.split(",")]
+        except ValueError:
+            parser.error(f"--time-manipulator must be comma-separated run numbers. Received {args.time_manipulator!r}.")
+        time_manipulator(chosen_runs)
+        return
     if args.fits < 1 or args.workers < 1:
         parser.error(f"--fits and --workers must be >= 1. Received {args.fits} and {args.workers}.")
     if args.arm is not None and not 0 <= args.arm < len(ARMS):
