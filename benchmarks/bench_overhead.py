@@ -25,9 +25,14 @@ Measures in one run, side by side:
    manipulator a second stack uses ``ActionLatency(steps=5)``, which lands mid control step and
    makes every step run in two physics segments.
 
+4. P1 of issue 15 (:mod:`bench_p1`): the same full stack as two wrapper layers (as ``wrap`` built it before) and
+   as one fused layer, each over the raw env, side by side in CPU time; on manipulator also over dm-control's own
+   task (before its cached-index fast path).
+
 Usage:
     .venv/bin/python benchmarks/bench_overhead.py            # full run
     .venv/bin/python benchmarks/bench_overhead.py --quick    # smoke test (seconds)
+    nice -n 10 .venv/bin/python benchmarks/bench_overhead.py --p1-only   # section [4] only
 
 The last line printed is ``RESULT ...`` with the ratios and the resample cost against the goals
 (step ratio >= 0.97, resample <= 50 µs).
@@ -110,12 +115,18 @@ def cpu_model() -> str:
     return platform.processor() or "unknown"
 
 
-def time_steps(env: Any, actions: np.ndarray, steps: int, before_reset: Callable[[int], None] | None = None) -> float:
+def time_steps(
+    env: Any,
+    actions: np.ndarray,
+    steps: int,
+    before_reset: Callable[[int], None] | None = None,
+    clock: Callable[[], float] = time.perf_counter,
+) -> float:
     """Steps/s of ``env`` over ``steps`` steps; resets (``reset(seed=k)`` for episode k) are not timed.
 
-    ``before_reset(k)`` runs (untimed) before each reset, for the raw+params arm.
+    ``before_reset(k)`` runs (untimed) before each reset, for the raw+params arm; ``clock`` is wall time by default
+    (``time.process_time`` for CPU time).
     """
-    clock = time.perf_counter
     n_actions = len(actions)
 
     def reset(episode: int) -> None:
@@ -285,10 +296,17 @@ def main() -> None:
     parser.add_argument("--tasks", nargs="+", default=list(DEFAULT_TASKS), help="dm-control suite tasks")
     parser.add_argument("--resample-iters", type=int, default=5000, help="resamples timed per repeat")
     parser.add_argument("--quick", action="store_true", help="tiny run to check the script works")
+    parser.add_argument(
+        "--p1-only", action="store_true", help="only section [4], P1 of issue 15 (two layers vs one fused layer)"
+    )
+    parser.add_argument("--p1-steps", type=int, default=10000, help="section [4]: timed steps per arm per repeat")
     args = parser.parse_args()
     steps, repeats, iters, warmup = args.steps, args.repeats, args.resample_iters, 2000
     if args.quick:
         steps, repeats, iters, warmup = 1000, 2, 200, 100
+    if args.p1_only:
+        _section_p1(args.tasks, 500 if args.quick else args.p1_steps, repeats, 100 if args.quick else 1000)
+        return
 
     print(f"bench_overhead: python {platform.python_version()}, mujoco {mujoco.__version__}, numpy {np.__version__}")
     print(f"machine: {os.cpu_count()} CPUs, {cpu_model()}")
@@ -372,6 +390,16 @@ def main() -> None:
         f"RESULT_STACK stack_ratio({stack_text}) wrappers_only({stack_wrapper}) mid_step_latency({mid_text}) "
         f"(goals: {', '.join(f'{n}>={g}' for n, g in STACK_GOALS.items())}) {'PASS' if ok_stack else 'MISS'}"
     )
+    _section_p1(args.tasks, steps if args.quick else args.p1_steps, repeats, warmup)
+
+
+def _section_p1(tasks: list[str], steps: int, repeats: int, warmup: int) -> None:
+    """Section [4]: P1 of issue 15, the full stack over raw with two layers and with one fused layer
+    (``bench_p1.py``; CPU time)."""
+    from bench_p1 import bench_p1, report
+
+    print("\n[4] P1 (issue 15): full stack over raw, two layers (before) vs one fused layer (after), CPU time")
+    report(bench_p1(tasks, steps, repeats, warmup))
 
 
 if __name__ == "__main__":

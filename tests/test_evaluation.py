@@ -231,7 +231,7 @@ def test_release_restores_the_base_env() -> None:
     env = s2r.wrap(base, s2r.Damping(scale=s2r.Uniform(2.0, 3.0)), s2r.ObservationLatency(steps=1), seed=0)
     env.reset(seed=0)
     assert not np.array_equal(model.dof_damping, nominal_damping)
-    assert env.release().release() is base
+    assert env.release() is base  # one fused layer (physics and signals) since issue 15: one release
     np.testing.assert_array_equal(model.dof_damping, nominal_damping)
     obs, _ = base.reset(seed=0)
     assert base.step(np.zeros(3, dtype=np.float32))[0].shape == obs.shape

@@ -1,0 +1,159 @@
+"""P1 of issue 15: the single-env full stack over the raw env, before (two wrapper layers) and after (one fused layer).
+
+Section [4] of ``bench_overhead.py`` (also runnable alone). Per task, these arms step side by side, in an order that
+rotates and flips every repeat, timed in CPU time (``time.process_time``; the box is shared), resets untimed:
+
+* ``raw``: ``s2r.make(task)``.
+* ``two layers``: ``wrap(wrap(make(task), *physics, seed=0), *signals, seed=0)``, the stack as ``wrap`` built it
+  before issue 15 (CorruptSignals around RandomizePhysics).
+* ``fused``: ``wrap(make(task), *physics, *signals, seed=0)``, one RandomizeAndCorrupt layer (bitwise the same
+  outputs as the two layers, tests/test_fused.py).
+* manipulator only, the env as it was before its fast path: ``dmc raw`` is the adapter around dm-control's own
+  ``suite.load`` (observation and reward through the named indexer), ``dmc two layers`` the two-layer stack around
+  it. ``before`` = dmc two layers / dmc raw is the figure of the issue (0.91-0.93).
+
+The stack is section [3]'s: physics DR at reset plus obs noise, action noise, ``ObservationLatency(steps=3)`` and
+``ActionLatency(seconds=0.02)``. Ratios are medians of per-repeat paired ratios (range in brackets).
+
+Usage:
+    .venv/bin/python benchmarks/bench_p1.py [--steps N] [--repeats R] [--tasks reacher-easy manipulator-bring_ball]
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import statistics
+import time
+from typing import Any
+
+import mujoco
+import numpy as np
+
+import sim2real as s2r
+
+P1_GOALS = {"reacher-easy": 0.85, "manipulator-bring_ball": 0.97}
+DEFAULT_TASKS = ("reacher-easy", "manipulator-bring_ball")
+
+
+def _dm_control_env(name: str) -> Any:
+    from dm_control import suite
+
+    from sim2real.adapters import DmEnvToGym
+
+    domain, task = name.split("-", 1)
+    return DmEnvToGym(suite.load(domain, task))
+
+
+def arms_for(name: str) -> dict[str, Any]:
+    """The arms of one task (see the module docstring)."""
+    from bench_overhead import make_signal_models, make_stack_physics, task_id
+
+    tid = task_id(name)
+    arms: dict[str, Any] = {
+        "raw": s2r.make(tid),
+        "two layers": s2r.wrap(s2r.wrap(s2r.make(tid), *make_stack_physics(), seed=0), *make_signal_models(), seed=0),
+        "fused": s2r.wrap(s2r.make(tid), *make_stack_physics(), *make_signal_models(), seed=0),
+    }
+    if name.startswith("manipulator-"):
+        arms["dmc raw"] = _dm_control_env(name)
+        arms["dmc two layers"] = s2r.wrap(
+            s2r.wrap(_dm_control_env(name), *make_stack_physics(), seed=0), *make_signal_models(), seed=0
+        )
+    return arms
+
+
+def _ratio(rates: dict[str, list[float]], num: str, den: str) -> tuple[float, float, float]:
+    pairs = [a / b for a, b in zip(rates[num], rates[den], strict=True)]
+    return statistics.median(pairs), min(pairs), max(pairs)
+
+
+def bench_p1(tasks: list[str], steps: int, repeats: int, warmup: int) -> dict[str, dict[str, Any]]:
+    """CPU-time step rates of every arm, interleaved, and the ratios P1 asks for."""
+    from bench_overhead import time_steps
+
+    out: dict[str, dict[str, Any]] = {}
+    for name in tasks:
+        arms = arms_for(name)
+        space = arms["raw"].action_space
+        actions = np.random.default_rng(12345).uniform(space.low, space.high, (4096, *space.shape)).astype(space.dtype)
+        for env in arms.values():
+            time_steps(env, actions, warmup, clock=time.process_time)
+        names = list(arms)
+        rates: dict[str, list[float]] = {arm: [] for arm in names}
+        for rep in range(repeats):
+            order = names[rep % len(names) :] + names[: rep % len(names)]
+            if rep % 2:
+                order.reverse()
+            for arm in order:
+                rates[arm].append(time_steps(arms[arm], actions, steps, clock=time.process_time))
+            print(
+                f"  {name:<24} repeat {rep + 1}/{repeats}: "
+                + "  ".join(f"{arm} {1e6 / rates[arm][-1]:6.1f} µs" for arm in names)
+                + f"  two/raw {rates['two layers'][-1] / rates['raw'][-1]:.3f}"
+                + f"  fused/raw {rates['fused'][-1] / rates['raw'][-1]:.3f}",
+                flush=True,
+            )
+        result: dict[str, Any] = {"us": {arm: 1e6 / statistics.median(v) for arm, v in rates.items()}}
+        result["two/raw"] = _ratio(rates, "two layers", "raw")
+        result["fused/raw"] = _ratio(rates, "fused", "raw")
+        result["fused/two"] = _ratio(rates, "fused", "two layers")
+        if "dmc raw" in rates:
+            result["before"] = _ratio(rates, "dmc two layers", "dmc raw")
+            result["fast raw/dmc raw"] = _ratio(rates, "raw", "dmc raw")
+            result["fused/dmc raw"] = _ratio(rates, "fused", "dmc raw")
+        out[name] = result
+        for env in arms.values():
+            env.close()
+    return out
+
+
+def _fmt(r: tuple[float, float, float]) -> str:
+    return f"{r[0]:.3f} [{r[1]:.3f}-{r[2]:.3f}]"
+
+
+def report(results: dict[str, dict[str, Any]]) -> None:
+    """Prints the P1 table and the ``RESULT_P1`` line."""
+    print(f"\n{'task':<26}{'arm':<16}{'µs/step (CPU, median)':>22}")
+    for name, r in results.items():
+        for arm, us in r["us"].items():
+            print(f"{name:<26}{arm:<16}{us:>22.1f}")
+    print(f"\n{'task':<26}{'before: two/raw':>24}{'after: fused/raw':>24}{'fused/two':>24}{'goal':>6}")
+    verdicts = []
+    for name, r in results.items():
+        goal = P1_GOALS.get(name, 0.97)
+        print(f"{name:<26}{_fmt(r['two/raw']):>24}{_fmt(r['fused/raw']):>24}{_fmt(r['fused/two']):>24}{goal:>6.2f}")
+        verdicts.append(f"{name} fused/raw={r['fused/raw'][0]:.3f} two/raw={r['two/raw'][0]:.3f}")
+        if "before" in r:
+            print(
+                f"{'  (manipulator, dm-control named-indexer task)':<26}\n"
+                f"    before its fast path: dmc two layers / dmc raw {_fmt(r['before'])}; "
+                f"fast raw / dmc raw {_fmt(r['fast raw/dmc raw'])} (speed-up of the raw step); "
+                f"fused / dmc raw {_fmt(r['fused/dmc raw'])}"
+            )
+            verdicts.append(f"{name} fused/dmc_raw={r['fused/dmc raw'][0]:.3f} before={r['before'][0]:.3f}")
+    met = all(r["fused/raw"][0] >= P1_GOALS.get(n, 0.97) for n, r in results.items())
+    print(
+        "(ratios: median of per-repeat paired ratios of steps/s, [min-max]; before = two layers, after = one fused "
+        "layer; goal on fused/raw)"
+    )
+    goals = ", ".join(f"{n}>={g}" for n, g in P1_GOALS.items())
+    print(f"RESULT_P1 {' '.join(verdicts)} (goals fused/raw: {goals}) {'PASS' if met else 'MISS'}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--steps", type=int, default=10000, help="timed steps per arm per repeat")
+    parser.add_argument("--repeats", type=int, default=6, help="repeats (medians of paired ratios are reported)")
+    parser.add_argument("--tasks", nargs="+", default=list(DEFAULT_TASKS), help="dm-control suite tasks")
+    parser.add_argument("--quick", action="store_true", help="tiny run to check the script works")
+    args = parser.parse_args()
+    steps, repeats, warmup = (500, 2, 100) if args.quick else (args.steps, args.repeats, 1000)
+    print(f"bench_p1: python {platform.python_version()}, mujoco {mujoco.__version__}, numpy {np.__version__}")
+    print(f"steps={steps} repeats={repeats} tasks={args.tasks} clock=process_time (CPU)")
+    print("\n[4] P1 (issue 15): full stack over raw, two layers (before) vs one fused layer (after)")
+    report(bench_p1(args.tasks, steps, repeats, warmup))
+
+
+if __name__ == "__main__":
+    main()
