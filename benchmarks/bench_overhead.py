@@ -300,12 +300,15 @@ def main() -> None:
         "--p1-only", action="store_true", help="only section [4], P1 of issue 15 (two layers vs one fused layer)"
     )
     parser.add_argument("--p1-steps", type=int, default=10000, help="section [4]: timed steps per arm per repeat")
+    parser.add_argument("--p1-chunk", type=int, default=0, help="section [4]: interleave the arms every N steps")
     args = parser.parse_args()
     steps, repeats, iters, warmup = args.steps, args.repeats, args.resample_iters, 2000
     if args.quick:
         steps, repeats, iters, warmup = 1000, 2, 200, 100
     if args.p1_only:
-        _section_p1(args.tasks, 500 if args.quick else args.p1_steps, repeats, 100 if args.quick else 1000)
+        _section_p1(
+            args.tasks, 500 if args.quick else args.p1_steps, repeats, 100 if args.quick else 1000, args.p1_chunk
+        )
         return
 
     print(f"bench_overhead: python {platform.python_version()}, mujoco {mujoco.__version__}, numpy {np.__version__}")
@@ -390,16 +393,16 @@ def main() -> None:
         f"RESULT_STACK stack_ratio({stack_text}) wrappers_only({stack_wrapper}) mid_step_latency({mid_text}) "
         f"(goals: {', '.join(f'{n}>={g}' for n, g in STACK_GOALS.items())}) {'PASS' if ok_stack else 'MISS'}"
     )
-    _section_p1(args.tasks, steps if args.quick else args.p1_steps, repeats, warmup)
+    _section_p1(args.tasks, steps if args.quick else args.p1_steps, repeats, warmup, args.p1_chunk)
 
 
-def _section_p1(tasks: list[str], steps: int, repeats: int, warmup: int) -> None:
+def _section_p1(tasks: list[str], steps: int, repeats: int, warmup: int, chunk: int = 0) -> None:
     """Section [4]: P1 of issue 15, the full stack over raw with two layers and with one fused layer
     (``bench_p1.py``; CPU time)."""
     from bench_p1 import bench_p1, report
 
     print("\n[4] P1 (issue 15): full stack over raw, two layers (before) vs one fused layer (after), CPU time")
-    report(bench_p1(tasks, steps, repeats, warmup))
+    report(bench_p1(tasks, steps, repeats, warmup, chunk))
 
 
 if __name__ == "__main__":

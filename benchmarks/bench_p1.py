@@ -15,8 +15,12 @@ rotates and flips every repeat, timed in CPU time (``time.process_time``; the bo
 The stack is section [3]'s: physics DR at reset plus obs noise, action noise, ``ObservationLatency(steps=3)`` and
 ``ActionLatency(seconds=0.02)``. Ratios are medians of per-repeat paired ratios (range in brackets).
 
+With ``--chunk C`` the arms take turns every ``C`` steps (``steps // C`` rounds per repeat, order rotating and
+flipping every round), so load changes slower than one round hit every arm alike: on a shared, loaded box this
+pairs the arms far more tightly than one block per arm and repeat.
+
 Usage:
-    .venv/bin/python benchmarks/bench_p1.py [--steps N] [--repeats R] [--tasks reacher-easy manipulator-bring_ball]
+    .venv/bin/python benchmarks/bench_p1.py [--steps N] [--repeats R] [--chunk C] [--tasks reacher-easy ...]
 """
 
 from __future__ import annotations
@@ -63,13 +67,73 @@ def arms_for(name: str) -> dict[str, Any]:
     return arms
 
 
+class _Stepper:
+    """One arm stepping its own episodes across calls: :meth:`run` times ``n`` steps in CPU time, resets untimed
+    (episode ``k`` starts with ``reset(seed=k)``, as in ``time_steps``)."""
+
+    def __init__(self, env: Any, actions: np.ndarray) -> None:
+        self.env, self.actions = env, actions
+        self.episode = 0
+        self.k = 0
+        env.reset(seed=0)
+
+    def run(self, n: int) -> float:
+        env, actions, clock = self.env, self.actions, time.process_time
+        elapsed = 0.0
+        done = 0
+        while done < n:
+            start = clock()
+            ended = False
+            while done < n:
+                _, _, terminated, truncated, _ = env.step(actions[self.k % len(actions)])
+                self.k += 1
+                done += 1
+                if terminated or truncated:
+                    ended = True
+                    break
+            elapsed += clock() - start
+            if ended:
+                self.episode += 1
+                env.reset(seed=self.episode)
+        return elapsed
+
+
+def _interleaved(
+    arms: dict[str, Any], actions: np.ndarray, chunk: int, rounds: int, repeats: int
+) -> dict[str, list[float]]:
+    """Steps/s per arm and repeat, each repeat ``rounds`` rounds of ``chunk`` steps per arm in rotating order: load
+    changes slower than one round hit every arm alike."""
+    steppers = {arm: _Stepper(env, actions) for arm, env in arms.items()}
+    names = list(arms)
+    rates: dict[str, list[float]] = {arm: [] for arm in names}
+    for rep in range(repeats):
+        spent = dict.fromkeys(names, 0.0)
+        for r in range(rounds):
+            order = names[r % len(names) :] + names[: r % len(names)]
+            if r % 2:
+                order.reverse()
+            for arm in order:
+                spent[arm] += steppers[arm].run(chunk)
+        for arm in names:
+            rates[arm].append(chunk * rounds / spent[arm])
+        print(
+            f"  repeat {rep + 1}/{repeats}: "
+            + "  ".join(f"{arm} {1e6 / rates[arm][-1]:6.1f} µs" for arm in names)
+            + f"  two/raw {rates['two layers'][-1] / rates['raw'][-1]:.3f}"
+            + f"  fused/raw {rates['fused'][-1] / rates['raw'][-1]:.3f}",
+            flush=True,
+        )
+    return rates
+
+
 def _ratio(rates: dict[str, list[float]], num: str, den: str) -> tuple[float, float, float]:
     pairs = [a / b for a, b in zip(rates[num], rates[den], strict=True)]
     return statistics.median(pairs), min(pairs), max(pairs)
 
 
-def bench_p1(tasks: list[str], steps: int, repeats: int, warmup: int) -> dict[str, dict[str, Any]]:
-    """CPU-time step rates of every arm, interleaved, and the ratios P1 asks for."""
+def bench_p1(tasks: list[str], steps: int, repeats: int, warmup: int, chunk: int = 0) -> dict[str, dict[str, Any]]:
+    """CPU-time step rates of every arm, interleaved, and the ratios P1 asks for; ``chunk`` > 0 interleaves the arms
+    every ``chunk`` steps (``steps // chunk`` rounds per repeat) instead of every ``steps``."""
     from bench_overhead import time_steps
 
     out: dict[str, dict[str, Any]] = {}
@@ -80,6 +144,15 @@ def bench_p1(tasks: list[str], steps: int, repeats: int, warmup: int) -> dict[st
         for env in arms.values():
             time_steps(env, actions, warmup, clock=time.process_time)
         names = list(arms)
+        if chunk > 0:
+            print(
+                f"  {name}: {len(names)} arms interleaved every {chunk} steps, {max(1, steps // chunk)} rounds/repeat"
+            )
+            rates = _interleaved(arms, actions, chunk, max(1, steps // chunk), repeats)
+            out[name] = _summary(rates)
+            for env in arms.values():
+                env.close()
+            continue
         rates: dict[str, list[float]] = {arm: [] for arm in names}
         for rep in range(repeats):
             order = names[rep % len(names) :] + names[: rep % len(names)]
@@ -94,18 +167,22 @@ def bench_p1(tasks: list[str], steps: int, repeats: int, warmup: int) -> dict[st
                 + f"  fused/raw {rates['fused'][-1] / rates['raw'][-1]:.3f}",
                 flush=True,
             )
-        result: dict[str, Any] = {"us": {arm: 1e6 / statistics.median(v) for arm, v in rates.items()}}
-        result["two/raw"] = _ratio(rates, "two layers", "raw")
-        result["fused/raw"] = _ratio(rates, "fused", "raw")
-        result["fused/two"] = _ratio(rates, "fused", "two layers")
-        if "dmc raw" in rates:
-            result["before"] = _ratio(rates, "dmc two layers", "dmc raw")
-            result["fast raw/dmc raw"] = _ratio(rates, "raw", "dmc raw")
-            result["fused/dmc raw"] = _ratio(rates, "fused", "dmc raw")
-        out[name] = result
+        out[name] = _summary(rates)
         for env in arms.values():
             env.close()
     return out
+
+
+def _summary(rates: dict[str, list[float]]) -> dict[str, Any]:
+    result: dict[str, Any] = {"us": {arm: 1e6 / statistics.median(v) for arm, v in rates.items()}}
+    result["two/raw"] = _ratio(rates, "two layers", "raw")
+    result["fused/raw"] = _ratio(rates, "fused", "raw")
+    result["fused/two"] = _ratio(rates, "fused", "two layers")
+    if "dmc raw" in rates:
+        result["before"] = _ratio(rates, "dmc two layers", "dmc raw")
+        result["fast raw/dmc raw"] = _ratio(rates, "raw", "dmc raw")
+        result["fused/dmc raw"] = _ratio(rates, "fused", "dmc raw")
+    return result
 
 
 def _fmt(r: tuple[float, float, float]) -> str:
@@ -146,13 +223,14 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=10000, help="timed steps per arm per repeat")
     parser.add_argument("--repeats", type=int, default=6, help="repeats (medians of paired ratios are reported)")
     parser.add_argument("--tasks", nargs="+", default=list(DEFAULT_TASKS), help="dm-control suite tasks")
+    parser.add_argument("--chunk", type=int, default=0, help="interleave the arms every CHUNK steps (0: per repeat)")
     parser.add_argument("--quick", action="store_true", help="tiny run to check the script works")
     args = parser.parse_args()
     steps, repeats, warmup = (500, 2, 100) if args.quick else (args.steps, args.repeats, 1000)
     print(f"bench_p1: python {platform.python_version()}, mujoco {mujoco.__version__}, numpy {np.__version__}")
-    print(f"steps={steps} repeats={repeats} tasks={args.tasks} clock=process_time (CPU)")
+    print(f"steps={steps} repeats={repeats} chunk={args.chunk} tasks={args.tasks} clock=process_time (CPU)")
     print("\n[4] P1 (issue 15): full stack over raw, two layers (before) vs one fused layer (after)")
-    report(bench_p1(args.tasks, steps, repeats, warmup))
+    report(bench_p1(args.tasks, steps, repeats, warmup, args.chunk))
 
 
 if __name__ == "__main__":
