@@ -19,8 +19,12 @@ With ``--chunk C`` the arms take turns every ``C`` steps (``steps // C`` rounds 
 flipping every round), so load changes slower than one round hit every arm alike: on a shared, loaded box this
 pairs the arms far more tightly than one block per arm and repeat.
 
+``--torchrl`` measures the TorchRL side instead: ``GymWrapper(make(task))`` raw, with ``Compose`` of the two
+transforms, and with the one fused transform, ``env.rollout(chunk)`` in turns.
+
 Usage:
     .venv/bin/python benchmarks/bench_p1.py [--steps N] [--repeats R] [--chunk C] [--tasks reacher-easy ...]
+    .venv/bin/python benchmarks/bench_p1.py --torchrl --steps 3000 --chunk 100 --repeats 5 --tasks reacher-easy
 """
 
 from __future__ import annotations
@@ -218,6 +222,61 @@ def report(results: dict[str, dict[str, Any]]) -> None:
     print(f"RESULT_P1 {' '.join(verdicts)} (goals fused/raw: {goals}) {'PASS' if met else 'MISS'}")
 
 
+def bench_torchrl(name: str, chunk: int, rounds: int, repeats: int) -> dict[str, tuple[float, float, float]]:
+    """TorchRL: ``GymWrapper(make(task))`` raw, with the two transforms (``Compose``) and with the fused one, each
+    stepping ``env.rollout(chunk)`` in turns (random actions from the spec), CPU time; returns the paired ratios."""
+    import torch
+    from bench_overhead import make_signal_models, make_stack_physics, task_id
+    from torchrl.envs import Compose, GymWrapper, TransformedEnv
+
+    from sim2real.wrappers import CorruptSignalsTransform, RandomizePhysicsTransform
+
+    tid = task_id(name)
+    arms: dict[str, Any] = {
+        "raw": GymWrapper(s2r.make(tid)),
+        "two layers": TransformedEnv(
+            GymWrapper(s2r.make(tid)),
+            Compose(
+                RandomizePhysicsTransform(make_stack_physics(), 0), CorruptSignalsTransform(make_signal_models(), 0)
+            ),
+        ),
+        "fused": s2r.wrap(GymWrapper(s2r.make(tid)), *make_stack_physics(), *make_signal_models(), seed=0),
+    }
+    torch.manual_seed(0)
+    names = list(arms)
+    for env in arms.values():
+        env.rollout(chunk, break_when_any_done=False)
+    rates: dict[str, list[float]] = {arm: [] for arm in names}
+    for rep in range(repeats):
+        spent = dict.fromkeys(names, 0.0)
+        for r in range(rounds):
+            order = names[r % len(names) :] + names[: r % len(names)]
+            if r % 2:
+                order.reverse()
+            for arm in order:
+                start = time.process_time()
+                arms[arm].rollout(chunk, break_when_any_done=False)
+                spent[arm] += time.process_time() - start
+        for arm in names:
+            rates[arm].append(chunk * rounds / spent[arm])
+        print(
+            f"  torchrl {name} repeat {rep + 1}/{repeats}: "
+            + "  ".join(f"{arm} {1e6 / rates[arm][-1]:6.1f} µs" for arm in names),
+            flush=True,
+        )
+    for env in arms.values():
+        env.close()
+    out = {
+        "two/raw": _ratio(rates, "two layers", "raw"),
+        "fused/raw": _ratio(rates, "fused", "raw"),
+        "fused/two": _ratio(rates, "fused", "two layers"),
+    }
+    us = "  ".join(f"{arm} {1e6 / statistics.median(v):.1f} µs" for arm, v in rates.items())
+    print(f"torchrl {name}: {us}")
+    print(f"RESULT_P1_TORCHRL {name} " + " ".join(f"{k}={_fmt(v)}" for k, v in out.items()))
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--steps", type=int, default=10000, help="timed steps per arm per repeat")
@@ -225,11 +284,17 @@ def main() -> None:
     parser.add_argument("--tasks", nargs="+", default=list(DEFAULT_TASKS), help="dm-control suite tasks")
     parser.add_argument("--chunk", type=int, default=0, help="interleave the arms every CHUNK steps (0: per repeat)")
     parser.add_argument("--quick", action="store_true", help="tiny run to check the script works")
+    parser.add_argument("--torchrl", action="store_true", help="the TorchRL transforms instead (rollout, CPU time)")
     args = parser.parse_args()
     steps, repeats, warmup = (500, 2, 100) if args.quick else (args.steps, args.repeats, 1000)
     print(f"bench_p1: python {platform.python_version()}, mujoco {mujoco.__version__}, numpy {np.__version__}")
     print(f"steps={steps} repeats={repeats} chunk={args.chunk} tasks={args.tasks} clock=process_time (CPU)")
     print("\n[4] P1 (issue 15): full stack over raw, two layers (before) vs one fused layer (after)")
+    if args.torchrl:
+        chunk = args.chunk or 100
+        for name in args.tasks:
+            bench_torchrl(name, chunk, max(1, steps // chunk), repeats)
+        return
     report(bench_p1(args.tasks, steps, repeats, warmup, args.chunk))
 
 
