@@ -24,6 +24,7 @@ from tensordict import TensorDictBase
 from torchrl.data import Binary, Composite, Unbounded
 from torchrl.envs.transforms import Transform
 
+from noise_models import SampleAndHold
 from randomizers import Effect, PhysicsRandomizer
 from randomizers.seeding import SeedLike
 from sim2real.physics import PhysicsHandle
@@ -331,6 +332,11 @@ class CorruptSignalsTransform(Transform):
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
         clock = self._bound()
         clock.begin_episode()
+        # The corruptor reads the step's time only for sample-and-hold or a latency without one fixed lag.
+        c = self.corruptor
+        self.__dict__["_needs_now"] = c.observation_needs_time and (
+            SampleAndHold in c.timing or c.observation_lag is None
+        )
         if self.corruptor.has_observation:
             self._write(tensordict_reset, self.corruptor.first_observation(self._flat(tensordict_reset)))
         tensordict_reset.set(SIGNAL_PARAMS_KEY, self._params_tensor(tensordict_reset.batch_size))
@@ -354,7 +360,8 @@ class CorruptSignalsTransform(Transform):
         clock = self._bound()
         clock._in_step = False
         if self.corruptor.has_observation:
-            self._write(next_tensordict, self.corruptor.observe(self._flat(next_tensordict), clock.now()))
+            now = clock.now() if self.__dict__.get("_needs_now", True) else 0
+            self._write(next_tensordict, self.corruptor.observe(self._flat(next_tensordict), now))
         next_tensordict.set(SIGNAL_PARAMS_KEY, self._params_tensor(next_tensordict.batch_size))
         return next_tensordict
 
