@@ -201,7 +201,9 @@ class BatchedEnv:
         if self._site >= 0:
             self._gathered["jacobian"] = np.zeros((n, 3, m0.nv))
         self._obs = np.zeros((n, self.kernel.obs_dim), np.float32)  # the task's own (clean) observations
-        # Signal models: each env's outermost wrapper is CorruptSignals, its RandomizePhysics just inside.
+        # Signal models: each env's outermost wrapper corrupts signals - either the fused RandomizeAndCorrupt (whose
+        # `env` is the base env) or CorruptSignals over RandomizePhysics (with ADR). Either way `env.env` gives the
+        # clean observation: a RandomizePhysics' or the dm-control adapter's `_last_obs`, else the task's `_get_obs`.
         self._signals = BatchedSignals(n, self.envs) if hasattr(self.envs[0], "corruptor") else None
         self._physics = [env.env if self._signals is not None else env for env in self.envs]
         # ADR: a world's reset draws its pin through its own ADR layer; the step bypasses that layer, so the episode
@@ -273,7 +275,7 @@ class BatchedEnv:
         for i, s in zip(idx.tolist(), seeds, strict=True):
             obs, info = self.envs[i].reset(seed=s)
             self._out[i] = obs
-            inner = self._physics[i]  # the layer under the signals: its observation is the clean one
+            inner = self._physics[i]  # the layer under the signal models: its observation is the clean one
             clean = getattr(inner, "_last_obs", None)  # RandomizePhysics, the dm-control adapter
             self._obs[i] = inner.unwrapped._get_obs() if clean is None else clean  # a bare gymnasium task
             if self._signals is not None:

@@ -106,7 +106,8 @@ class BatchedSignals:
 
     Args:
         num_envs: worlds N.
-        envs: each world's single env (its outermost wrapper is ``CorruptSignals``).
+        envs: each world's single env (its outermost wrapper holds the ``corruptor``: the fused
+            ``RandomizeAndCorrupt`` or ``CorruptSignals``).
     """
 
     def __init__(self, num_envs: int, envs: Sequence[Any]) -> None:
