@@ -69,12 +69,12 @@ CASES: list[tuple[str, Edit, str]] = [
     (
         "bounds too long",
         _bounds([-1.0] * 3, [1.0] * 3),
-        f" {ARCH} 'module.0.module.1.4.weight' has shape (2, 64), expected (3, 64).",
+        f" {ARCH} 'module.0.module.1.4.weight' has shape (4, 128), expected (6, 128).",
     ),
     (
         "bounds too short",
         _bounds([-1.0], [1.0]),
-        f" {ARCH} 'module.0.module.1.4.weight' has shape (2, 64), expected (1, 64).",
+        f" {ARCH} 'module.0.module.1.4.weight' has shape (4, 128), expected (2, 128).",
     ),
     (
         "bounds empty",
@@ -111,8 +111,8 @@ CASES: list[tuple[str, Edit, str]] = [
     ("algo int", _set("algo", 3), ": `algo` must be a str. Received 3."),
     (
         "algo other",
-        _set("algo", "sac"),
-        " config: `algo` must be 'sac' for SACConfig. Received 'ppo'.",
+        _set("algo", "ppo"),
+        " config: `algo` must be 'ppo' for PPOConfig. Received 'sac'.",
     ),
     ("config list", _set("config", [1, 2]), ": `config` must be a mapping. Received [1, 2]."),
     ("config bad value", _config("lr", -1.0), " config: `lr` must be > 0. Received -1.0."),
@@ -146,9 +146,8 @@ CASES: list[tuple[str, Edit, str]] = [
     ),
     (
         "weight missing",
-        lambda data: data["state_dict"].pop("module.0.module.2.state_independent_scale"),
-        " does not match its architecture: missing weights ['module.0.module.2.state_independent_scale'], "
-        "unexpected weights [].",
+        lambda data: data["state_dict"].pop("module.0.module.1.4.bias"),
+        " does not match its architecture: missing weights ['module.0.module.1.4.bias'], unexpected weights [].",
     ),
     ("missing obs_dim", _del("obs_dim"), " is missing key(s) ['obs_dim']."),
     (
@@ -232,7 +231,7 @@ EVALUATE_CASES = [
         "bounds too long",
         TASK,
         _bounds([-1.0] * 3, [1.0] * 3),
-        f" {ARCH} 'module.0.module.1.4.weight' has shape (2, 64), expected (3, 64).",
+        f" {ARCH} 'module.0.module.1.4.weight' has shape (4, 128), expected (6, 128).",
     ),
     ("missing key", TASK, _del("state_dict"), " is missing key(s) ['state_dict']."),
     (
