@@ -51,7 +51,83 @@ class DmEnvWrapper(dm_env.Environment):
         return getattr(self._env, name)
 
 
-class RandomizePhysicsDmEnv(DmEnvWrapper):
+class PhysicsDmSteps:
+    """The reset and step of a dm_env layer that randomises physics, shared by :class:`RandomizePhysicsDmEnv` and
+    the fused :class:`~sim2real.wrappers.fused.RandomizeAndCorruptDmEnv` (one owner of the divergence and
+    re-application rules). The class using it sets the attributes below."""
+
+    _env: dm_env.Environment
+    randomizer: PhysicsRandomizer
+    _handle: Any
+    _hook: Any
+    _step_effects: bool
+    _last_obs: Any
+    _physics_reset_next: bool
+    diverged: bool
+    reapplied: tuple[str, ...]
+
+    def _physics_reset(self) -> dm_env.TimeStep:
+        """Draws the episode's effects and resets the wrapped env (see :class:`RandomizePhysicsDmEnv`)."""
+        self.randomizer.begin_episode()
+        if self._hook is None:
+            self.randomizer.apply()
+        from dm_control.rl.control import PhysicsError
+
+        try:
+            timestep = self._env.reset()
+        except PhysicsError:
+            # Flagged, not raised (the draws are on current_params); the next step is a truncation.
+            from sim2real.adapters import suite_observation
+
+            try:
+                observation = suite_observation(self._env)
+            except Exception:  # a diverged physics may fail anywhere; the fallback covers it
+                observation = None
+            self._last_obs = observation
+            self._physics_reset_next = False
+            self.diverged = True
+            return dm_env.restart(observation)
+        # The task's reset may overwrite a draw (finger's hinge damping): write it again, keep the state the
+        # task chose, recompute what derives from it (and the observation, for suite tasks).
+        self.reapplied = self.randomizer.reapply_overwritten()
+        if self.reapplied:
+            from sim2real.adapters import suite_observation
+
+            mujoco.mj_forward(self._handle.model, self._handle.data)
+            observation = suite_observation(self._env)
+            if observation is not None:
+                timestep = timestep._replace(observation=observation)
+        self._last_obs = timestep.observation
+        self._physics_reset_next = False
+        self.diverged = False
+        return timestep
+
+    def _physics_step(self, action: Any) -> dm_env.TimeStep:
+        """Steps the wrapped env, ending the episode with a truncation on a divergence."""
+        from dm_control.rl.control import PhysicsError
+
+        if self._physics_reset_next:
+            return self._physics_reset()
+        if self.diverged:  # the reset diverged: end the episode without stepping
+            self._physics_reset_next = True
+            return dm_env.truncation(0.0, self._last_obs)
+        if self._step_effects:
+            self.randomizer.step()
+        try:
+            timestep = self._env.step(action)
+            failed = self._handle.diverged()
+        except PhysicsError:
+            failed = True
+        if failed:
+            self.diverged = True
+            self._physics_reset_next = True
+            return dm_env.truncation(0.0, self._last_obs)
+        self._last_obs = timestep.observation
+        self._physics_reset_next = timestep.last()
+        return timestep
+
+
+class RandomizePhysicsDmEnv(PhysicsDmSteps, DmEnvWrapper):
     """Draws physics effects at each ``reset()`` of a dm-control environment.
 
     A physics divergence ends the episode with a truncation timestep (``discount=1``, reward 0,
@@ -75,7 +151,7 @@ class RandomizePhysicsDmEnv(DmEnvWrapper):
         self._hook = self._handle.attach(self.randomizer)
         self._step_effects = self.randomizer.has_step_effects
         self._last_obs: Any = None
-        self._reset_next_step = True
+        self._physics_reset_next = True
         self.diverged = False
         self.reapplied: tuple[str, ...] = ()
         self._closed = False
@@ -90,62 +166,10 @@ class RandomizePhysicsDmEnv(DmEnvWrapper):
         return self._env.physics
 
     def reset(self) -> dm_env.TimeStep:
-        self.randomizer.begin_episode()
-        if self._hook is None:
-            self.randomizer.apply()
-        from dm_control.rl.control import PhysicsError
-
-        try:
-            timestep = self._env.reset()
-        except PhysicsError:
-            # Flagged, not raised (the draws are on current_params); the next step is a truncation.
-            from sim2real.adapters import suite_observation
-
-            try:
-                observation = suite_observation(self._env)
-            except Exception:  # a diverged physics may fail anywhere; the fallback covers it
-                observation = None
-            self._last_obs = observation
-            self._reset_next_step = False
-            self.diverged = True
-            return dm_env.restart(observation)
-        # The task's reset may overwrite a draw (finger's hinge damping): write it again, keep the state the
-        # task chose, recompute what derives from it (and the observation, for suite tasks).
-        self.reapplied = self.randomizer.reapply_overwritten()
-        if self.reapplied:
-            from sim2real.adapters import suite_observation
-
-            mujoco.mj_forward(self._handle.model, self._handle.data)
-            observation = suite_observation(self._env)
-            if observation is not None:
-                timestep = timestep._replace(observation=observation)
-        self._last_obs = timestep.observation
-        self._reset_next_step = False
-        self.diverged = False
-        return timestep
+        return self._physics_reset()
 
     def step(self, action: Any) -> dm_env.TimeStep:
-        from dm_control.rl.control import PhysicsError
-
-        if self._reset_next_step:
-            return self.reset()
-        if self.diverged:  # the reset diverged: end the episode without stepping
-            self._reset_next_step = True
-            return dm_env.truncation(0.0, self._last_obs)
-        if self._step_effects:
-            self.randomizer.step()
-        try:
-            timestep = self._env.step(action)
-            failed = self._handle.diverged()
-        except PhysicsError:
-            failed = True
-        if failed:
-            self.diverged = True
-            self._reset_next_step = True
-            return dm_env.truncation(0.0, self._last_obs)
-        self._last_obs = timestep.observation
-        self._reset_next_step = timestep.last()
-        return timestep
+        return self._physics_step(action)
 
     def restore_nominal(self) -> None:
         """Writes every touched model field back to its nominal value (bitwise)."""

@@ -37,6 +37,7 @@ from noise_models import SampleAndHold, SignalModel
 from noise_models.timing import elapsed_steps
 from randomizers import Effect, PhysicsRandomizer
 from randomizers.seeding import SeedLike
+from sim2real.wrappers.dm import PhysicsDmSteps
 from sim2real.wrappers.gym import merge_report, observe_again, require_physics
 from sim2real.wrappers.signals import CorruptSignals, CorruptSignalsDmEnv, wrong_action_shape
 
@@ -239,7 +240,7 @@ class RandomizeAndCorrupt(CorruptSignals):
         return env
 
 
-class RandomizeAndCorruptDmEnv(CorruptSignalsDmEnv):
+class RandomizeAndCorruptDmEnv(PhysicsDmSteps, CorruptSignalsDmEnv):
     """:class:`RandomizeAndCorrupt` for dm_env environments (dm-control suite and composer): one layer doing what
     :class:`~sim2real.wrappers.CorruptSignalsDmEnv` around :class:`~sim2real.wrappers.RandomizePhysicsDmEnv`
     does. The draws are on :attr:`current_params` (physics, then signals), ``diverged`` and ``reapplied`` as on
@@ -289,63 +290,6 @@ class RandomizeAndCorruptDmEnv(CorruptSignalsDmEnv):
     @property
     def physics(self) -> Any:
         return self._env.physics
-
-    def _physics_reset(self) -> dm_env.TimeStep:
-        """RandomizePhysicsDmEnv.reset."""
-        self.randomizer.begin_episode()
-        if self._hook is None:
-            self.randomizer.apply()
-        from dm_control.rl.control import PhysicsError
-
-        try:
-            timestep = self._env.reset()
-        except PhysicsError:
-            from sim2real.adapters import suite_observation
-
-            try:
-                observation = suite_observation(self._env)
-            except Exception:  # a diverged physics may fail anywhere; the fallback covers it
-                observation = None
-            self._last_obs = observation
-            self._physics_reset_next = False
-            self.diverged = True
-            return dm_env.restart(observation)
-        self.reapplied = self.randomizer.reapply_overwritten()
-        if self.reapplied:
-            from sim2real.adapters import suite_observation
-
-            mujoco.mj_forward(self._handle.model, self._handle.data)
-            observation = suite_observation(self._env)
-            if observation is not None:
-                timestep = timestep._replace(observation=observation)
-        self._last_obs = timestep.observation
-        self._physics_reset_next = False
-        self.diverged = False
-        return timestep
-
-    def _physics_step(self, action: Any) -> dm_env.TimeStep:
-        """RandomizePhysicsDmEnv.step."""
-        from dm_control.rl.control import PhysicsError
-
-        if self._physics_reset_next:
-            return self._physics_reset()
-        if self.diverged:  # the reset diverged: end the episode without stepping
-            self._physics_reset_next = True
-            return dm_env.truncation(0.0, self._last_obs)
-        if self._step_effects:
-            self.randomizer.step()
-        try:
-            timestep = self._env.step(action)
-            failed = self._handle.diverged()
-        except PhysicsError:
-            failed = True
-        if failed:
-            self.diverged = True
-            self._physics_reset_next = True
-            return dm_env.truncation(0.0, self._last_obs)
-        self._last_obs = timestep.observation
-        self._physics_reset_next = timestep.last()
-        return timestep
 
     def reset(self) -> dm_env.TimeStep:
         self.corruptor.begin_episode()
