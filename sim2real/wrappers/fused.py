@@ -291,32 +291,11 @@ class RandomizeAndCorruptDmEnv(PhysicsDmSteps, CorruptSignalsDmEnv):
     def physics(self) -> Any:
         return self._env.physics
 
-    def reset(self) -> dm_env.TimeStep:
-        self.corruptor.begin_episode()
-        timestep = self._physics_reset()
-        self.clock.begin_episode()
-        self._reset_next_step = False
-        return self._observation(timestep, True)
+    def _inner_reset(self) -> dm_env.TimeStep:
+        return self._physics_reset()
 
-    def step(self, action: Any) -> dm_env.TimeStep:
-        if self._reset_next_step:
-            return self.reset()
-        if self._has_action:
-            action = np.asarray(action, dtype=self.corruptor.action_dtype)
-            if action.shape != self._action_shape:
-                raise ValueError(wrong_action_shape(action.shape, self._action_shape))
-            action = self.corruptor.act(action.reshape(-1)).reshape(self._action_shape)
-        self.clock.begin_step()
-        try:
-            timestep = self._physics_step(action)
-        finally:
-            self.clock._in_step = False
-        if timestep.first():  # the physics layer reset itself after a last step: a new episode of draws
-            self.corruptor.begin_episode()
-            self.clock.begin_episode()
-            return self._observation(timestep, True)
-        self._reset_next_step = timestep.last()
-        return self._observation(timestep, False)
+    def _inner_step(self, action: Any) -> dm_env.TimeStep:
+        return self._physics_step(action)
 
     def restore_nominal(self) -> None:
         """Writes every touched model field back to its nominal value (bitwise)."""

@@ -521,9 +521,17 @@ class CorruptSignalsDmEnv(DmEnvWrapper):
         out = self._codec.unflat(vec, OrderedDict())
         return timestep._replace(observation=out["observation"] if self._single else out)
 
+    def _inner_reset(self) -> dm_env.TimeStep:
+        """The reset of what the signal models wrap (the fused layer resets its physics half here)."""
+        return self._env.reset()
+
+    def _inner_step(self, action: Any) -> dm_env.TimeStep:
+        """The step of what the signal models wrap (the fused layer steps its physics half here)."""
+        return self._env.step(action)
+
     def reset(self) -> dm_env.TimeStep:
         self.corruptor.begin_episode()
-        timestep = self._env.reset()
+        timestep = self._inner_reset()
         self.clock.begin_episode()
         self._reset_next_step = False
         return self._observation(timestep, True)
@@ -538,7 +546,7 @@ class CorruptSignalsDmEnv(DmEnvWrapper):
             action = self.corruptor.act(action.reshape(-1)).reshape(self._action_shape)
         self.clock.begin_step()
         try:
-            timestep = self._env.step(action)
+            timestep = self._inner_step(action)
         finally:
             self.clock._in_step = False
         if timestep.first():  # the env reset itself after a last step: a new episode of draws
