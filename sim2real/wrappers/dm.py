@@ -66,6 +66,14 @@ class PhysicsDmSteps:
     diverged: bool
     reapplied: tuple[str, ...]
 
+    @property
+    def physics(self) -> Any:
+        return self._env.physics
+
+    def restore_nominal(self) -> None:
+        """Writes every touched model field back to its nominal value (bitwise)."""
+        self.randomizer.restore_nominal()
+
     def _physics_reset(self) -> dm_env.TimeStep:
         """Draws the episode's effects and resets the wrapped env (see :class:`RandomizePhysicsDmEnv`)."""
         self.randomizer.begin_episode()
@@ -161,19 +169,11 @@ class RandomizePhysicsDmEnv(PhysicsDmSteps, DmEnvWrapper):
         """Address -> value in use this episode."""
         return self.randomizer.current_params
 
-    @property
-    def physics(self) -> Any:
-        return self._env.physics
-
     def reset(self) -> dm_env.TimeStep:
         return self._physics_reset()
 
     def step(self, action: Any) -> dm_env.TimeStep:
         return self._physics_step(action)
-
-    def restore_nominal(self) -> None:
-        """Writes every touched model field back to its nominal value (bitwise)."""
-        self.randomizer.restore_nominal()
 
     def close(self) -> None:
         if not self._closed:

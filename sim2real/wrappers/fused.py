@@ -287,19 +287,11 @@ class RandomizeAndCorruptDmEnv(PhysicsDmSteps, CorruptSignalsDmEnv):
         merged.update(self.corruptor.current_params)
         return merged
 
-    @property
-    def physics(self) -> Any:
-        return self._env.physics
-
     def _inner_reset(self) -> dm_env.TimeStep:
         return self._physics_reset()
 
     def _inner_step(self, action: Any) -> dm_env.TimeStep:
         return self._physics_step(action)
-
-    def restore_nominal(self) -> None:
-        """Writes every touched model field back to its nominal value (bitwise)."""
-        self.randomizer.restore_nominal()
 
     def close(self) -> None:
         if not self._closed:
