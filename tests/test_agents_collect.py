@@ -66,7 +66,7 @@ def test_choose_collection_falls_back_with_the_reason(source, effects, config, r
     assert str(choose_collection(source, effects, config)) == f"per-env (one TorchRL env): {reason}"
 
 
-def test_env_objects_and_adr_fall_back() -> None:
+def test_env_objects_fall_back_and_adr_is_batched() -> None:
     env = s2r.make(REACHER)
     try:
         chosen = choose_collection(env, [], PPOConfig())
@@ -160,7 +160,7 @@ def test_per_env_path_is_what_it_was_and_reported(batched_run) -> None:
     assert not torch.equal(per_env.policy.state_dict()[first], batched_run.policy.state_dict()[first])
 
 
-def test_adr_training_falls_back_and_keeps_working() -> None:
+def test_adr_training_runs_batched_and_keeps_working() -> None:
     adr = s2r.ADR([s2r.Damping(scale=s2r.Uniform(0.2, 4.0))], delta=0.2, t_low=-1e9, t_high=-1e8, m=1,
                   p_boundary=1.0)  # fmt: skip
     res = train(REACHER, replace(TINY, frames=200), effects=[adr], seed=0, progress=False, logger=None)
