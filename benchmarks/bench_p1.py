@@ -102,6 +102,13 @@ class _Stepper:
         return elapsed
 
 
+def _rotation(names: list[str], r: int) -> list[str]:
+    """The arms' order in round ``r``: rotated by one each round and reversed every other, so no arm always
+    follows the same one."""
+    order = names[r % len(names) :] + names[: r % len(names)]
+    return order[::-1] if r % 2 else order
+
+
 def _interleaved(
     arms: dict[str, Any], actions: np.ndarray, chunk: int, rounds: int, repeats: int
 ) -> dict[str, list[float]]:
@@ -113,10 +120,7 @@ def _interleaved(
     for rep in range(repeats):
         spent = dict.fromkeys(names, 0.0)
         for r in range(rounds):
-            order = names[r % len(names) :] + names[: r % len(names)]
-            if r % 2:
-                order.reverse()
-            for arm in order:
+            for arm in _rotation(names, r):
                 spent[arm] += steppers[arm].run(chunk)
         for arm in names:
             rates[arm].append(chunk * rounds / spent[arm])
@@ -250,10 +254,7 @@ def bench_torchrl(name: str, chunk: int, rounds: int, repeats: int) -> dict[str,
     for rep in range(repeats):
         spent = dict.fromkeys(names, 0.0)
         for r in range(rounds):
-            order = names[r % len(names) :] + names[: r % len(names)]
-            if r % 2:
-                order.reverse()
-            for arm in order:
+            for arm in _rotation(names, r):
                 start = time.process_time()
                 arms[arm].rollout(chunk, break_when_any_done=False)
                 spent[arm] += time.process_time() - start
