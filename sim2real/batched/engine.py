@@ -4,21 +4,24 @@ World ``i`` *is* ``sim2real.wrap(sim2real.make(task), *effects, seed=(seed, i))`
 ``textures=False``, which changes no physics): it is built and reset through
 that single env (so its draws, its reported parameters and the task's own episode randomness are those of the
 single env by construction: no address handling or drawing is repeated here). Only ``step`` bypasses the
-Python env stack: the engine computes all controls at once, advances every world's MuJoCo data with the same C
-calls in the same order as the single env (dm-control's legacy step: ``mj_step2``, ``mj_step`` for further
-substeps, ``mj_step1``; arm-reach: ``mj_step`` over its substeps, ``mj_forward``), copies the state each task
-needs into preallocated ``(N, ...)`` arrays, and computes every world's observation and reward with one numpy
-operation each (:mod:`sim2real.batched.kernels`); noise and observation latency run the same way
-(:mod:`sim2real.batched.signals`). ``ActionLatency`` on the actuator command is applied inside each world's
-physics step as the single env's signal clock applies it (the delayed command from a preallocated ring, in two
-pieces when it arrives mid control step, with the C calls of the single env's split step). ``threads=k`` splits the worlds' C calls over k threads.
+Python env stack: the engine computes all controls at once, then advances every world in one call to MuJoCo's
+own thread-pooled batch (:mod:`sim2real.batched.worlds`: one persistent ``mujoco.batch.Batch``, world ``i``
+simulated on world ``i``'s own ``MjModel`` with its own ``MjData``), with the stages that reproduce the single
+env's C calls bitwise (dm-control's legacy step: ``mj_step2``, ``mj_step`` for further substeps, ``mj_step1``;
+arm-reach: ``mj_step`` over its substeps, ``mj_forward``); every world's observation and reward are one numpy
+operation each over the batch's live ``(N, ...)`` arrays (:mod:`sim2real.batched.kernels`); noise and observation
+latency run the same way (:mod:`sim2real.batched.signals`). ``ActionLatency`` on the actuator command is applied
+inside each world's physics step as the single env's signal clock applies it (the delayed command from a
+preallocated ring; in two batch calls when it arrives mid control step, one pair per distinct split point).
+``threads=k`` runs the batch on k threads (the caller's included); results are bitwise the same at any k.
 
-Why not ``mujoco.rollout`` for the stepping: a rollout restarts each world from ``mjSTATE_FULLPHYSICS``, which
-leaves out the constraint solver's warm start (``qacc_warmstart``, reset to zero), and its outputs are the state
-and the sensors of the *pre*-integration forward pass, not the kinematics of the new state an observation
-reads. Either one breaks bitwise equality with the single env (the first whenever a joint limit or contact is
-active). Each world keeping its own ``MjData`` keeps both; ``benchmarks/bench_eval.py`` measures what it costs
-against the closed-loop rollout limit.
+``mujoco.batch`` vs ``mujoco.rollout``: a rollout restarts each world from ``mjSTATE_FULLPHYSICS``, which leaves
+out the solver's warm start, and returns the sensors of the *pre*-integration forward pass. A persistent batch
+keeps one ``MjData`` per world (warm start and derived fields included), takes the warm start in its state rows,
+and ``step(stage=mjSTAGE_VEL)`` leaves the new state's kinematics current and continues the next step from them
+(dm-control's ``mj_step1`` ... ``mj_step2`` bracket). How a reset world's state is loaded into the batch, and what
+is set again after a model edit, is in :mod:`sim2real.batched.worlds`. A stepped world's state lives in the batch;
+``datas[i]`` copies it into the single env's ``MjData`` when read.
 
 Example:
     >>> import sim2real as s2r
@@ -35,8 +38,8 @@ Example:
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import mujoco
@@ -45,6 +48,7 @@ import numpy as np
 from sim2real.batched.adr import BatchedADR, adr_of
 from sim2real.batched.kernels import KERNELS, Kernel, kernel_for
 from sim2real.batched.signals import BatchedSignals, signals_reason
+from sim2real.batched.worlds import BatchedPhysics
 
 __all__ = ["BatchedEnv", "make_batched", "supports"]
 
@@ -83,6 +87,21 @@ def supports(task: Any, *effects: Any, options: Mapping[str, Any] | None = None)
     return None
 
 
+class _WorldDatas(Sequence[mujoco.MjData]):
+    """``datas[i]``: world ``i``'s ``MjData`` as the single env would hold it (copied out of the batch on read)."""
+
+    def __init__(self, physics: BatchedPhysics) -> None:
+        self._physics = physics
+
+    def __len__(self) -> int:
+        return len(self._physics.datas)
+
+    def __getitem__(self, i: Any) -> Any:
+        if isinstance(i, slice):
+            return [self._physics.data(k) for k in range(len(self))[i]]
+        return self._physics.data(int(i))
+
+
 def _check_count(num_envs: Any) -> int:
     if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
         raise ValueError(f"`num_envs` must be an int >= 1. Received {num_envs!r}.")
@@ -106,8 +125,8 @@ class BatchedEnv:
         end_diverged: False mirrors a task env *without* sim2real's wrappers where that differs: a gymnasium
             env (arm-reach) whose physics diverged goes on from the state MuJoCo reset to, unflagged (evaluation
             steps unrandomised conditions on bare envs). dm-control envs end such episodes either way.
-        threads: threads that step the worlds (each its own share; results do not depend on it). Pays off
-            when a world's control step is long (manipulator: 10 substeps) and cores are free.
+        threads: threads of MuJoCo's batch that steps the worlds, the caller's included (results are bitwise the
+            same at any count). None: ``min(os.cpu_count(), num_envs)``.
         options: keyword arguments for :func:`sim2real.make` (those the task's kernel lists in ``options``).
             Worlds the engine builds itself are headless (``textures=False`` unless given: the engine never
             renders, and without reacher's 11.8 MB skybox a world is built several times faster; the physics,
@@ -117,7 +136,10 @@ class BatchedEnv:
         num_envs: N.
         envs: the single envs behind the worlds (built and reset through them; do not step them).
         models: each world's ``MjModel``.
-        datas: each world's ``MjData``.
+        datas: each world's ``MjData``: ``datas[i]`` copies world ``i``'s whole state out of the batch into its
+            single env's ``MjData`` and returns that (contacts and constraints included).
+        physics: the worlds' :class:`~sim2real.batched.worlds.BatchedPhysics` (MuJoCo's batch, live arrays).
+        threads: threads of the batch.
         params: address -> ``(N,)`` values in use this episode (NaN for an address a world does not draw).
         step_limit: control steps per episode (the task's own limit).
     """
@@ -131,7 +153,7 @@ class BatchedEnv:
         seed: int = 0,
         envs: Sequence[Any] | None = None,
         stream_seeds: Sequence[Any] | None = None,
-        threads: int = 1,
+        threads: int | None = None,
         end_diverged: bool = True,
         **options: Any,
     ) -> None:
@@ -142,7 +164,9 @@ class BatchedEnv:
         n = _check_count(num_envs)
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise ValueError(f"`seed` must be an int >= 0. Received {seed!r}.")
-        if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
+        if threads is not None and (
+            isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1
+        ):
             raise ValueError(f"`threads` must be an int >= 1. Received {threads!r}.")
         reason = supports(task, *effects, options=options)
         if reason is not None:
@@ -165,50 +189,50 @@ class BatchedEnv:
         self._bases = bases
         handles = [find_physics(env) for env in self.envs]
         self.models = [h.model for h in handles]  # type: ignore[union-attr]
-        self.datas = [h.data for h in handles]  # type: ignore[union-attr]
+        # The single envs' MjData: the state a reset leaves, which BatchedPhysics.load reads.
+        self._datas = [h.data for h in handles]  # type: ignore[union-attr]
         kernel = self.kernel
         self._n_sub = kernel.substeps(self.envs[0])
         self.step_limit: float = kernel.step_limit(self.envs[0])
         m0 = self.models[0]
-        if kernel.scheme == "dm_control":
-            legacy = bool(getattr(self.envs[0].unwrapped.dm_env.physics, "legacy_step", True))
-            rk4 = m0.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4
-            # dm-control's step: Euler-type integrators finish the step mj_step1 already began (mj_step2), then
-            # take the remaining substeps whole and end with mj_step1 so the data is in sync with the new state.
-            self._split_step, self._sync_after, self._forward_after = legacy and not rk4, legacy, False
-        else:
-            self._split_step, self._sync_after, self._forward_after = False, False, True
-        self._site = (
+        # dm-control's legacy step (mj_step2 ... mj_step1) unless the physics opts out; arm-reach's "forward".
+        legacy = kernel.scheme != "dm_control" or bool(
+            getattr(self.envs[0].unwrapped.dm_env.physics, "legacy_step", True)
+        )
+        site = (
             -1
             if kernel.jacobian_site is None
             else mujoco.mj_name2id(m0, mujoco.mjtObj.mjOBJ_SITE, kernel.jacobian_site)
         )
-        self._nq, self._nv = m0.nq, m0.nv
-        self._state = np.zeros((n, m0.nq + m0.nv))  # [qpos, qvel] of every world
-        self._ctrl = [d.ctrl for d in self.datas]
-        self._gathered = {f: np.zeros((n, *getattr(self.datas[0], f).shape)) for f in kernel.fields}
-        self._views = {f: [getattr(d, f) for d in self.datas] for f in kernel.fields}
-        # MuJoCo's warning counters, gathered like a field: a step that raises one is how dm-control (any warning,
-        # PhysicsError) and sim2real's gymnasium wrapper (bad qpos/qvel/qacc) see a diverged physics.
-        self._warning_views = [d.warning.number for d in self.datas]
-        self._warnings = np.zeros((n, len(self._warning_views[0])), np.int64)
+        self.physics = BatchedPhysics(
+            self.models,
+            self._datas,
+            self._n_sub,
+            kernel.scheme,
+            legacy=legacy,
+            fields=kernel.fields,
+            jacobian_site=site,
+            threads=min(os.cpu_count() or 1, n) if threads is None else int(threads),
+        )
+        self.threads = self.physics.threads
+        self.datas = _WorldDatas(self.physics)
+        # MuJoCo's warning counters: a step that raises one is how dm-control (any warning, PhysicsError) and
+        # sim2real's gymnasium wrapper (bad qpos/qvel/qacc) see a diverged physics.
         self._watched = (
             slice(None)
             if kernel.diverged_reward == "zero"
             else [int(mujoco.mjtWarning.mjWARN_BADQPOS), int(mujoco.mjtWarning.mjWARN_BADQVEL),
                   int(mujoco.mjtWarning.mjWARN_BADQACC)]
         )  # fmt: skip
-        if self._site >= 0:
-            self._gathered["jacobian"] = np.zeros((n, 3, m0.nv))
         self._obs = np.zeros((n, self.kernel.obs_dim), np.float32)  # the task's own (clean) observations
         # Signal models: each env's outermost wrapper corrupts signals - either the fused RandomizeAndCorrupt (whose
         # `env` is the base env) or CorruptSignals over RandomizePhysics (with ADR). Either way `env.env` gives the
         # clean observation: a RandomizePhysics' or the dm-control adapter's `_last_obs`, else the task's `_get_obs`.
         self._signals = BatchedSignals(n, self.envs) if hasattr(self.envs[0], "corruptor") else None
-        self._physics = [env.env if self._signals is not None else env for env in self.envs]
+        self._inner = [env.env if self._signals is not None else env for env in self.envs]
         # ADR: a world's reset draws its pin through its own ADR layer; the step bypasses that layer, so the episode
         # sums and the reports to the shared controller happen here (sim2real.batched.adr).
-        self._adr = BatchedADR(self._physics, kernel.reports_success) if adr_of(effects) is not None else None
+        self._adr = BatchedADR(self._inner, kernel.reports_success) if adr_of(effects) is not None else None
         self._out = np.zeros((n, self.kernel.obs_dim), np.float32)  # what the policy sees
         self._steps = np.zeros(n, np.int64)
         self._reset_diverged = np.zeros(n, bool)
@@ -217,18 +241,6 @@ class BatchedEnv:
         self.params: dict[str, np.ndarray] = {}
         self._world_params: list[dict[str, float]] = [{} for _ in range(n)]
         self._end_diverged = bool(end_diverged) or kernel.diverged_reward == "zero"
-        self.threads = int(threads)
-        self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="sim2real-batched") if threads > 1 else None
-        # Per world, every copy a step makes, as (destination row, source) views made once: a step then costs
-        # one slice assignment per array and world (the row views and MjData attribute lookups were a third of
-        # the Python time per world).
-        copies = [
-            [(self._state[i, : m0.nq], d.qpos), (self._state[i, m0.nq :], d.qvel)]
-            + [(self._gathered[f][i], self._views[f][i]) for f in kernel.fields]
-            + [(self._warnings[i], self._warning_views[i])]
-            for i, d in enumerate(self.datas)
-        ]
-        self._worlds = [(m, d, c, cp) for m, d, c, cp in zip(self.models, self.datas, self._ctrl, copies, strict=True)]
         # ActionLatency on the actuator command: each world applies its delayed command inside its physics step.
         self._delayed = self._signals is not None and self._signals.action_path == "ctrl"
         self._closed = False
@@ -275,22 +287,18 @@ class BatchedEnv:
         for i, s in zip(idx.tolist(), seeds, strict=True):
             obs, info = self.envs[i].reset(seed=s)
             self._out[i] = obs
-            inner = self._physics[i]  # the layer under the signal models: its observation is the clean one
+            inner = self._inner[i]  # the layer under the signal models: its observation is the clean one
             clean = getattr(inner, "_last_obs", None)  # RandomizePhysics, the dm-control adapter
             self._obs[i] = inner.unwrapped._get_obs() if clean is None else clean  # a bare gymnasium task
             if self._signals is not None:
-                self._signals.reset_world(i, self.envs[i], self._out[i], self.datas[i].ctrl)
+                self._signals.reset_world(i, self.envs[i], self._out[i], self._datas[i].ctrl)
             report = info["sim2real"]
             self._world_params[i] = report["params"]
             self._reset_diverged[i] = self._diverged[i] = bool(report["diverged"]) and self._end_diverged
             self._steps[i] = 0
             if self._adr is not None:
                 self._adr.start(i)
-            m, d = self.models[i], self.datas[i]
-            for destination, source in self._worlds[i][3]:
-                destination[...] = source
-            if self._site >= 0:
-                mujoco.mj_jacSite(m, d, self._gathered["jacobian"][i], None, self._site)
+        self.physics.load(idx)  # the reset worlds' state (and their models' draws) into MuJoCo's batch
         self.kernel.bind(self.models, self.envs)
         keys = sorted({k for p in self._world_params for k in p})
         self.params = {k: np.array([p.get(k, math.nan) for p in self._world_params], np.float64) for k in keys}
@@ -322,23 +330,21 @@ class BatchedEnv:
         stuck = active & self._reset_diverged  # a reset that diverged: the next step ends the episode unstepped
         signalled = active.copy()
         active &= ~self._reset_diverged
-        before = self._warnings[:, self._watched].sum(axis=1)
-        state, gathered, kernel = self._state, self._gathered, self.kernel
-        controls = kernel.controls(actions, state[:, : self._nq], gathered)
-        worlds = np.flatnonzero(active).tolist()
-        pool = self._pool
-        if pool is None or len(worlds) < 2 * self.threads:
-            self._advance(worlds, controls)
-        else:  # MuJoCo releases the GIL inside its calls: each thread steps its own share of the worlds
-            share = -(-len(worlds) // self.threads)
-            list(pool.map(self._advance, [worlds[k : k + share] for k in range(0, len(worlds), share)],
-                          [controls] * self.threads))  # fmt: skip
-        qpos = state[:, : self._nq]
-        qvel = state[:, self._nq :]
+        physics = self.physics
+        warnings = physics.warnings
+        before = warnings[:, self._watched].sum(axis=1)
+        qpos, qvel, gathered, kernel = physics.qpos, physics.qvel, physics.gathered, self.kernel
+        controls = kernel.controls(actions, qpos, gathered)
+        ids = None if active.all() else np.flatnonzero(active).astype(np.int32)
+        if self._delayed:
+            self._step_delayed(np.arange(n, dtype=np.int32) if ids is None else ids, controls)
+        else:
+            physics.step(ids, controls)
         # A warning during the step: MuJoCo reset the world (bad positions, velocities or accelerations) or
-        # ran out of room. dm-control raises PhysicsError there and the adapter ends the episode with reward 0; a gymnasium env's
-        # own step returns what it computes, and RandomizePhysics ends the episode. Both keep the last observation.
-        raised = self._warnings[:, self._watched].sum(axis=1) > before
+        # ran out of room. dm-control raises PhysicsError there and the adapter ends the episode with reward 0; a
+        # gymnasium env's own step returns what it computes, and RandomizePhysics ends the episode. Both keep the
+        # last observation.
+        raised = warnings[:, self._watched].sum(axis=1) > before
         diverged = active & raised if self._end_diverged else np.zeros(n, bool)
         fresh, reward, terminated = kernel.outputs(qpos, qvel, gathered)
         keep = active & ~diverged
@@ -358,97 +364,35 @@ class BatchedEnv:
             self._out = self._obs.copy()
         return self._out.copy(), reward, terminated, truncated, self._diverged & (diverged | stuck)
 
-    def _advance(self, worlds: list[int], controls: np.ndarray) -> None:
-        """One control step of ``worlds``: the task's C calls in its order, then the copies into row ``i``."""
-        split, sync, forward, n_sub, site = (
-            self._split_step,
-            self._sync_after,
-            self._forward_after,
-            self._n_sub,
-            self._site,
-        )
-        jacobian = self._gathered.get("jacobian")
-        table = self._worlds
-        if self._delayed:
-            self._advance_delayed(worlds, controls)
-            worlds = []
-        for i in worlds:
-            m, d, ctrl, copies = table[i]
-            ctrl[...] = controls[i]
-            if split:
-                mujoco.mj_step2(m, d)
-                if n_sub > 1:
-                    mujoco.mj_step(m, d, n_sub - 1)
-            else:
-                mujoco.mj_step(m, d, n_sub)
-            if sync:
-                mujoco.mj_step1(m, d)
-            if forward:
-                mujoco.mj_forward(m, d)
-            for destination, source in copies:
-                destination[...] = source
-            if site >= 0:
-                mujoco.mj_jacSite(m, d, jacobian[i], None, site)  # type: ignore[index]
-
-    def _advance_delayed(self, worlds: list[int], controls: np.ndarray) -> None:
-        """:meth:`_advance` with ActionLatency on the actuator command, as the single env's signal clock applies it.
+    def _step_delayed(self, ids: np.ndarray, controls: np.ndarray) -> None:
+        """One control step of the worlds ``ids`` with ActionLatency on the actuator command, as the single env's
+        signal clock applies it.
 
         World ``i``'s command of control step ``k`` is sent at physics step ``k * n`` and applied from ``k * n + d``
         on (``d = q * n + r`` physics steps, this episode's draw); until then the command at reset holds. With
-        ``r == 0`` a control step runs one command (the one sent ``q`` steps ago) with the task's own C calls; else
-        two pieces, ``r`` substeps of the older command and ``n - r`` of the newer, with the calls the single env's
-        runner makes for a split step (dm-control's legacy step keeps one ``mj_step2`` ... ``mj_step1`` bracket).
+        ``r == 0`` (or before the first delayed command arrives) a control step runs one command, the one sent
+        ``q`` steps ago, as a whole step; else two pieces, ``r`` substeps of the older command and ``n - r`` of the
+        newer (:meth:`~sim2real.batched.worlds.BatchedPhysics.step_split`, one call pair per distinct ``r``).
         """
         signals = self._signals
         assert signals is not None  # _delayed implies signal models
-        split, sync, forward, n_sub, site = (
-            self._split_step,
-            self._sync_after,
-            self._forward_after,
-            self._n_sub,
-            self._site,
-        )
-        jacobian = self._gathered.get("jacobian")
-        table, ring = self._worlds, signals.command_ring
+        ring = signals.command_ring
         size = ring.shape[1]
         # All the worlds' ring writes and reads at once: k = the commands a world sent before this one this episode.
-        idx = np.asarray(worlds, dtype=np.int64)
-        k, q, rests = self._steps[idx], signals.command_lag[idx], signals.command_rest[idx]
-        ring[idx, k % size] = controls[idx]
-        newer = ring[idx, (k - q) % size]  # a slot not yet written this episode holds the reset command
-        older = ring[idx, (k - q - 1) % size]
-        whole = ((rests == 0) | (k < q)).tolist()
-        for j, i in enumerate(worlds):
-            m, d, ctrl, copies = table[i]
-            if whole[j]:  # one command over the whole step
-                ctrl[...] = newer[j]
-                if split:
-                    mujoco.mj_step2(m, d)
-                    if n_sub > 1:
-                        mujoco.mj_step(m, d, n_sub - 1)
-                else:
-                    mujoco.mj_step(m, d, n_sub)
-            else:  # the older command for r substeps, then the one that arrives mid step
-                r = int(rests[j])
-                ctrl[...] = older[j]
-                if split:
-                    mujoco.mj_step2(m, d)
-                    if r > 1:
-                        mujoco.mj_step(m, d, r - 1)
-                else:
-                    mujoco.mj_step(m, d, r)
-                    if sync:
-                        mujoco.mj_step1(m, d)
-                ctrl[...] = newer[j]
-                mujoco.mj_step(m, d, n_sub - r)
-            if sync:
-                mujoco.mj_step1(m, d)
-            if forward:
-                mujoco.mj_forward(m, d)
-            for destination, source in copies:
-                destination[...] = source
-            if site >= 0:
-                mujoco.mj_jacSite(m, d, jacobian[i], None, site)  # type: ignore[index]
+        k, q, rests = self._steps[ids], signals.command_lag[ids], signals.command_rest[ids]
+        ring[ids, k % size] = controls[ids]
+        newer = ring[ids, (k - q) % size]  # a slot not yet written this episode holds the reset command
+        whole = (rests == 0) | (k < q)
+        commands = np.empty_like(controls)
+        commands[ids] = newer
+        self.physics.step(ids[whole], commands)
+        if whole.all():
+            return
+        older = ring[ids, (k - q - 1) % size]
+        split = ~whole
+        for rest in np.unique(rests[split]).tolist():
+            pick = split & (rests == rest)
+            self.physics.step_split(ids[pick], rest, older[pick], newer[pick])
 
     def _check_open(self) -> None:
         if self._closed:
@@ -458,8 +402,9 @@ class BatchedEnv:
         """Closes every world's env, or releases the ``envs`` given (nominal model restored bitwise, still open)."""
         if not self._closed:
             self._closed = True
-            if self._pool is not None:
-                self._pool.shutdown()
+            if not self._owned:  # the given envs keep the state their worlds reached, as if stepped themselves
+                for i in range(self.num_envs):
+                    self.physics.data(i)
             for env, base in zip(self.envs, self._bases, strict=True):
                 if self._owned:
                     env.close()

@@ -1,0 +1,163 @@
+"""The batched worlds' physics on MuJoCo's own thread-pooled batch: :class:`BatchedPhysics`.
+
+One persistent :class:`mujoco.batch.Batch` holds every world: simulation ``i`` runs on world ``i``'s own
+``MjModel`` (``set_models``) and keeps its own ``MjData`` (``persistent=True``), so each world keeps its
+constraint solver's warm start and the derived fields of its last call. A control step is one ``Batch.step``
+call over the stepped worlds (MuJoCo's loop over worlds, in C, on ``threads`` threads); the observation and
+reward kernels read the batch's live ``(N, ...)`` arrays (``bind``) without a per-world copy.
+
+What reproduces the single env's C calls bitwise (checked over 1000-step rollouts of reacher, manipulator and
+arm-reach with joint limits and contacts active, at 1 and 2 threads; ``tests/test_batched*.py`` check it per
+task, effect, noise and latency):
+
+* dm-control's legacy step (``mj_step2``, ``mj_step`` for further substeps, ``mj_step1``) is
+  ``step(nstep=n, stage=mjSTAGE_VEL)``: the VEL stage at the new state is what ``mj_step1`` computes, and a
+  persistent batch continues its next step from those stages, so that step's first substep is ``mj_step2``.
+* arm-reach's ``mj_step`` over its substeps then ``mj_forward`` is ``step(nstep=n, stage=mjSTAGE_ACC)``; its
+  end-effector Jacobian (``mj_jacSite`` after ``mj_forward``) is ``Batch.jac`` of the site's body at the
+  site's position (``jac`` recomputes the same kinematics from the same state).
+* ``ActionLatency``'s mid-step split (``r`` substeps of the older command, then ``n - r`` of the newer) is two
+  calls over the worlds with the same ``r``: ``step(r)`` (its first substep continues from the VEL stage:
+  ``mj_step2``), the newer commands written to ``ctrl``, then ``step(n - r, stage)`` as a whole step ends.
+
+Loading a world after its single env's reset (the env draws and writes the model, runs ``mj_setConst``, its
+task's initial state and ``mj_forward``): ``set_models`` again (the batch reads each model as it was when set),
+``reset(ids, stage=mjSTAGE_NONE)`` (a fresh ``MjData``: zero warning counters, which the divergence check
+compares), the single env's ``mjSTATE_INTEGRATION`` state written into the batch's state rows (time, qpos, qvel,
+act, warm start, ctrl, applied forces, mocap, eq_active, userdata: everything a step reads), then
+``forward(ids, stage)`` with the stage a step ends with, so that the next step continues as the single env's.
+
+Example:
+    >>> import sim2real as s2r
+    >>> from sim2real.batched import make_batched
+    >>> envs = make_batched("dmc/reacher-easy", 2, seed=0, threads=2)
+    >>> obs, _ = envs.reset(seed=0)
+    >>> envs.physics.qpos.shape, envs.physics.threads
+    ((2, 2), 2)
+    >>> envs.close()
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import mujoco
+import numpy as np
+from mujoco import batch as mjbatch
+
+__all__ = ["BatchedPhysics"]
+
+_NONE = int(mujoco.mjtStage.mjSTAGE_NONE)
+_VEL = int(mujoco.mjtStage.mjSTAGE_VEL)
+_ACC = int(mujoco.mjtStage.mjSTAGE_ACC)
+_STATE = mujoco.mjtState.mjSTATE_INTEGRATION
+
+
+class BatchedPhysics:
+    """Every world's MuJoCo simulation in one persistent ``mujoco.batch.Batch`` (see the module docstring).
+
+    Args:
+        models: each world's ``MjModel`` (the single env's, edited in place by its draws).
+        datas: each world's single-env ``MjData`` (the state a reset leaves is read from it).
+        substeps: physics steps per control step.
+        scheme: ``"dm_control"`` or ``"forward"`` (:attr:`sim2real.batched.kernels.Kernel.scheme`).
+        legacy: dm-control's legacy step (``mj_step2`` ... ``mj_step1``); False: plain ``mj_step``.
+        fields: derived ``MjData`` fields the kernel reads (bound as live ``(N, ...)`` arrays).
+        jacobian_site: site id whose translational Jacobian is kept in ``gathered["jacobian"]``, or -1.
+        threads: threads of the batch (the caller's included).
+
+    Attributes:
+        qpos, qvel: live ``(N, nq)``, ``(N, nv)`` views of the state rows.
+        gathered: field -> live ``(N, ...)`` array (read-only), plus ``"jacobian"`` ``(N, 3, nv)`` with a site.
+        warnings: live ``(N, mjNWARNING)`` warning counters.
+        threads: threads of the batch.
+    """
+
+    def __init__(
+        self,
+        models: Sequence[mujoco.MjModel],
+        datas: Sequence[mujoco.MjData],
+        substeps: int,
+        scheme: str,
+        *,
+        legacy: bool = True,
+        fields: Sequence[str] = (),
+        jacobian_site: int = -1,
+        threads: int = 1,
+    ) -> None:
+        self.models, self.datas = list(models), list(datas)
+        m0 = self.models[0]
+        n = len(self.models)
+        self.batch = mjbatch.Batch(m0, n, int(threads), persistent=True)
+        self.batch.set_models(self.models)
+        self.threads = int(self.batch.nthread)
+        self.n_sub = int(substeps)
+        if scheme == "forward":  # mj_step over the substeps, then mj_forward
+            self._final, self._first_piece = _ACC, _NONE
+        elif legacy:  # mj_step2, mj_step(n - 1), mj_step1 (RK4: mj_step(n), mj_step1; the same stages here)
+            rk4 = m0.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4
+            self._final, self._first_piece = _VEL, (_VEL if rk4 else _NONE)
+        else:  # mj_step over the substeps
+            self._final, self._first_piece = _NONE, _NONE
+        # After a load the batch runs the forward stages a step ends with (at least VEL: the single env's reset
+        # ran mj_forward, and recomputing the position and velocity stages gives the same values).
+        self._load_stage = max(self._final, _VEL)
+        b = self.batch
+        self.qpos, self.qvel, self.ctrl = b.bind("qpos"), b.bind("qvel"), b.bind("ctrl")
+        self.gathered: dict[str, np.ndarray] = {f: b.bind(f) for f in fields}
+        self.warnings = b.warning[:, :, 1]
+        self._site = int(jacobian_site)
+        if self._site >= 0:
+            self._site_xpos = b.bind("site_xpos")
+            self._site_body = int(m0.site_bodyid[self._site])
+            self.gathered["jacobian"] = np.zeros((n, 3, m0.nv))
+
+    def load(self, worlds: Sequence[int] | np.ndarray) -> None:
+        """Takes ``worlds``' state from their single envs after a reset (see the module docstring)."""
+        ids = np.asarray(worlds, dtype=np.int32).reshape(-1)
+        if not len(ids):
+            return
+        ids.sort()
+        b = self.batch
+        b.set_models(self.models)
+        b.reset(ids, stage=_NONE)
+        state = b.state
+        for i in ids.tolist():
+            mujoco.mj_getState(self.models[i], self.datas[i], state[i], _STATE)
+        b.forward(ids, stage=self._load_stage)
+        self._jacobian(ids)
+
+    def step(self, ids: np.ndarray | None, controls: np.ndarray) -> None:
+        """One control step of the worlds ``ids`` (sorted int32, or None for all) under ``controls`` (N, nu)."""
+        if ids is None:
+            self.ctrl[...] = controls
+        else:
+            if not len(ids):
+                return
+            self.ctrl[ids] = controls[ids]
+        self.batch.step(ids, self.n_sub, self._final)
+        self._jacobian(ids)
+
+    def step_split(self, ids: np.ndarray, rest: int, older: np.ndarray, newer: np.ndarray) -> None:
+        """One control step of ``ids`` whose delayed command arrives after ``rest`` substeps: ``older`` (one row
+        per id) until then, ``newer`` after."""
+        b = self.batch
+        self.ctrl[ids] = older
+        b.step(ids, rest, self._first_piece)
+        self.ctrl[ids] = newer
+        b.step(ids, self.n_sub - rest, self._final)
+        self._jacobian(ids)
+
+    def data(self, i: int) -> mujoco.MjData:
+        """World ``i``'s whole ``MjData`` (contacts and constraints included), copied into its single env's."""
+        return self.batch.get_data(int(i), self.datas[int(i)])
+
+    def _jacobian(self, ids: np.ndarray | None) -> None:
+        if self._site < 0:
+            return
+        point = self._site_xpos[:, self._site] if ids is None else self._site_xpos[ids, self._site]
+        jacp, _ = self.batch.jac(self._site_body, point, ids)
+        if ids is None:
+            self.gathered["jacobian"][...] = jacp
+        else:
+            self.gathered["jacobian"][ids] = jacp
