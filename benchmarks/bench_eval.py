@@ -251,6 +251,34 @@ def _p4_engine(task: str, num: int, steps: int, threads: int = 1, chosen: Any = 
     return rate, build
 
 
+_ENGINE_SNIPPET = """
+import importlib.util, os, sys, time
+sys.path.insert(0, sys.argv[1])
+os.environ.setdefault("MUJOCO_GL", "egl")
+import sim2real
+assert sim2real.__file__.startswith(sys.argv[1]), sim2real.__file__
+spec = importlib.util.spec_from_file_location("bench_eval_p4", sys.argv[2])
+bench = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(bench)
+if sys.argv[7] == "cpu":
+    bench._clock = time.process_time
+print(bench._p4_engine(sys.argv[3], int(sys.argv[4]), int(sys.argv[5]), int(sys.argv[6]))[0])
+"""
+
+
+def _p4_engine_at(path: str, task: str, num: int, steps: int, threads: int) -> float:
+    """:func:`_p4_engine` in a fresh process importing sim2real from ``path`` (a checkout's root), timed by this
+    run's clock: the engine of another commit side by side with this one's (``--before``)."""
+    import subprocess
+    import sys
+
+    clock = "cpu" if _clock is time.process_time else "wall"
+    argv = [sys.executable, "-c", _ENGINE_SNIPPET, path, os.path.abspath(__file__), task, str(num), str(steps),
+            str(threads), clock]  # fmt: skip
+    out = subprocess.run(argv, capture_output=True, text=True, check=True)
+    return float(out.stdout.strip().splitlines()[-1])
+
+
 def _p4_evaluate(task: str, num: int, steps: int, engine: str) -> tuple[float, str]:
     """``evaluate`` end to end (env construction included): (env steps/s, engine that ran)."""
     env = s2r.make(task)
@@ -324,6 +352,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--quick", action="store_true", help="smoke test: 8 samples, 50 steps, 1 repeat")
     parser.add_argument("--cpu-time", action="store_true", help="time every arm by this process's CPU time")
     parser.add_argument("--tasks", nargs="+", default=list(P4_TASKS), choices=list(P4_TASKS))
+    parser.add_argument(
+        "--before",
+        default=None,
+        metavar="DIR",
+        help="also step the engine of an older checkout (DIR: e.g. `git archive <commit> | tar -x "
+        "-C DIR`) and of this one, each in a fresh process, at 1 thread and at os.cpu_count()",
+    )
     parser.add_argument("--action-latency", type=float, default=None, metavar="SECONDS",
                         help="add ActionLatency(seconds=SECONDS) to the sim2real arms' effects (issue 15: "
                              "'today' is then the per-env fallback evaluate(engine='auto') took before it was batched)")  # fmt: skip
@@ -360,6 +395,11 @@ def main(argv: list[str] | None = None) -> None:
             arms["raw"] = lambda t=task, s=steps: _p4_engine(t, n, s, chosen=[])[0]
             arms["stack"] = lambda t=task, s=steps: _p4_engine(t, n, s, chosen=stack())[0]
             arms["evaluate"] = lambda t=task, s=steps: _p4_evaluate(t, n, s, "auto")[0]
+            if args.before:
+                here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+                for arm, path in (("now", here), ("before", os.path.abspath(args.before))):
+                    arms[arm] = lambda t=task, s=steps, p=path: _p4_engine_at(p, t, n, s, 1)
+                    arms[f"{arm}_threads"] = lambda t=task, s=steps, p=path, k=threads: _p4_engine_at(p, t, n, s, k)
         rates: dict[str, list[float]] = {k: [] for k in arms}
         for r in range(args.repeats):
             order = list(arms) if r % 2 == 0 else list(arms)[::-1]
@@ -374,7 +414,11 @@ def main(argv: list[str] | None = None) -> None:
                            ("evaluate", "evaluate(engine='auto') end to end"),
                            ("today", "evaluate(engine='per-env') end to end (today)"),
                            ("sync", "SyncVectorEnv + hand-written reset DR"),
-                           ("limit", "closed-loop mujoco.rollout limit")):  # fmt: skip
+                           ("limit", "closed-loop mujoco.rollout limit"),
+                           ("now", "engine, this checkout, fresh process, threads=1"),
+                           ("now_threads", f"engine, this checkout, fresh process, threads={os.cpu_count()}"),
+                           ("before", f"engine, {args.before}, fresh process, threads=1"),
+                           ("before_threads", f"engine, {args.before}, fresh process, threads={os.cpu_count()}")):  # fmt: skip
             if arm in med:
                 runs = ", ".join(f"{x:.0f}" for x in rates[arm])
                 print(f"{label:48s} {med[arm]:10.0f} control steps/s  (runs: {runs})")
@@ -392,6 +436,11 @@ def main(argv: list[str] | None = None) -> None:
             f"evaluate auto/per-env (both end to end, builds included) = {med['evaluate'] / med['today']:.1f}x "
             f"(goal >= {P4_GOALS['today']:.0f}x); engine stepping / today end to end = {e / med['today']:.1f}x"
         )
+        if args.before:
+            print(f"RESULT {task} engine now / before (fresh processes): threads=1 {med['now'] / med['before']:.2f}x, "
+                  f"threads={os.cpu_count()} {med['now_threads'] / med['before_threads']:.2f}x; "
+                  f"threads={os.cpu_count()} / threads=1: now {med['now_threads'] / med['now']:.2f}, "
+                  f"before {med['before_threads'] / med['before']:.2f}")  # fmt: skip
 
 
 # ------------------------------------------------------------------------------------------ issue 15: make x N
