@@ -82,9 +82,17 @@ def test_a_world_diverges_again_in_its_next_episode() -> None:
     batched.close()
 
 
-def test_threads_default_to_the_cores_and_never_more_than_the_worlds() -> None:
+def test_threads_default_to_the_idle_cores_and_never_more_than_the_worlds(monkeypatch: pytest.MonkeyPatch) -> None:
+    from sim2real.batched import worlds
+
+    cores = os.cpu_count() or 1
+    monkeypatch.setattr(worlds.os, "getloadavg", lambda: (0.9, 0.0, 0.0))  # only this process
+    assert worlds.default_threads(64) == cores
+    monkeypatch.setattr(worlds.os, "getloadavg", lambda: (cores + 1.5, 0.0, 0.0))  # every core busy
+    assert worlds.default_threads(64) == 1
+    monkeypatch.setattr(worlds.os, "getloadavg", lambda: (1.0, 0.0, 0.0))
     many = make_batched("dmc/reacher-easy", 5, seed=0)
-    assert many.threads == min(os.cpu_count() or 1, 5)
+    assert many.threads == min(cores, 5)
     one = make_batched("dmc/reacher-easy", 1, seed=0)
     assert one.threads == 1
     for env in (many, one):

@@ -38,7 +38,6 @@ Example:
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -48,7 +47,7 @@ import numpy as np
 from sim2real.batched.adr import BatchedADR, adr_of
 from sim2real.batched.kernels import KERNELS, Kernel, kernel_for
 from sim2real.batched.signals import BatchedSignals, signals_reason
-from sim2real.batched.worlds import BatchedPhysics
+from sim2real.batched.worlds import BatchedPhysics, default_threads
 
 __all__ = ["BatchedEnv", "make_batched", "supports"]
 
@@ -126,7 +125,7 @@ class BatchedEnv:
             env (arm-reach) whose physics diverged goes on from the state MuJoCo reset to, unflagged (evaluation
             steps unrandomised conditions on bare envs). dm-control envs end such episodes either way.
         threads: threads of MuJoCo's batch that steps the worlds, the caller's included (results are bitwise the
-            same at any count). None: ``min(os.cpu_count(), num_envs)``.
+            same at any count). None: :func:`~sim2real.batched.worlds.default_threads` (the idle cores, at most N).
         options: keyword arguments for :func:`sim2real.make` (those the task's kernel lists in ``options``).
             Worlds the engine builds itself are headless (``textures=False`` unless given: the engine never
             renders, and without reacher's 11.8 MB skybox a world is built several times faster; the physics,
@@ -212,7 +211,7 @@ class BatchedEnv:
             legacy=legacy,
             fields=kernel.fields,
             jacobian_site=site,
-            threads=min(os.cpu_count() or 1, n) if threads is None else int(threads),
+            threads=default_threads(n) if threads is None else int(threads),
         )
         self.threads = self.physics.threads
         self.datas = _WorldDatas(self.physics)

@@ -39,18 +39,42 @@ Example:
 
 from __future__ import annotations
 
+import math
+import os
 from collections.abc import Sequence
 
 import mujoco
 import numpy as np
 from mujoco import batch as mjbatch
 
-__all__ = ["BatchedPhysics"]
+__all__ = ["BatchedPhysics", "default_threads"]
 
 _NONE = int(mujoco.mjtStage.mjSTAGE_NONE)
 _VEL = int(mujoco.mjtStage.mjSTAGE_VEL)
 _ACC = int(mujoco.mjtStage.mjSTAGE_ACC)
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
+
+
+def default_threads(num_envs: int) -> int:
+    """The batch's threads when the caller gives none: the cores other work leaves idle, at most ``num_envs``.
+
+    ``min(os.cpu_count(), num_envs)`` less one core per unit of the one-minute load average above 1 (this process),
+    at least 1. A batch call returns when its slowest thread has finished, so a thread that waits for a busy core
+    holds every world up: on the 2-core box at load 6-7, 2 threads stepped 64 reacher worlds at 0.71 and 64
+    manipulator worlds at 0.65 of 1 thread (``benchmarks/bench_eval.py --before``). Results do not depend on it.
+
+    Example:
+        >>> 1 <= default_threads(64) <= (os.cpu_count() or 1)
+        True
+        >>> default_threads(1)
+        1
+    """
+    cores = min(os.cpu_count() or 1, int(num_envs))
+    try:
+        busy = max(0, math.floor(os.getloadavg()[0] - 1.0))
+    except (AttributeError, OSError):  # no load average on this platform: every core
+        busy = 0
+    return max(1, cores - busy)
 
 
 class BatchedPhysics:
