@@ -26,12 +26,12 @@ Example:
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
 import numpy as np
 
-from noise_models.fused import NoiseBlock, Pipeline
+from noise_models.fused import NoiseBlock, Pipeline, hot_pipe
 from noise_models.pipelines import ActionNoise, ObservationNoise
 from noise_models.processes import BLOCK
 from noise_models.seeding import SeedLike, StreamFactory, normalize_seed, reseeded_root
@@ -80,6 +80,10 @@ class SignalCorruptor:
     Attributes:
         current_params: name -> value drawn for this episode (a new dict each episode).
         episode: index of the current episode since the last seeding (-1 before the first).
+        hot_act: this episode's :meth:`act` without the shape check, for callers that checked it (set by
+            :meth:`begin_episode`).
+        hot_observe: this episode's :meth:`observe` (set by :meth:`first_observation`); both are specialised once
+            per episode for the common cases and give what the general code gives, bitwise.
     """
 
     def __init__(self, models: Iterable[SignalModel], seed: SeedLike = None) -> None:
@@ -308,6 +312,8 @@ class SignalCorruptor:
         self._substep_draws = 0
         self._last_obs_time = 0
         self._last_out: Any = None
+        self.hot_act = self._hot_act()
+        self.hot_observe: Callable[[np.ndarray, int], np.ndarray] = self._observe_any  # until first_observation
 
     def _pipes(self, side: str) -> list[Pipeline]:
         if side not in ("observation", "action"):
@@ -422,11 +428,49 @@ class SignalCorruptor:
             if self._obs_lag is not None:
                 self._obs_ring = [sample] * (self._obs_lag + 1)
         self._last_out = sample
+        self.hot_observe = self._hot_observe()
         return sample
 
     def observe(self, obs: np.ndarray, now: int = 0) -> np.ndarray:
         """The observation the policy gets at time ``now`` (physics steps since reset) given the env's
         fresh observation ``obs``."""
+        return self.hot_observe(obs, now)
+
+    def _hot_observe(self) -> Callable[[np.ndarray, int], np.ndarray]:
+        """This episode's :meth:`observe`, specialised once per episode for the common cases (no pipeline or one
+        additive pipeline, then no time model or one fixed lag): the same arithmetic on the same state as
+        :meth:`_observe_any`, without its per-step dispatch (the hot path; tests/test_hot_path.py pins it)."""
+        pipes = self._obs_pipes
+        lag = self._obs_lag
+        if len(pipes) > 1 or self._sah or (lag is None and not self._plain):
+            return self._observe_any
+        noise = hot_pipe(pipes[0]) if pipes else None
+        if lag is None:  # noise only (self._plain)
+            if noise is None:
+                return self._observe_any
+
+            def noisy(obs: np.ndarray, now: int = 0) -> np.ndarray:
+                return noise(obs)
+
+            return noisy
+        ring = self._obs_ring
+        size = lag + 1
+
+        def observe(obs: np.ndarray, now: int = 0) -> np.ndarray:
+            sample = obs if noise is None else noise(obs)
+            # Fixed latency, fixed control period: the sample of ``lag`` control steps ago, from a ring of
+            # references (the same answer as the arrival-ordered delay line, with less work).
+            k = self._obs_samples + 1
+            self._obs_samples = k
+            ring[k % size] = sample
+            if k > lag:
+                return ring[(k - lag) % size]
+            return ring[(k - lag) % size].copy()  # the reset sample, delivered again
+
+        return observe
+
+    def _observe_any(self, obs: np.ndarray, now: int = 0) -> np.ndarray:
+        """What :meth:`observe` does, for every combination of models."""
         sample = obs
         for pipe in self._obs_pipes:
             sample = pipe(sample)
@@ -475,6 +519,20 @@ class SignalCorruptor:
                 f"`action` must be a flat array of shape {self._action_flat} (the action layout). "
                 f"Received an array of shape {action.shape}."
             )
+        return self.hot_act(action)
+
+    def _hot_act(self) -> Callable[[np.ndarray], np.ndarray]:
+        """This episode's :meth:`act` without the shape check (callers that checked the shape call it directly),
+        specialised for no pipeline or one additive pipeline without a control-step delay."""
+        if self.delays_actions or len(self._action_pipes) > 1:
+            return self._act_any
+        # Without a control-step delay nothing reads the control step count (_act_any keeps it for the delay).
+        if not self._action_pipes:
+            return lambda action: action
+        return hot_pipe(self._action_pipes[0])
+
+    def _act_any(self, action: np.ndarray) -> np.ndarray:
+        """What :meth:`act` does after its shape check, for every combination of models."""
         for pipe in self._action_pipes:
             action = pipe(action)
         if self.delays_actions:

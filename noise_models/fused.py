@@ -19,6 +19,7 @@ Example:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -31,7 +32,7 @@ from noise_models.values import Layout, selection_repr
 if TYPE_CHECKING:
     from noise_models.corruptor import SignalCorruptor
 
-__all__ = ["NoiseBlock", "Pipeline"]
+__all__ = ["NoiseBlock", "Pipeline", "hot_pipe"]
 
 
 # -- compiled runtime --------------------------------------------------------------------------
@@ -99,6 +100,8 @@ class Pipeline:
         self.stages: list[Any] = []
         self.r = BLOCK
         self.block = -1
+        self.simple = 0
+        self.rows: list[np.ndarray] = []  # the single affine stage's rows when ``simple``
         clip = noise.clip and layout.low is not None
         # Bounds in the signal's dtype: mixed-dtype ufuncs take numpy's slow casting path.
         low = np.asarray(layout.low, dtype=dtype) if clip else None
@@ -145,14 +148,16 @@ class Pipeline:
                 stages.append(_Affine([part], self.layout.size, self.dtype))
         self.stages = stages
         self.first_affine = isinstance(stages[0], _Affine)
-        self.simple = 0  # decided after the first refill, when the gain is known (1: add, 2: add + clip)
+        self.simple = 0  # decided after the first refill, when the gain is known (see _decide)
         self.block = -1
         self.r = BLOCK
 
     def _decide(self) -> None:
         stage = self.stages[0]
         plain = self.first_affine and len(self.stages) == 1 and stage.G is None
-        self.simple = (2 if self.low is not None else 1) if plain else 0
+        # 1: add; 2: add, then clip whole (actions); 3: add, then the guarded clip (observations).
+        self.simple = (1 if self.low is None else 3 if self.guard else 2) if plain else 0
+        self.rows = stage.rows if plain else []
 
     def refill(self) -> None:
         self.block += 1
@@ -169,8 +174,10 @@ class Pipeline:
         self.r = r + 1
         simple = self.simple
         if simple:  # one fused affine stage (no gain): one add per step, then the clip if any
-            w = x + self.stages[0].rows[r]
+            w = x + self.rows[r]
             if simple == 2:
+                _clip(w, self.low, self.high, out=w)
+            elif simple == 3:
                 self._clip(x, w)
             return w
         if self.first_affine:
@@ -202,6 +209,28 @@ class Pipeline:
             _clip(w, low, high, out=w)
             return
         np.copyto(w, _clip(w, low, high), where=(x >= low) & (x <= high))
+
+
+def hot_pipe(pipe: Pipeline) -> Callable[[np.ndarray], np.ndarray]:
+    """``pipe`` as one function for the step's hot path: the same state (row counter, blocks) and the same
+    arithmetic as calling ``pipe``, with the one-add case (the common one: Gaussian, Bias, Drift...) inlined
+    instead of dispatched per step."""
+    low, high = pipe.low, pipe.high
+
+    def apply(x: np.ndarray) -> np.ndarray:
+        r = pipe.r
+        simple = pipe.simple
+        if r == BLOCK or not simple:  # a new block (simple is decided at its refill) or more than one add
+            return pipe(x)
+        pipe.r = r + 1
+        w = x + pipe.rows[r]
+        if simple == 2:
+            _clip(w, low, high, out=w)
+        elif simple == 3:
+            pipe._clip(x, w)
+        return w
+
+    return apply
 
 
 @dataclass(frozen=True)

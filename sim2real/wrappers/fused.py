@@ -81,8 +81,15 @@ class RandomizeAndCorrupt(CorruptSignals):
         self._physics_closed = False
         self._merged: dict[str, Any] = {}
         self._merged_from: tuple[Any, Any] = (None, None)
+        self._template: dict[str, Any] | None = None  # the step report but its params, built once per episode
         super().__init__(env, models, seed)
         self._needs_now = self._obs_time
+        # Steps whose report is the episode's template plus the params (no inner report, per-step substeps or
+        # events): the common case, and the hot path.
+        self._templated = not (self._jitter or self._step_effects)
+        self._hot = False  # this episode steps through step's hot path (decided at reset)
+        self._hot_act: Any = None
+        self._hot_observe: Any = None
 
     @property
     def current_params(self) -> dict[str, float]:
@@ -170,60 +177,120 @@ class RandomizeAndCorrupt(CorruptSignals):
         if self._has_obs:
             obs = self._obs_out(c.first_observation(self._obs_in(obs)), obs)
         self._full_report(info)
+        self._template = None
+        self._hot = False
+        if self._templated and not self._reset_diverged:
+            self._template = self._report_template()
+            self._hot = (
+                self._has_action
+                and self._has_obs
+                and self._act_codec is None
+                and self._obs_codec is None
+                and not self._needs_now
+            )
+            # The corruptor's hot paths of this episode (built by its begin_episode / first_observation).
+            self._hot_act = c.hot_act
+            self._hot_observe = c.hot_observe
         return obs, info
 
+    def _report_template(self) -> dict[str, Any]:
+        """The step report of this episode with ``params`` still to fill (valid until the next reset or
+        divergence; only used without per-step substeps or events, see ``_templated``)."""
+        r = self.randomizer
+        template: dict[str, Any] = {
+            "params": None,
+            "events": r.events,
+            "episode": r.episode,
+            "diverged": self._diverged,
+            "reapplied": self._reapplied,
+        }
+        if self.clock.action_path is not None:
+            template["action_latency_path"] = self.clock.action_path
+        return template
+
     def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
-        c = self.corruptor
         clock = self.clock
+        if self._hot:
+            # The common case, decided at reset (see _hot_path): a flat Box action and observation, the
+            # corruptor's per-episode hot paths, no clock read, the report from the episode's template.
+            if type(action) is not np.ndarray:
+                action = np.asarray(action, dtype=self.corruptor.action_dtype)
+            if action.shape != self._act_shape:
+                raise ValueError(wrong_action_shape(action.shape, self._act_shape))
+            action = self._hot_act(action)
+            clock._control += 1
+            clock._passed = 0
+            clock._in_step = True
+            obs, reward, terminated, truncated, info = self.env.step(action)
+            clock._in_step = False
+            if (info and ("diverged" in info or "sim2real" in info)) or (
+                self._read_warnings and self._handle.diverged()
+            ):
+                return self._step_end(obs, reward, terminated, truncated, info, True)
+            self._last_obs = obs
+            r = self.randomizer
+            merged_from = self._merged_from
+            merged = (
+                self._merged
+                if merged_from[0] is r.current_params and merged_from[1] is self.corruptor.current_params
+                else self._params()
+            )
+            report = self._template.copy()  # type: ignore[union-attr]  # _hot implies a template
+            report["params"] = merged.copy()
+            info["sim2real"] = report
+            return self._hot_observe(obs, 0), reward, terminated, truncated, info
+        c = self.corruptor
         if self._has_action:
             if type(action) is not np.ndarray:
                 action = np.asarray(action, dtype=c.action_dtype)
             if action.shape != self._act_shape:
                 raise ValueError(wrong_action_shape(action.shape, self._act_shape))
             codec = self._act_codec
-            action = c.act(action) if codec is None else c.act(action.reshape(-1)).reshape(codec)
+            action = c.hot_act(action) if codec is None else c.hot_act(action.reshape(-1)).reshape(codec)
         clock._control += 1
         clock._passed = 0
         clock._in_step = True
-        reward: Any
-        info: dict[str, Any]
         if self._reset_diverged:  # nothing to step: the reset diverged
-            obs, reward, terminated, truncated, info = self._last_obs, 0.0, False, True, {}
-        else:
-            if self._step_effects:
-                self.randomizer.step()
-            obs, reward, terminated, truncated, info = self.env.step(action)
+            clock._in_step = False
+            return self._step_end(self._last_obs, 0.0, False, True, {}, False)
+        if self._step_effects:
+            self.randomizer.step()
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        clock._in_step = False
+        return self._step_end(obs, reward, terminated, truncated, info, True)
+
+    def _step_end(
+        self, obs: Any, reward: Any, terminated: bool, truncated: bool, info: dict[str, Any], stepped: bool
+    ) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
+        """The rest of a step after the env's own (``stepped`` False: the reset diverged, nothing was stepped):
+        divergence, the observation models, the report."""
+        c = self.corruptor
+        clock = self.clock
+        if stepped:
             if info.get("diverged", False) or (self._read_warnings and self._handle.diverged()):
                 obs, truncated, self._diverged = self._last_obs, True, True
+                self._template = None
+                self._hot = False
             self._last_obs = obs
-        clock._in_step = False
         if self._has_obs:
             now = 0
             if self._needs_now:
                 handle = clock.handle
                 now = clock._control if handle is None else elapsed_steps(clock._t0, handle.data.time, clock.physics_dt)
             if self._obs_codec is None:
-                obs = c.observe(obs, now)
+                obs = c.hot_observe(obs, now)
             else:
-                obs = self._obs_out(c.observe(self._obs_in(obs), now), obs)
-        if "sim2real" in info or self._extra_report:
+                obs = self._obs_out(c.hot_observe(self._obs_in(obs), now), obs)
+        if "sim2real" in info or not self._templated:
             self._full_report(info)
             return obs, reward, terminated, truncated, info
-        # _full_report's common case, inline (this is the hot path).
-        r = self.randomizer
-        merged_from = self._merged_from
-        merged = (
-            self._merged
-            if merged_from[0] is r.current_params and merged_from[1] is c.current_params
-            else self._params()
-        )
-        info["sim2real"] = {
-            "params": merged.copy(),
-            "events": r.events,
-            "episode": r.episode,
-            "diverged": self._diverged,
-            "reapplied": self._reapplied,
-        }
+        # _full_report's common case: the episode's template, fresh dicts every step.
+        template = self._template
+        if template is None:
+            template = self._template = self._report_template()
+        report = template.copy()
+        report["params"] = self._params().copy()
+        info["sim2real"] = report
         return obs, reward, terminated, truncated, info
 
     def restore_nominal(self) -> None:

@@ -174,6 +174,11 @@ class SignalClock:
         self._target = substeps
         self._t0 = 0.0
         self._control = 0
+        # Set per episode (begin_episode) when the latency is whole control steps: the command ring's rows,
+        # ``data.ctrl`` and the commands sent so far.
+        self._ring: list[np.ndarray] | None = None
+        self._ctrl: np.ndarray = np.zeros(0)
+        self._sent = 0
 
     def now(self) -> int:
         """Time since reset: physics steps with MuJoCo, else control steps."""
@@ -184,10 +189,18 @@ class SignalClock:
     def begin_episode(self) -> None:
         """Call right after the env's reset."""
         self._control = 0
+        self._ring = None
         if self.handle is not None:
             data = self.handle.data
             self._t0 = float(data.time)
-            self.corruptor.reset_commands(np.array(data.ctrl))
+            c = self.corruptor
+            c.reset_commands(np.array(data.ctrl))
+            if c.command_lag is not None and self._whole_steps and self._remove is not None:
+                # Latency of whole control steps: the episode's ring rows and ``data.ctrl`` looked up once (an
+                # env that does not recompile keeps its MjData), each step then copies two rows.
+                self._ring = list(c.command_ring)
+                self._ctrl = data.ctrl
+                self._sent = 0
 
     def begin_step(self) -> None:
         self._control += 1
@@ -198,16 +211,16 @@ class SignalClock:
         if not self._in_step:  # physics stepped outside a control step (e.g. inside reset)
             run(nstep)
             return
-        lag = self.corruptor.command_lag
-        if lag is not None and self._whole_steps:
-            # Latency of whole control steps: apply the command sent ``lag`` control steps ago.
+        ring = self._ring
+        if ring is not None:
+            # Latency of whole control steps (set up by begin_episode): apply the command sent ``lag`` control
+            # steps ago; ``ring`` holds the last ``lag + 1`` commands, all the reset command at first.
             if self._passed == 0:
-                ctrl = self.handle.data.ctrl  # type: ignore[union-attr]
-                k = self.corruptor._commands_sent
-                self.corruptor._commands_sent = k + 1
-                ring = self.corruptor.command_ring
-                size = lag + 1
-                ring[k % size] = ctrl
+                ctrl = self._ctrl
+                k = self._sent
+                self._sent = k + 1
+                size = len(ring)
+                ring[k % size][:] = ctrl
                 ctrl[:] = ring[(k + 1) % size]
             self._passed += nstep
             run(nstep)

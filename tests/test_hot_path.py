@@ -1,0 +1,288 @@
+"""The single-env hot path (issue 15, P1 second pass) changes how a step runs, never what it returns.
+
+Two kinds of pins:
+
+* **before/after**: long rollouts through every API (gymnasium fused and two-layer stacks, dm_env, TorchRL) on a task
+  we ship and on an arm generated here, hashed (observations, rewards, ends, infos with every draw). The digests were
+  recorded with the code as it was before the hot path (commit c99ba47) on this repo's locked stack (mujoco 3.17.0,
+  numpy's PCG64 streams); any change of a value, a draw, a key or its order changes them.
+* **hot vs general**: the per-episode hot paths (``SignalCorruptor.hot_act`` / ``hot_observe``, the fused wrapper's
+  ``_hot`` step, the clock's command ring) against the general code they shortcut, in the same process, over several
+  noise blocks (256 steps each) and episodes: these hold on any machine.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from typing import Any
+
+import numpy as np
+import pytest
+
+import sim2real as s2r
+from noise_models import (
+    ActionLatency,
+    ActionNoise,
+    Bias,
+    ControlJitter,
+    Gaussian,
+    Layout,
+    ObservationLatency,
+    ObservationNoise,
+    SampleAndHold,
+    Scale,
+    SignalCorruptor,
+)
+from randomizers import Uniform
+from sim2real.mjcf_env import MjcfEnv
+
+# A 3-joint arm with a slide joint, joint limits, a position servo next to motors and a free ball (as in
+# tests/test_fused.py, which the digests below were recorded with).
+GENERATED_ARM = """
+<mujoco model="generated">
+  <option timestep="0.004" gravity="0 0 -9.81"/>
+  <worldbody>
+    <geom name="floor" type="plane" size="2 2 0.1"/>
+    <body name="base" pos="0 0 0.3">
+      <joint name="lift" type="slide" axis="0 0 1" range="-0.2 0.2" damping="2"/>
+      <geom name="base_geom" type="box" size="0.05 0.05 0.05" mass="1.5"/>
+      <body name="upper" pos="0 0 0.05">
+        <joint name="shoulder" type="hinge" axis="0 1 0" range="-1.5 1.5" damping="0.3"/>
+        <geom name="upper_geom" type="capsule" fromto="0 0 0 0.3 0 0" size="0.03" mass="0.6"/>
+        <body name="fore" pos="0.3 0 0">
+          <joint name="elbow" type="hinge" axis="0 1 0" damping="0.2"/>
+          <geom name="fore_geom" type="capsule" fromto="0 0 0 0.25 0 0" size="0.025" mass="0.4"/>
+          <site name="tip" pos="0.25 0 0" size="0.02"/>
+        </body>
+      </body>
+    </body>
+    <body name="ball" pos="0.4 0 0.1">
+      <freejoint/>
+      <geom name="ball_geom" type="sphere" size="0.05" mass="0.2"/>
+    </body>
+  </worldbody>
+  <actuator>
+    <position name="lift_servo" joint="lift" kp="80" ctrlrange="-0.2 0.2"/>
+    <motor name="shoulder_motor" joint="shoulder" gear="5" ctrlrange="-1 1" ctrllimited="true"/>
+    <motor name="elbow_motor" joint="elbow" gear="3" ctrlrange="-1 1" ctrllimited="true"/>
+  </actuator>
+  <sensor>
+    <touch name="tip_touch" site="tip"/>
+    <framepos name="tip_pos" objtype="site" objname="tip"/>
+  </sensor>
+</mujoco>
+"""
+
+PHYSICS = (
+    s2r.Friction(scale=Uniform(0.5, 1.5)),
+    s2r.Mass(scale=Uniform(0.8, 1.2), bodies="*"),
+    s2r.Damping(scale=Uniform(0.5, 2.0)),
+    s2r.ActuatorGain(scale=Uniform(0.9, 1.1)),
+)
+
+
+def _stack(name: str) -> tuple[Any, ...]:
+    if name == "noise+latency":  # the P1 benchmark's signal models
+        return (
+            ObservationNoise(Gaussian(std=0.01), Bias(Uniform(-0.02, 0.02))),
+            ActionNoise(Gaussian(std=0.05)),
+            ObservationLatency(steps=3),
+            ActionLatency(seconds=0.02),
+        )
+    if name == "mid-step latency+hold":
+        return (ObservationNoise(Gaussian(std=0.02)), ActionLatency(steps=3), SampleAndHold(steps=4))
+    assert name == "jitter"
+    return (ObservationNoise(Gaussian(std=0.01)), ActionLatency(steps=2), ControlJitter(delta=Uniform(-1.0, 1.0)))
+
+
+def _arm(steps: int = 400) -> MjcfEnv:
+    return MjcfEnv(xml=GENERATED_ARM, control_timestep=0.02, max_episode_steps=steps)
+
+
+def _gym_digest(env: Any, steps: int, seeds: list[int | None]) -> tuple[str, int]:
+    """sha256 (first 16 hex digits) of every reset and step: observation bytes, dtype, shape, reward, ends and the
+    info dict's repr (every draw, key order included); and the number of steps."""
+    h = hashlib.sha256()
+    space = env.action_space
+    actions = np.random.default_rng(0).uniform(space.low, space.high, (steps, *space.shape)).astype(space.dtype)
+    n = 0
+    for seed in seeds:
+        obs, info = env.reset(seed=seed)
+        h.update(np.ascontiguousarray(obs).tobytes())
+        h.update(repr(info).encode())
+        for a in actions:
+            obs, reward, terminated, truncated, info = env.step(a)
+            n += 1
+            h.update(np.ascontiguousarray(obs).tobytes())
+            h.update(repr((obs.dtype, obs.shape, reward, terminated, truncated, info)).encode())
+            if terminated or truncated:
+                break
+    env.close()
+    return h.hexdigest()[:16], n
+
+
+# Recorded at c99ba47 (before the hot path), see the module docstring.
+GYM_DIGESTS: dict[str, tuple[str, int]] = {
+    "gym reacher noise+latency": ("d5ed51865e41b2ef", 1800),
+    "gym manipulator noise+latency": ("6660b0127e0de145", 600),
+    "gym generated noise+latency": ("034eefd716ea8a62", 800),
+    "gym generated mid-step latency+hold": ("6e1edd47c71af632", 800),
+    "gym generated jitter": ("24e031f3a1a02db6", 800),
+    "gym two-layer reacher": ("39a62707759b6021", 1200),
+    "gym signals-only generated": ("dd526f9953a722eb", 800),
+}
+
+
+def _gym_case(case: str) -> tuple[str, int]:
+    stack = _stack("noise+latency")
+    if case == "gym reacher noise+latency":
+        return _gym_digest(s2r.wrap(s2r.make("dmc/reacher-easy"), *PHYSICS, *stack, seed=7), 600, [3, None, 11])
+    if case == "gym manipulator noise+latency":
+        return _gym_digest(s2r.wrap(s2r.make("dmc/manipulator-bring_ball"), *PHYSICS, *stack, seed=7), 300, [3, None])
+    if case.startswith("gym generated "):
+        return _gym_digest(s2r.wrap(_arm(), *PHYSICS, *_stack(case[len("gym generated ") :]), seed=7), 400, [3, None])
+    if case == "gym two-layer reacher":
+        env = s2r.wrap(s2r.wrap(s2r.make("dmc/reacher-easy"), *PHYSICS, seed=7), *stack, seed=7)
+        return _gym_digest(env, 600, [3, None])
+    assert case == "gym signals-only generated"
+    return _gym_digest(s2r.wrap(_arm(), *stack, seed=7), 400, [3, None])
+
+
+@pytest.mark.parametrize("case", list(GYM_DIGESTS))
+def test_gymnasium_rollouts_are_bitwise_those_before_the_hot_path(case: str) -> None:
+    assert _gym_case(case) == GYM_DIGESTS[case]
+
+
+def test_dm_env_rollout_is_bitwise_that_before_the_hot_path() -> None:
+    from sim2real.tasks.suite import suite_env
+
+    env = s2r.wrap(suite_env("reacher", "easy", textures=False), *PHYSICS, *_stack("noise+latency"), seed=5)
+    env.task.random.seed(42)
+    spec = env.action_spec()
+    actions = np.random.default_rng(1).uniform(spec.minimum, spec.maximum, (600, *spec.shape))
+    h = hashlib.sha256()
+    n = 0
+    for _ in range(2):
+        ts = env.reset()
+        h.update(repr(sorted(env.current_params.items())).encode())
+        for a in actions:
+            for key, value in ts.observation.items():
+                h.update(key.encode())
+                h.update(np.asarray(value).tobytes())
+            h.update(repr((ts.step_type, ts.reward, ts.discount)).encode())
+            ts = env.step(a)
+            n += 1
+    env.close()
+    assert (h.hexdigest()[:16], n) == ("31beb2a823258cd1", 1200)
+
+
+def test_torchrl_rollout_is_bitwise_that_before_the_hot_path() -> None:
+    import torch
+    from torchrl.envs import GymWrapper
+
+    env = s2r.wrap(GymWrapper(s2r.make("dmc/reacher-easy")), *PHYSICS, *_stack("noise+latency"), seed=9)
+    torch.manual_seed(0)
+    h = hashlib.sha256()
+    for seed in (1, 2):
+        env.set_seed(seed)
+        td = env.rollout(300, break_when_any_done=False)
+        for key in sorted(td.keys(True, True), key=str):
+            h.update(str(key).encode())
+            h.update(td.get(key).contiguous().numpy().tobytes())
+    assert h.hexdigest()[:16] == "1704de1f035300d3"
+
+
+# -- hot vs general, in one process -----------------------------------------------------------------------------
+
+
+def _twins(models: tuple[Any, ...], obs: Layout, action: Layout) -> tuple[SignalCorruptor, SignalCorruptor]:
+    out = []
+    for _ in range(2):
+        c = SignalCorruptor(models, seed=3)
+        c.bind(obs=obs, action=action, timestep=0.01, substeps=2, physics=False, obs_dtype=np.float32)
+        out.append(c)
+    return out[0], out[1]
+
+
+@pytest.mark.parametrize(
+    "models",
+    [
+        (ObservationNoise(Gaussian(std=0.1), Bias(Uniform(-1.0, 1.0))), ActionNoise(Gaussian(std=0.2))),
+        (ObservationNoise(Gaussian(std=0.1)), ActionNoise(Gaussian(std=0.2)), ObservationLatency(steps=3)),
+        (ObservationLatency(steps=2),),
+        (ObservationNoise(Scale(Uniform(0.5, 2.0)), Gaussian(std=0.1)), ObservationLatency(steps=1)),  # not 1 add
+        (ObservationNoise(Gaussian(std=0.1)), ObservationNoise(Bias(0.5), select=[0]), ActionLatency(steps=2)),
+        (ObservationNoise(Gaussian(std=0.1)), SampleAndHold(steps=3)),
+    ],
+    ids=["noise", "noise+lag", "lag only", "gain", "two pipelines+action delay", "hold"],
+)
+def test_hot_paths_give_what_the_general_code_gives(models: tuple[Any, ...]) -> None:
+    """Over 3 episodes of 700 steps (three noise blocks each), with clipping on both signals: the corruptor's hot
+    paths and its general ``_observe_any`` / ``_act_any`` return the same bytes and leave the same draws."""
+    obs = Layout(4, low=np.full(4, -1.0), high=np.full(4, 1.0))
+    action = Layout(2, low=np.full(2, -0.5), high=np.full(2, 0.5))
+    hot, general = _twins(models, obs, action)
+    rng = np.random.default_rng(0)
+    for episode in range(3):
+        seed = None if episode == 1 else episode
+        hot.begin_episode(seed)
+        general.begin_episode(seed)
+        assert hot.current_params == general.current_params
+        first = rng.uniform(-1.2, 1.2, 4).astype(np.float32)
+        np.testing.assert_array_equal(hot.first_observation(first), general.first_observation(first), strict=True)
+        for t in range(1, 701):
+            a = rng.uniform(-0.7, 0.7, 2)
+            np.testing.assert_array_equal(hot.act(a), general._act_any(a), strict=True)
+            o = rng.uniform(-1.2, 1.2, 4).astype(np.float32)
+            got, want = hot.observe(o, 2 * t), general._observe_any(o, 2 * t)
+            np.testing.assert_array_equal(got, want, strict=True)
+            assert got is not o  # never the array just passed in
+
+
+def test_hot_observe_never_hands_out_the_same_array_twice() -> None:
+    """With a fixed lag the ring hands out references: each returned array is a fresh one, so a user who keeps
+    (or edits) one observation never sees it change later."""
+    c = SignalCorruptor([ObservationNoise(Gaussian(std=0.1)), ObservationLatency(steps=2)], seed=0)
+    c.bind(obs=Layout(3), action=None, timestep=0.01, substeps=1, physics=False)
+    c.begin_episode()
+    seen = [c.first_observation(np.zeros(3))]
+    for t in range(1, 10):
+        seen.append(c.observe(np.full(3, float(t)), t))
+    assert len({id(x) for x in seen}) == len(seen)
+    assert [round(float(x.mean())) for x in seen] == [0, 0, 0, 1, 2, 3, 4, 5, 6, 7]
+
+
+@pytest.mark.parametrize("task", ["dmc/reacher-easy", "generated"])
+def test_fused_hot_step_is_the_general_step(task: str) -> None:
+    """The fused gymnasium wrapper with its hot step turned off steps the same trajectories, infos and draws."""
+
+    def make() -> Any:
+        base = _arm(300) if task == "generated" else s2r.make(task)
+        return s2r.wrap(base, *PHYSICS, *_stack("noise+latency"), seed=7)
+
+    hot, general = make(), make()
+    space = hot.action_space
+    actions = np.random.default_rng(2).uniform(space.low, space.high, (300, *space.shape)).astype(space.dtype)
+    hot_steps = 0
+    for seed in (1, None):
+        o1, i1 = hot.reset(seed=seed)
+        o2, i2 = general.reset(seed=seed)
+        assert hot._hot
+        np.testing.assert_array_equal(o1, o2, strict=True)
+        assert i1 == i2
+        for a in actions:
+            general._hot = False
+            hot_steps += hot._hot
+            r1, r2 = hot.step(a), general.step(a)
+            np.testing.assert_array_equal(r1[0], r2[0], strict=True)
+            assert r1[1:] == r2[1:]
+            assert list(r1[4]["sim2real"]) == list(r2[4]["sim2real"])
+            assert r1[4]["sim2real"]["params"] is not r2[4]["sim2real"]["params"]
+            if r1[2] or r1[3]:
+                break
+    assert hot_steps > 300
+    first, second = hot.step(actions[0])[4], hot.step(actions[1])[4]
+    assert first["sim2real"] is not second["sim2real"]  # fresh dicts every step: users keep infos
+    assert first["sim2real"]["params"] is not second["sim2real"]["params"]
+    hot.close()
+    general.close()
