@@ -216,10 +216,12 @@ def _twins(models: tuple[Any, ...], obs: Layout, action: Layout) -> tuple[Signal
     ],
     ids=["noise", "noise+lag", "lag only", "gain", "two pipelines+action delay", "hold"],
 )
-def test_hot_paths_give_what_the_general_code_gives(models: tuple[Any, ...]) -> None:
-    """Over 3 episodes of 700 steps (three noise blocks each), with clipping on both signals: the corruptor's hot
-    paths and its general ``_observe_any`` / ``_act_any`` return the same bytes and leave the same draws."""
-    obs = Layout(4, low=np.full(4, -1.0), high=np.full(4, 1.0))
+@pytest.mark.parametrize("bounded", [True, False], ids=["clipped", "unbounded"])
+def test_hot_paths_give_what_the_general_code_gives(models: tuple[Any, ...], bounded: bool) -> None:
+    """Over 3 episodes of 700 steps (three noise blocks each), with and without clipping of the observation (the
+    action is always clipped): the corruptor's hot paths and its general ``_observe_any`` / ``_act_any`` return the
+    same bytes and leave the same draws."""
+    obs = Layout(4, low=np.full(4, -1.0), high=np.full(4, 1.0)) if bounded else Layout(4)
     action = Layout(2, low=np.full(2, -0.5), high=np.full(2, 0.5))
     hot, general = _twins(models, obs, action)
     rng = np.random.default_rng(0)
