@@ -225,7 +225,7 @@ def hot_pipe(pipe: Pipeline) -> Callable[[np.ndarray], np.ndarray]:
         pipe.r = r + 1
         w = x + pipe.rows[r]
         if simple == 2:
-            _clip(w, low, high, out=w)
+            _clip(w, low, high, w)  # out positionally: no keyword parsing
         elif simple == 3:
             pipe._clip(x, w)
         return w

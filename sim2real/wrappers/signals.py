@@ -220,8 +220,8 @@ class SignalClock:
                 k = self._sent
                 self._sent = k + 1
                 size = len(ring)
-                ring[k % size][:] = ctrl
-                ctrl[:] = ring[(k + 1) % size]
+                ring[k % size][...] = ctrl  # [...]: numpy's cheapest whole-array copy (no slice to parse)
+                ctrl[...] = ring[(k + 1) % size]
             self._passed += nstep
             run(nstep)
             return
