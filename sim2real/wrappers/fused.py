@@ -211,7 +211,7 @@ class RandomizeAndCorrupt(CorruptSignals):
     def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
         clock = self.clock
         if self._hot:
-            # The common case, decided at reset (see _hot_path): a flat Box action and observation, the
+            # The common case, decided at reset (see reset): a flat Box action and observation, the
             # corruptor's per-episode hot paths, no clock read, the report from the episode's template.
             if type(action) is not np.ndarray:
                 action = np.asarray(action, dtype=self.corruptor.action_dtype)
