@@ -76,6 +76,10 @@ class _Pipes:
         self.rows = np.arange(n)
         self.r = np.zeros(n, np.int64)
         self.block: NoiseBlock | None = None  # clip bounds: the same for every world (the same signal layout)
+        self.all_unit = True  # every world without gain
+        # Calls before any world can reach the end of its block (r grows by at most 1 a call): until then no
+        # world needs a refill and the check is skipped.
+        self.headroom = 0
 
     def take(self, i: int, corruptor: Any, block: NoiseBlock) -> None:
         """World ``i``'s pipeline after its reset (or after a refill): its current block and position."""
@@ -83,18 +87,23 @@ class _Pipes:
         self.F[i] = block.offsets
         self.G[i] = 1.0 if block.gain is None else block.gain
         self.unit[i] = block.gain is None
+        self.all_unit = bool(self.unit.all())
         self.r[i] = block.row
         self.block = block
+        self.headroom = 0  # recomputed at the next call
 
     def __call__(self, x: np.ndarray, active: np.ndarray) -> np.ndarray:
         """The noisy signal of every world; only the ``active`` worlds' noise advances."""
-        idx = np.flatnonzero(active & (self.r == BLOCK))
-        for i in idx.tolist():
-            corruptor = self.corruptors[i]  # the world's own next block, from its own stream
-            self.take(i, corruptor, corruptor.next_noise_block(self.side, self.k))
+        if self.headroom <= 0:
+            idx = np.flatnonzero(active & (self.r == BLOCK))
+            for i in idx.tolist():
+                corruptor = self.corruptors[i]  # the world's own next block, from its own stream
+                self.take(i, corruptor, corruptor.next_noise_block(self.side, self.k))
+            self.headroom = BLOCK - int(self.r.max())
+        self.headroom -= 1
         everyone = bool(active.all())
         noise = self.F[self.rows, self.r if everyone else np.minimum(self.r, BLOCK - 1)]
-        w = x + noise if self.unit.all() else x * self.G + noise
+        w = x + noise if self.all_unit else x * self.G + noise
         self.r += active
         if self.block is not None:
             self.block.clip(x, w)
@@ -220,9 +229,12 @@ class BatchedSignals:
         size = self._ring.shape[1]
         k = self._k + active
         self._k = k
-        rows = np.arange(self.num_envs)
-        current = self._ring[rows, k % size]
-        self._ring[rows, k % size] = np.where(active[:, None], sample, current)
-        # The sample of ``lag`` control steps ago; before that, the reset sample (still in its slot).
+        rows = self._rows
+        slot = k % size
+        if active.all():
+            self._ring[rows, slot] = sample
+            # The sample of ``lag`` control steps ago; before that, the reset sample (still in its slot).
+            return self._ring[rows, (k - self._lag) % size]
+        self._ring[rows, slot] = np.where(active[:, None], sample, self._ring[rows, slot])
         delayed = self._ring[rows, (k - self._lag) % size]
         return np.where(active[:, None], delayed, previous)
