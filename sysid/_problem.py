@@ -215,6 +215,26 @@ class Problem:
             self._last = (values[0].copy(), delay, np.array(x0), pred, sens)
         return pred.reshape(b, s, self.L + 1, self.nx), sens.reshape(b, s, self.L, -1)
 
+    def substep_qpos(self, values: np.ndarray, delay: int, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Positions after every physics step of one parameter set's rollout, and the log row each one reaches
+        (the first row at or after it): (K, nq) and (K,) over the rows the segments cover (for event checks: a
+        bounce can begin and end between two logged rows)."""
+        models = self.pool.models_for(np.atleast_2d(values))
+        s, n_sub = self.seg.count, self.n_sub
+        state_out, _ = mujoco.rollout.rollout(
+            [models[0]] * s,
+            self._datas,
+            self._initial_states(x0),
+            self.controls(delay),
+            nstep=self.L * n_sub,
+            persistent_pool=False,
+        )
+        steps = np.arange(self.L * n_sub)
+        reach = self.seg.start[:, None] + (steps[None, :] + n_sub) // n_sub  # after step k: row start + ceil((k+1)/n)
+        last = self.seg.start + self.seg.length + (0 if self.fitted_anchor else 1)
+        keep = reach < last[:, None]
+        return state_out[:, :, 1 : 1 + self.nq][keep], reach[keep]
+
     def _cached(self, values: np.ndarray, delay: int, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """The last single-set rollout if it was of exactly these values, delay and initial states."""
         last = self._last

@@ -49,6 +49,7 @@ import numpy as np
 from scipy.stats import qmc
 
 from noise_models.timing import convert_time
+from sysid._heldout import Setting, held_out
 from sysid._noise import difference_sigma, residual_sigma
 from sysid._problem import Problem, make_segments
 from sysid._solver import COST_ATOL, Progress, State, fd_steps, lm
@@ -310,14 +311,16 @@ def fit(
         if state_mask.all() or not state_mask.any():
             state_mask = None
     contact_count = 0
+    flagged = np.zeros(log.qpos.shape[0], dtype=bool)
+    cut_trees: set[int] | None = None  # what the held-out check cuts contacts on (None: it keeps them, as the fit)
     if contacts == "cut":
         flagged = contact_rows(log, model, space, pool, theta0)
-        cut_fit, cut_val = split_ranges(fit_ranges, flagged), split_ranges(val_ranges, flagged)
+        cut_fit = split_ranges(fit_ranges, flagged)
         if cut_fit != fit_ranges:
             fit_ranges = cut_fit
             contact_count = int(flagged.sum())
-        if cut_val != val_ranges and cut_val:
-            val_ranges = cut_val
+        if trees is not None and (cut_fit != fit_ranges or not any(flagged[a:b].any() for a, b, _, _ in fit_ranges)):
+            cut_trees = trees
     nx = model.nq + model.nv
     auto_horizon = horizon == "auto"
     fixed_horizon: int | None = None if isinstance(horizon, str) else horizon
@@ -501,37 +504,33 @@ def fit(
     noise = {name: float(sigma[c]) for c, name in enumerate(final.channels)}
     trace_problem, trace_x0, source = final, st.x0, "fit"
     val_unknowns = 0
-    if val_ranges:
-        vfit = anchor != "logged" and make_segments(val_ranges, fixed_horizon, True).count * nx <= _MAX_NUISANCE
-        vprob = Problem(
+    # Judged as the fit shoots and where it fits: contact rows out, each piece from its own estimated state.
+    held = held_out(
+        val_ranges,
+        flagged,
+        cut_trees,
+        Setting(
             log,
             model,
             space,
-            make_segments(val_ranges, fixed_horizon, vfit),
+            fixed_horizon,
             signals,
-            vfit,
+            anchor,
+            _MAX_NUISANCE,
             obs_margin,
             nthread,
             pool,
             state_mask,
-        )
-        vprob.weights = final.weights
-        vst = State(st.theta, vprob.anchors(), st.delay, st.obs)
-        if vfit:
-            vst = lm(
-                vprob,
-                vst,
-                lower,
-                upper,
-                fit_x0=True,
-                fit_params=False,
-                max_iter=5,
-                fd_step=fd_step,
-                progress=bar,
-                stage="validate",
-            )
-        trace_problem, trace_x0, source = vprob, vst.x0, "validation"
-        val_unknowns = vprob.seg.count * vprob.nxa if vfit else 0
+            final.weights,
+            st,
+            lower,
+            upper,
+            fd_step,
+            bar,
+        ),
+    )
+    if held is not None:
+        trace_problem, trace_x0, source, val_unknowns = held.problem, held.x0, "validation", held.unknowns
     pred, sens = trace_problem.simulate(st.theta, st.delay, trace_x0)
     errors = trace_problem.channel_errors(*trace_problem.raw_residuals(pred, sens, st.obs))
     measured = trace_problem.channel_measurements()

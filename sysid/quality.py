@@ -17,6 +17,7 @@ Example:
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
@@ -29,6 +30,7 @@ from sysid.profile import ProfileCheck
 
 __all__ = [
     "EXACT_FIT_PERCENT",
+    "EXACT_NULL_MAX_SAMPLES",
     "INFLATION_LIMIT",
     "INFORMATIVE_SHARE",
     "MIN_FIT_PERCENT",
@@ -212,12 +214,58 @@ def ljung_box(e: np.ndarray, lags: int) -> float:
     return float(stats.chi2.sf(q, lags))
 
 
+#: Pooled sample size up to which a Ljung–Box p-value is read off the statistic's exact null distribution
+#: (simulated white Gaussian series cut into the same segments) rather than its chi-square approximation.
+EXACT_NULL_MAX_SAMPLES = 400
+_NULL_NUMBERS = 4_000_000  # Gaussian draws spent on one simulated null (at least _NULL_MIN_DRAWS series)
+_NULL_MIN_DRAWS = 20_000
+_NULL_CHUNK = 5_000
+
+
+def _pooled_q(x: np.ndarray, lengths: tuple[int, ...], lags: int) -> np.ndarray:
+    """(B,) pooled Ljung–Box statistics of B series (B, n) cut into consecutive pieces of ``lengths``."""
+    n = x.shape[1]
+    x = x - x.mean(axis=1, keepdims=True)
+    denom = np.einsum("bi,bi->b", x, x)
+    num = np.zeros((x.shape[0], lags))
+    start = 0
+    for size in lengths:
+        piece = x[:, start : start + size]
+        for k in range(1, lags + 1):
+            num[:, k - 1] += np.einsum("bi,bi->b", piece[:, k:], piece[:, :-k])
+        start += size
+    with np.errstate(invalid="ignore", divide="ignore"):
+        acf = num / denom[:, None]
+    return np.asarray(n * (n + 2) * np.sum(acf**2 / (n - np.arange(1, lags + 1)), axis=1))
+
+
+@functools.lru_cache(maxsize=32)
+def _null_q(lengths: tuple[int, ...], lags: int) -> np.ndarray:
+    """Sorted pooled statistics of white Gaussian series cut into ``lengths`` (fixed seed: reproducible)."""
+    n = sum(lengths)
+    draws = max(_NULL_MIN_DRAWS, _NULL_NUMBERS // n)
+    rng = np.random.default_rng(17)
+    parts = [
+        _pooled_q(rng.standard_normal((min(_NULL_CHUNK, draws - b), n)), lengths, lags)
+        for b in range(0, draws, _NULL_CHUNK)
+    ]
+    return np.sort(np.concatenate(parts))
+
+
 def pooled_ljung_box(pieces: list[np.ndarray], lags: int = 10) -> float:
     """Ljung–Box p-value of one channel's residuals pooled over shooting segments.
 
     Autocorrelations are summed inside each segment (never across a segment boundary) and normalised by the
     pooled variance, so many short segments give one test with the power of all their samples (a per-segment test
     with a Bonferroni correction loses almost all of it). ``lags`` shrinks to half the shortest usable segment.
+
+    Up to :data:`EXACT_NULL_MAX_SAMPLES` pooled samples the p-value is the share of white Gaussian series, cut into
+    the same segments, whose statistic is at least as large (a simulated exact null, seeded, resolution about
+    ``n / 4e6``): the chi-square approximation is far too liberal in the tail the verdict reads — on 60 white
+    samples with 10 lags, p < 1.25e-4 happens 13x more often than that (measured on 100k series), which made
+    the held-out residuals of right models look coloured (issue 17). A statistic beyond every simulated one gets
+    the null's resolution ``1 / (draws + 1)`` (about 1.5e-5 for 60 samples), which is still below the verdict's
+    family-wise level for up to ~60 channels. Above the sample limit the chi-square tail is used.
 
     Example:
         >>> rng = np.random.default_rng(1)
@@ -232,21 +280,16 @@ def pooled_ljung_box(pieces: list[np.ndarray], lags: int = 10) -> float:
     if not usable:
         return math.nan
     lags = max(1, min(lags, min(x.size for x in usable) // 2))
-    mean = float(np.mean(np.concatenate(usable)))
-    num = np.zeros(lags)
-    denom = 0.0
-    n = 0
-    for x in usable:
-        x = x - mean
-        denom += float(x @ x)
-        n += x.size
-        for k in range(1, lags + 1):
-            num[k - 1] += float(x[k:] @ x[:-k])
-    if denom <= 0:
+    lengths = tuple(int(x.size) for x in usable)
+    joined = np.concatenate(usable)
+    if float(np.sum((joined - joined.mean()) ** 2)) <= 0:
         return math.nan
-    acf = num / denom
-    q = n * (n + 2) * float(np.sum(acf**2 / (n - np.arange(1, lags + 1))))
-    return float(stats.chi2.sf(q, lags))
+    q = float(_pooled_q(joined[None], lengths, lags)[0])
+    if joined.size > EXACT_NULL_MAX_SAMPLES:
+        return float(stats.chi2.sf(q, lags))
+    null = _null_q(lengths, lags)
+    exceed = null.size - int(np.searchsorted(null, q, side="left"))
+    return (1 + exceed) / (1 + null.size)
 
 
 def assess(
