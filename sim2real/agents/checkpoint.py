@@ -233,6 +233,7 @@ def load_checkpoint(path: str | os.PathLike[str], *, task: str | None = None) ->
         config.hidden_sizes,
         config.activation,
         config.init_log_std,
+        getattr(config, "angle_obs", ()),
     )
     _load_weights(actor, data["state_dict"], file)
     return Checkpoint(

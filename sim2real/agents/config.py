@@ -311,6 +311,11 @@ class SACConfig(_ConfigBase):
         adr: automatic domain randomisation for the run: YAML of an ADR config (``effects`` with Uniform or
             LogUniform hard limits, ``delta``, ``t_low``, ``t_high``, optional ``p_boundary``, ``m``, ``metric``,
             ``initial``; see :meth:`randomizers.ADR.from_config`), stored canonicalised; None for none.
+        angle_obs: indices of observation entries that are joint angles in radians; the actor and critics see
+            ``sin`` and ``cos`` of each instead of the raw value (see :class:`~sim2real.agents.nets.Normalize`).
+            An unbounded hinge's raw angle leaves the range the networks were trained on once the joint has turned
+            past +-pi (dm-control reacher's shoulder); empty (the default) feeds every entry raw. The env and its
+            observations are unchanged: this is part of the policy, stored with its checkpoint.
     """
 
     algo: ClassVar[str] = "sac"
@@ -333,10 +338,20 @@ class SACConfig(_ConfigBase):
     adr: str | None = None
     target_entropy: float | None = None
     n_step: int = 1
+    angle_obs: tuple[int, ...] = ()
 
-    _omit_default: ClassVar[frozenset[str]] = frozenset({"adr", "target_entropy", "n_step"})
+    _omit_default: ClassVar[frozenset[str]] = frozenset({"adr", "target_entropy", "n_step", "angle_obs"})
 
     def _validate(self) -> None:
+        if isinstance(self.angle_obs, list):  # YAML and JSON give lists
+            object.__setattr__(self, "angle_obs", tuple(self.angle_obs))
+        angles = self.angle_obs
+        if (
+            not isinstance(angles, tuple)
+            or not all(_is_int(i) and i >= 0 for i in angles)
+            or len(set(angles)) != len(angles)
+        ):
+            raise ValueError(f"`angle_obs` must be a tuple of distinct ints >= 0. Received {angles!r}.")
         _positive_int("frames", self.frames)
         _positive_int("frames_per_batch", self.frames_per_batch)
         _nonnegative_int("init_random_frames", self.init_random_frames)

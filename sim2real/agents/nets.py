@@ -33,16 +33,53 @@ _ACTIVATIONS: dict[str, type[nn.Module]] = {"tanh": nn.Tanh, "relu": nn.ReLU, "e
 
 class Normalize(nn.Module):
     """Fixed affine input normalisation ``(x - loc) / scale``; ``loc`` and ``scale`` are buffers, so they
-    travel in the state dict (and checkpoints) with the weights. Identity until :meth:`set_stats`."""
+    travel in the state dict (and checkpoints) with the weights. Identity until :meth:`set_stats`.
+
+    Entries listed in ``angles`` (joint angles in radians) are not normalised: entry ``i`` becomes ``sin(x_i)``
+    and ``cos(x_i)`` is appended after the ``dim`` entries, in the order of ``angles`` (``out_dim = dim +
+    len(angles)``). A hinge that has turned once more then looks as it did before the turn, where the raw angle
+    would be a value the network never saw. The state dict is the same with or without ``angles`` (they are
+    rebuilt from the config).
+
+    Args:
+        dim: observation size.
+        angles: indices of the angle entries, each ``< dim``.
+
+    Raises:
+        ValueError: an index outside ``[0, dim)`` or repeated.
+
+    Example:
+        >>> import math
+        >>> norm = Normalize(3, angles=(0,))
+        >>> norm.out_dim
+        4
+        >>> a = norm(torch.tensor([0.5, 2.0, 3.0]))
+        >>> b = norm(torch.tensor([0.5 + 2 * math.pi, 2.0, 3.0]))
+        >>> bool(torch.allclose(a, b, atol=1e-6)), [round(v, 3) for v in a.tolist()]
+        (True, [0.479, 2.0, 3.0, 0.878])
+    """
 
     # Registered as buffers in __init__; declared so the type checker sees tensors, not Module.__getattr__.
     loc: torch.Tensor
     scale: torch.Tensor
+    angle_index: torch.Tensor
 
-    def __init__(self, dim: int) -> None:
+    def __init__(self, dim: int, angles: Sequence[int] = ()) -> None:
         super().__init__()
+        angles = tuple(angles)
+        if len(set(angles)) != len(angles) or not all(
+            isinstance(i, int) and not isinstance(i, bool) and 0 <= i < dim for i in angles
+        ):
+            raise ValueError(
+                f"`angle_obs` must hold distinct observation indices in [0, {dim}) (the observation has {dim} "
+                f"entries). Received {list(angles)}."
+            )
+        self.angles = angles
+        self.out_dim = dim + len(angles)
         self.register_buffer("loc", torch.zeros(dim))
         self.register_buffer("scale", torch.ones(dim))
+        # Not persistent: a checkpoint's state dict keeps the keys it had before angle features existed.
+        self.register_buffer("angle_index", torch.tensor(angles, dtype=torch.long), persistent=False)
 
     def set_stats(self, loc: torch.Tensor, scale: torch.Tensor) -> None:
         """Sets the statistics in place (every module sharing this normaliser sees them)."""
@@ -50,8 +87,12 @@ class Normalize(nn.Module):
         self.scale.copy_(scale)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """Normalised ``x``."""
-        return (x - self.loc) / self.scale
+        """Normalised ``x`` (with the angle entries as sines and their cosines appended)."""
+        out = (x - self.loc) / self.scale
+        if not self.angles:
+            return out
+        raw = x.index_select(-1, self.angle_index)
+        return torch.cat((out.index_copy(-1, self.angle_index, torch.sin(raw)), torch.cos(raw)), -1)
 
 
 class _QNet(nn.Module):
@@ -81,6 +122,7 @@ def build_actor(
     hidden_sizes: Sequence[int],
     activation: str,
     init_log_std: float = 0.0,
+    angle_obs: Sequence[int] = (),
 ) -> ProbabilisticActor:
     """A tanh-Gaussian policy ``observation -> action`` bounded to ``[low, high]``.
 
@@ -95,6 +137,8 @@ def build_actor(
         hidden_sizes: hidden layer widths.
         activation: ``"tanh"``, ``"relu"`` or ``"elu"``.
         init_log_std: initial log standard deviation before the tanh.
+        angle_obs: observation entries that are angles in radians, fed as sine and cosine (see
+            :class:`Normalize`).
 
     Returns:
         A ``ProbabilisticActor`` reading ``"observation"`` and writing ``"action"`` (and
@@ -104,15 +148,15 @@ def build_actor(
     low_t = torch.as_tensor(list(low), dtype=torch.float32)
     high_t = torch.as_tensor(list(high), dtype=torch.float32)
     act_dim = int(low_t.numel())
-    norm = Normalize(obs_dim)
+    norm = Normalize(obs_dim, angle_obs)
     if algo == "ppo":
         net = nn.Sequential(
             norm,
-            _mlp(obs_dim, act_dim, hidden_sizes, activation),
+            _mlp(norm.out_dim, act_dim, hidden_sizes, activation),
             AddStateIndependentNormalScale(act_dim, init_value=float(init_log_std)),
         )
     else:
-        mlp = _mlp(obs_dim, 2 * act_dim, hidden_sizes, activation)
+        mlp = _mlp(norm.out_dim, 2 * act_dim, hidden_sizes, activation)
         with torch.no_grad():  # start the scale near exp(init_log_std) through the biased softplus
             mlp[-1].bias[act_dim:].fill_(float(init_log_std))
         net = nn.Sequential(norm, mlp, NormalParamExtractor(scale_mapping="biased_softplus_1.0"))
@@ -136,6 +180,7 @@ def actor_dims(actor: nn.Module) -> tuple[int, list[float], list[float]]:
     """
     spec: Any = getattr(actor, "spec", None)  # a TorchRL Composite when made by build_actor; checked below
     linear = next((m for m in actor.modules() if isinstance(m, nn.Linear)), None)
+    norm = next((m for m in actor.modules() if isinstance(m, Normalize)), None)
     try:
         action = spec["action"]
         low, high = action.space.low, action.space.high
@@ -146,7 +191,8 @@ def actor_dims(actor: nn.Module) -> tuple[int, list[float], list[float]]:
             "`policy` must be an actor built by sim2real.agents (the `policy` of a TrainResult or of a "
             f"loaded checkpoint). Received {type(actor).__name__}."
         )
-    return int(linear.in_features), [float(v) for v in low.flatten()], [float(v) for v in high.flatten()]
+    obs_dim = int(norm.loc.numel()) if norm is not None else int(linear.in_features)  # angle features widen the MLP
+    return obs_dim, [float(v) for v in low.flatten()], [float(v) for v in high.flatten()]
 
 
 def actor_normalizer(actor: nn.Module) -> Normalize:
@@ -159,16 +205,16 @@ def actor_normalizer(actor: nn.Module) -> Normalize:
 
 def build_critic(obs_dim: int, hidden_sizes: Sequence[int], activation: str, norm: Normalize) -> ValueOperator:
     """State-value network ``observation -> state_value`` (PPO), sharing the actor's normaliser ``norm``."""
-    return ValueOperator(nn.Sequential(norm, _mlp(obs_dim, 1, hidden_sizes, activation)), in_keys=[OBS_KEY])
+    return ValueOperator(nn.Sequential(norm, _mlp(norm.out_dim, 1, hidden_sizes, activation)), in_keys=[OBS_KEY])
 
 
 def build_qvalue(
     obs_dim: int, act_dim: int, hidden_sizes: Sequence[int], activation: str, norm: Normalize
 ) -> ValueOperator:
     """Action-value network ``(observation, action) -> state_action_value`` (SAC), normalising the observation
-    with the actor's ``norm``."""
+    with the actor's ``norm`` (its angle features included)."""
     return ValueOperator(
-        _QNet(norm, _mlp(obs_dim + act_dim, 1, hidden_sizes, activation)),
+        _QNet(norm, _mlp(norm.out_dim + act_dim, 1, hidden_sizes, activation)),
         in_keys=[OBS_KEY, "action"],
         out_keys=["state_action_value"],
     )

@@ -86,7 +86,12 @@ def _tanh_normal_fast_path(
         if list(inner.out_keys) != ["loc", "scale"] or list(inner.in_keys) != [key]:
             return None
         net = inner.module
-        probe = torch.randn(7, int(next(m for m in net.modules() if isinstance(m, torch.nn.Linear)).in_features))
+        from sim2real.agents.nets import Normalize
+
+        # The observation width: the normaliser's (its angle features widen the first Linear), else the Linear's.
+        first = next(m for m in net.modules() if isinstance(m, (Normalize, torch.nn.Linear)))
+        width = first.loc.numel() if isinstance(first, Normalize) else first.in_features
+        probe = torch.randn(7, int(width))
         probe = probe.to(dtype)
         with torch.no_grad():
             loc, scale = net(probe)

@@ -133,7 +133,7 @@ def train_sac(
     try:
         act_dim = len(steps.low)
         actor = build_actor("sac", steps.obs_dim, steps.low, steps.high, cfg.hidden_sizes, cfg.activation,
-                            cfg.init_log_std)  # fmt: skip
+                            cfg.init_log_std, cfg.angle_obs)  # fmt: skip
         norm = actor_normalizer(actor)
         _fit_normalizer(steps, norm, cfg.obs_norm_frames, act_dim)
         qvalues = [build_qvalue(steps.obs_dim, act_dim, cfg.hidden_sizes, cfg.activation, norm) for _ in range(2)]
