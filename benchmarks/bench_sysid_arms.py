@@ -33,6 +33,7 @@ Usage:
     python benchmarks/bench_sysid_arms.py --fits 10 --arm 1 --no-manipulator  # only the 6-DoF servo arm
     python benchmarks/bench_sysid_arms.py --fits 30 --workers 2 --save /tmp/mc.npz  # 2 processes, keep every run
     python benchmarks/bench_sysid_arms.py --time-manipulator 0,4,5  # only time the manipulator fit on 3 logs
+    python benchmarks/bench_sysid_arms.py --merge a.npz b.npz  # report runs saved by two --save runs together
 """
 
 from __future__ import annotations
@@ -350,6 +351,56 @@ def report(case: Case) -> dict[str, float]:
     }
 
 
+def load_cases(paths: list[str]) -> list[Case]:
+    """The cases of several ``--save`` files, runs concatenated per case name in the order given (``--merge``).
+
+    A case may be in some of the files only (a Monte Carlo continued with ``--first`` for one ``--arm``); its
+    truth must be the same in every file that holds it, else the error names the files.
+    """
+    merged: dict[str, list[dict[str, np.ndarray]]] = {}
+    for path in paths:
+        with np.load(path) as z:
+            names = [str(z[k]) for k in sorted(k for k in z.files if k.endswith("_name"))]
+            for k in range(len(names)):
+                merged.setdefault(str(z[f"{k}_name"]), []).append({f: z[f"{k}_{f}"] for f in _SAVED})
+    cases = []
+    for name, parts in merged.items():
+        if any(not np.array_equal(p["truth"], parts[0]["truth"]) for p in parts):
+            raise SystemExit(f"--merge: case {name!r} has a different truth in one of {paths}.")
+        cat = {f: np.concatenate([p[f] for p in parts]) for f in _SAVED if f not in ("name", "addresses", "truth")}
+        cases.append(
+            Case(
+                name=name,
+                addresses=tuple(str(a) for a in parts[0]["addresses"]),
+                truth=parts[0]["truth"],
+                estimates=cat["estimates"],
+                inside=cat["inside"],
+                crlb=cat["crlb"],
+                seconds=cat["seconds"],
+                cpu_seconds=cat["cpu_seconds"],
+                horizons=tuple(int(h) for h in cat["horizons"]),
+                ok=tuple(bool(o) for o in cat["ok"]),
+                contact_rows=tuple(int(c) for c in cat["contact_rows"]),
+            )
+        )
+    return cases
+
+
+_SAVED = (
+    "name",
+    "addresses",
+    "truth",
+    "estimates",
+    "inside",
+    "crlb",
+    "seconds",
+    "cpu_seconds",
+    "horizons",
+    "ok",
+    "contact_rows",
+)
+
+
 def save_cases(path: str, cases: list[Case]) -> None:
     """Writes every case's per-run arrays to ``path`` (.npz, via a temporary file and a rename)."""
     arrays: dict[str, np.ndarray] = {}
@@ -376,6 +427,13 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=1, help="processes running fits side by side")
     parser.add_argument("--save", default=None, help="write every run's estimates and intervals to this .npz")
     parser.add_argument(
+        "--merge",
+        nargs="+",
+        default=None,
+        metavar="NPZ",
+        help="report the runs of these --save files together (a Monte Carlo continued with --first) and exit",
+    )
+    parser.add_argument(
         "--time-manipulator",
         default=None,
         metavar="RUNS",
@@ -388,6 +446,21 @@ def main() -> None:
         except ValueError:
             parser.error(f"--time-manipulator must be comma-separated run numbers. Received {args.time_manipulator!r}.")
         time_manipulator(chosen_runs)
+        return
+    if args.merge is not None:
+        merged = load_cases(args.merge)
+        arms = [c for c in merged if not c.name.startswith("dmc/")]
+        summaries = [report(c) for c in merged]
+        inside = np.concatenate([c.inside.ravel() for c in arms]) if arms else np.zeros(0)
+        arm_summaries = [s for c, s in zip(merged, summaries, strict=True) if c in arms]
+        print(
+            f"\nMERGED {len(args.merge)} files: arms={len(arms)} fits_per_arm={[len(c.ok) for c in arms]} "
+            f"pooled_coverage={inside.mean() if inside.size else float('nan'):.3f} (n={inside.size}) "
+            f"max_sd_over_crlb={max((s['max_ratio'] for s in arm_summaries), default=float('nan')):.2f} "
+            f"params_sd_over_crlb_above_1.2_at_95%={sum(int(s['above']) for s in arm_summaries)} "
+            f"undecided={sum(int(s['undecided']) for s in arm_summaries)} ok={sum(sum(c.ok) for c in merged)}/"
+            f"{sum(len(c.ok) for c in merged)}"
+        )
         return
     if args.fits < 1 or args.workers < 1:
         parser.error(f"--fits and --workers must be >= 1. Received {args.fits} and {args.workers}.")
