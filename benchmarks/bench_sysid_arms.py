@@ -77,6 +77,7 @@ class Run:
     horizon: int
     ok: bool
     contact_rows: int
+    reasons: tuple[str, ...] = ()  # why the fit is not ok (FitQuality.reasons)
 
 
 @dataclass(frozen=True)
@@ -147,6 +148,7 @@ def _timed_fit(
         horizon=int(result.quality.horizon),
         ok=bool(result.ok),
         contact_rows=int(result.quality.contact_rows),
+        reasons=tuple(result.quality.reasons),
     )
 
 
@@ -251,7 +253,7 @@ def _progress(done: int, total: int, job: tuple[str, int, int], run: Run, starte
     what = "manipulator" if kind == "manipulator" else f"arm {index}"
     print(
         f"  [{done}/{total}] {what} run {number}: {run.seconds:.1f} s, ok {run.ok}, "
-        f"{time.perf_counter() - started:.0f} s elapsed",
+        f"{time.perf_counter() - started:.0f} s elapsed" + ("" if run.ok else f", reasons {list(run.reasons)}"),
         flush=True,
     )
     # Every run's numbers in the log too, so an interrupted Monte Carlo can still be analysed.
