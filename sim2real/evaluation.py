@@ -206,6 +206,8 @@ def _batched_episodes(
     draws: dict[str, np.ndarray] = {}
     safety: dict[str, dict[str, np.ndarray]] = {}
     steps = 0
+    if meter is not None:
+        meter.bind_batch(worlds.physics.batch)  # before the resets: a field bound between calls reads zeros
     for p, (name, policy) in enumerate(policies):
         obs, params = worlds.reset(seed=seeds)
         if p == 0:
@@ -223,8 +225,7 @@ def _batched_episodes(
             obs, reward, terminated, truncated, bad = worlds.step(policy(obs), mask=active)
             if meter is not None:
                 diverged |= bad
-                for i in np.flatnonzero(active).tolist():
-                    meter.observe(i, worlds.models[i], worlds.datas[i])
+                meter.observe_batch(np.flatnonzero(active).tolist(), worlds.models, worlds.physics.data)
             total += reward  # 0.0 where a world is done, as the per-env loop leaves those sums untouched
             length += active
             success = np.where(active, terminated, success)  # a task's is_success is its termination

@@ -212,6 +212,33 @@ def test_batched_engine_measures_the_same_as_per_env() -> None:
     assert plain.returns["reach"]["sim"].tolist() == runs[0].returns["reach"]["sim"].tolist()
 
 
+def test_batched_meter_reads_the_batch_like_the_single_env_on_the_study_arm() -> None:
+    """The study's envelope on reacher: an end-effector *body* (``xipos``), the wrist's limit constraint (the
+    ``efc_type`` look-up copies a world out of the batch) and the effort ratio, batched and per env bitwise."""
+    from sim2real.agents import ReacherPD
+
+    limits = load_limits(Path(__file__).parents[1] / "sim2real/data/study/dmc-reacher-easy/safety.yaml")
+    conditions = [nominal(), *sweep({"type": "ActuatorGain", "scale": 1.0}, "scale", [1.0, 1.5])]
+    runs = [
+        evaluate(
+            {"pd": ReacherPD()},
+            "dmc/reacher-easy",
+            conditions,
+            episodes=3,
+            seed=1,
+            max_steps=300,
+            safety=limits,
+            engine=engine,
+        )
+        for engine in ("auto", "per-env")
+    ]
+    assert set(runs[0].engines.values()) == {"batched"} and set(runs[1].engines.values()) == {"per-env"}
+    assert runs[0].to_json() == runs[1].to_json()
+    measured = runs[0].safety["pd"]["ActuatorGain.scale=1.5"]
+    assert measured["joint_limit_hits"].max() > 0 and (measured["ee_speed"] > 0).all()
+    assert measured["effort_ratio"].max() == pytest.approx(1.5)
+
+
 # ------------------------------------------------------------------------------------------------ the command line
 
 
