@@ -198,7 +198,8 @@ def _batched_episodes(
     meter: Any = None,
 ) -> _JobResult:
     """:func:`_episodes` on the batched engine: the same resets, the same sums in the same order. With a safety
-    ``meter``, each stepped world's ``MjData`` (the same state the single env leaves) is read after every step."""
+    ``meter``, every stepped world is measured after every step from the batch's arrays
+    (:meth:`~sim2real.safety_probe.SafetyMeter.observe_batch`: the quantities the single env's ``MjData`` gives)."""
     n = worlds.num_envs
     returns: dict[str, np.ndarray] = {}
     lengths: dict[str, np.ndarray] = {}
