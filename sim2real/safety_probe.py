@@ -135,43 +135,16 @@ class SafetyMeter:
     def observe(self, i: int, model: mujoco.MjModel, data: mujoco.MjData) -> None:
         """Folds env ``i``'s state after a control step (``model``/``data`` of its physics) into its episode's
         peaks and counts."""
-        qpos = data.qpos.tolist()
-        hit = False
-        for adr, low, high in self._ranges:
-            value = qpos[adr]
-            if value < low or value > high:
-                hit = True
-                break
-        if not hit and self._any_limited and data.nefc:
-            hit = _LIMIT_JOINT in data.efc_type[: data.nefc].tolist()
-        if hit:
-            self.hits[i] += 1.0
-        if self._scales:
-            force = data.actuator_force.tolist()
-            ratio = max(abs(force[k]) * scale for k, scale in self._scales)
-            if ratio > self.effort[i]:
-                self.effort[i] = ratio
-        if len(self._geoms) and data.ncon:
-            peak = self._contact_peak(model, data)
-            if peak > self.contact[i]:
-                self.contact[i] = peak
-        if self._object is not None:
-            velocity = self._vel6
-            mujoco.mj_objectVelocity(model, data, self._object[0], self._object[1], velocity, 0)
-            speed = math.hypot(velocity[3], velocity[4], velocity[5])
-            if speed > self.speed[i]:
-                self.speed[i] = speed
+        moving = data if self._object is not None else None
+        self._fold(i, model, data.qpos.tolist(), data.nefc, data.actuator_force, data.ncon, lambda: data, moving)
 
     def bind_batch(self, batch: Any) -> None:
         """Registers the ``mujoco.batch.Batch`` fields :meth:`observe_batch` reads (before the batch's next call: a
         derived field bound between calls holds zeros until then)."""
         names = ["qpos", "nefc", "actuator_force", "ncon"]
         if self._object is not None:
-            names += [
-                "cvel",
-                "subtree_com",
-                "xipos" if self._object[0] == int(mujoco.mjtObj.mjOBJ_BODY) else "site_xpos",
-            ]
+            body = self._object[0] == int(mujoco.mjtObj.mjOBJ_BODY)
+            names += ["cvel", "subtree_com", "xipos" if body else "site_xpos"]
         self._bound = {name: batch.bind(name) for name in names}
         self._scratch: mujoco.MjData | None = None
 
@@ -185,44 +158,59 @@ class SafetyMeter:
         the three arrays it reads (the body's ``cvel``, the point, the root's ``subtree_com``)."""
         bound = self._bound
         qpos_all, nefc, force_all, ncon = bound["qpos"], bound["nefc"], bound["actuator_force"], bound["ncon"]
+        point = bound.get("xipos", bound.get("site_xpos"))
         for i in worlds:
-            data: mujoco.MjData | None = None
-            qpos = qpos_all[i].tolist()
-            hit = False
-            for adr, low, high in self._ranges:
-                value = qpos[adr]
-                if value < low or value > high:
-                    hit = True
-                    break
-            if not hit and self._any_limited and nefc[i]:
-                data = data_of(i)
-                hit = _LIMIT_JOINT in data.efc_type[: data.nefc].tolist()
-            if hit:
-                self.hits[i] += 1.0
-            if self._scales:
-                force = force_all[i].tolist()
-                ratio = max(abs(force[k]) * scale for k, scale in self._scales)
-                if ratio > self.effort[i]:
-                    self.effort[i] = ratio
-            if len(self._geoms) and ncon[i]:
-                peak = self._contact_peak(models[i], data if data is not None else data_of(i))
-                if peak > self.contact[i]:
-                    self.contact[i] = peak
-            if self._object is not None:
-                scratch = self._scratch
-                if scratch is None:
-                    scratch = self._scratch = mujoco.MjData(models[i])
-                scratch.cvel[...] = bound["cvel"][i]
-                scratch.subtree_com[...] = bound["subtree_com"][i]
-                if "xipos" in bound:
-                    scratch.xipos[...] = bound["xipos"][i]
-                else:
-                    scratch.site_xpos[...] = bound["site_xpos"][i]
-                velocity = self._vel6
-                mujoco.mj_objectVelocity(models[i], scratch, self._object[0], self._object[1], velocity, 0)
-                speed = math.hypot(velocity[3], velocity[4], velocity[5])
-                if speed > self.speed[i]:
-                    self.speed[i] = speed
+            moving = None
+            if point is not None:
+                moving = self._scratch
+                if moving is None:
+                    moving = self._scratch = mujoco.MjData(models[i])
+                moving.cvel[...] = bound["cvel"][i]
+                moving.subtree_com[...] = bound["subtree_com"][i]
+                (moving.xipos if "xipos" in bound else moving.site_xpos)[...] = point[i]
+            full = lambda i=i: data_of(i)  # noqa: E731 - called at most twice, only when needed
+            self._fold(i, models[i], qpos_all[i].tolist(), nefc[i], force_all[i], ncon[i], full, moving)
+
+    def _fold(
+        self,
+        i: int,
+        model: mujoco.MjModel,
+        qpos: list[float],
+        nefc: int,
+        force_row: np.ndarray,
+        ncon: int,
+        full: Callable[[], mujoco.MjData],
+        moving: mujoco.MjData | None,
+    ) -> None:
+        """One step of env ``i`` into its peaks and counts: ``full()`` gives its whole ``MjData`` (asked for only
+        to look through constraint rows or contacts), ``moving`` the data ``mj_objectVelocity`` reads."""
+        data: mujoco.MjData | None = None
+        hit = False
+        for adr, low, high in self._ranges:
+            value = qpos[adr]
+            if value < low or value > high:
+                hit = True
+                break
+        if not hit and self._any_limited and nefc:
+            data = full()
+            hit = _LIMIT_JOINT in data.efc_type[: data.nefc].tolist()
+        if hit:
+            self.hits[i] += 1.0
+        if self._scales:
+            force = force_row.tolist()
+            ratio = max(abs(force[k]) * scale for k, scale in self._scales)
+            if ratio > self.effort[i]:
+                self.effort[i] = ratio
+        if len(self._geoms) and ncon:
+            peak = self._contact_peak(model, data if data is not None else full())
+            if peak > self.contact[i]:
+                self.contact[i] = peak
+        if moving is not None and self._object is not None:
+            velocity = self._vel6
+            mujoco.mj_objectVelocity(model, moving, self._object[0], self._object[1], velocity, 0)
+            speed = math.hypot(velocity[3], velocity[4], velocity[5])
+            if speed > self.speed[i]:
+                self.speed[i] = speed
 
     def _contact_peak(self, model: mujoco.MjModel, data: mujoco.MjData) -> float:
         pairs = data.contact.geom[: data.ncon]
