@@ -10,6 +10,9 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import mujoco
 import numpy as np
 
+import randomizers
+import sim2real
+
 
 def model_arrays(model: mujoco.MjModel) -> dict[str, np.ndarray]:
     """Copies of every numeric array of ``model`` (and of ``model.opt``), for bitwise comparison."""
@@ -54,3 +57,49 @@ def reset_and_compare(batched: Any, singles: list[Any], seeds: list[int] | None)
         for key, value in reported.items():
             assert params[key][i] == value, key  # bitwise, the same draw
     return obs, params
+
+
+# A 3-joint arm with a slide joint, joint limits, a position servo next to motors, a free ball that it can hit
+# and a touch sensor: nothing like the shipped tasks (tests/test_fused.py and tests/test_hot_path.py, whose digests
+# were recorded with it: keep it byte for byte).
+GENERATED_ARM = """
+<mujoco model="generated">
+  <option timestep="0.004" gravity="0 0 -9.81"/>
+  <worldbody>
+    <geom name="floor" type="plane" size="2 2 0.1"/>
+    <body name="base" pos="0 0 0.3">
+      <joint name="lift" type="slide" axis="0 0 1" range="-0.2 0.2" damping="2"/>
+      <geom name="base_geom" type="box" size="0.05 0.05 0.05" mass="1.5"/>
+      <body name="upper" pos="0 0 0.05">
+        <joint name="shoulder" type="hinge" axis="0 1 0" range="-1.5 1.5" damping="0.3"/>
+        <geom name="upper_geom" type="capsule" fromto="0 0 0 0.3 0 0" size="0.03" mass="0.6"/>
+        <body name="fore" pos="0.3 0 0">
+          <joint name="elbow" type="hinge" axis="0 1 0" damping="0.2"/>
+          <geom name="fore_geom" type="capsule" fromto="0 0 0 0.25 0 0" size="0.025" mass="0.4"/>
+          <site name="tip" pos="0.25 0 0" size="0.02"/>
+        </body>
+      </body>
+    </body>
+    <body name="ball" pos="0.4 0 0.1">
+      <freejoint/>
+      <geom name="ball_geom" type="sphere" size="0.05" mass="0.2"/>
+    </body>
+  </worldbody>
+  <actuator>
+    <position name="lift_servo" joint="lift" kp="80" ctrlrange="-0.2 0.2"/>
+    <motor name="shoulder_motor" joint="shoulder" gear="5" ctrlrange="-1 1" ctrllimited="true"/>
+    <motor name="elbow_motor" joint="elbow" gear="3" ctrlrange="-1 1" ctrllimited="true"/>
+  </actuator>
+  <sensor>
+    <touch name="tip_touch" site="tip"/>
+    <framepos name="tip_pos" objtype="site" objname="tip"/>
+  </sensor>
+</mujoco>
+"""
+
+PHYSICS = (
+    sim2real.Friction(scale=randomizers.Uniform(0.5, 1.5)),
+    sim2real.Mass(scale=randomizers.Uniform(0.8, 1.2), bodies="*"),
+    sim2real.Damping(scale=randomizers.Uniform(0.5, 2.0)),
+    sim2real.ActuatorGain(scale=randomizers.Uniform(0.9, 1.1)),
+)

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from conftest import GENERATED_ARM, PHYSICS  # the arm and effects tests/test_fused.py's digests were recorded with
 
 import sim2real as s2r
 from noise_models import (
@@ -35,50 +36,6 @@ from noise_models import (
 )
 from randomizers import Uniform
 from sim2real.mjcf_env import MjcfEnv
-
-# A 3-joint arm with a slide joint, joint limits, a position servo next to motors and a free ball (as in
-# tests/test_fused.py, which the digests below were recorded with).
-GENERATED_ARM = """
-<mujoco model="generated">
-  <option timestep="0.004" gravity="0 0 -9.81"/>
-  <worldbody>
-    <geom name="floor" type="plane" size="2 2 0.1"/>
-    <body name="base" pos="0 0 0.3">
-      <joint name="lift" type="slide" axis="0 0 1" range="-0.2 0.2" damping="2"/>
-      <geom name="base_geom" type="box" size="0.05 0.05 0.05" mass="1.5"/>
-      <body name="upper" pos="0 0 0.05">
-        <joint name="shoulder" type="hinge" axis="0 1 0" range="-1.5 1.5" damping="0.3"/>
-        <geom name="upper_geom" type="capsule" fromto="0 0 0 0.3 0 0" size="0.03" mass="0.6"/>
-        <body name="fore" pos="0.3 0 0">
-          <joint name="elbow" type="hinge" axis="0 1 0" damping="0.2"/>
-          <geom name="fore_geom" type="capsule" fromto="0 0 0 0.25 0 0" size="0.025" mass="0.4"/>
-          <site name="tip" pos="0.25 0 0" size="0.02"/>
-        </body>
-      </body>
-    </body>
-    <body name="ball" pos="0.4 0 0.1">
-      <freejoint/>
-      <geom name="ball_geom" type="sphere" size="0.05" mass="0.2"/>
-    </body>
-  </worldbody>
-  <actuator>
-    <position name="lift_servo" joint="lift" kp="80" ctrlrange="-0.2 0.2"/>
-    <motor name="shoulder_motor" joint="shoulder" gear="5" ctrlrange="-1 1" ctrllimited="true"/>
-    <motor name="elbow_motor" joint="elbow" gear="3" ctrlrange="-1 1" ctrllimited="true"/>
-  </actuator>
-  <sensor>
-    <touch name="tip_touch" site="tip"/>
-    <framepos name="tip_pos" objtype="site" objname="tip"/>
-  </sensor>
-</mujoco>
-"""
-
-PHYSICS = (
-    s2r.Friction(scale=Uniform(0.5, 1.5)),
-    s2r.Mass(scale=Uniform(0.8, 1.2), bodies="*"),
-    s2r.Damping(scale=Uniform(0.5, 2.0)),
-    s2r.ActuatorGain(scale=Uniform(0.9, 1.1)),
-)
 
 
 def _stack(name: str) -> tuple[Any, ...]:
