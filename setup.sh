@@ -106,7 +106,7 @@ fi
 
 # --------------------------------------------------------------------------- Python packages
 # pip byte-compiles what it installs (half of the install's CPU time). Keep it: where PYTHONDONTWRITEBYTECODE=1 is set
-# (as on the CI box), a venv without .pyc files recompiles every import in every process (torch + torchrl + dm_control:
+# (as on this workplace's machines), a venv without .pyc files recompiles every import in every process (torch + torchrl + dm_control:
 # 10.5 s vs 4.5 s per process), which cost the test suite 878 s vs 542 s.
 PIP=(.venv/bin/python -m pip install --progress-bar off --disable-pip-version-check)
 TORCH=torch==2.13.0   # keep equal to constraints.txt and requirements.lock
