@@ -180,7 +180,7 @@ def test_undefined_and_degenerate_numbers_are_explained() -> None:
     g = report.gap("scripted", "sim", "real")
     assert math.isnan(g.relative.value) and math.isnan(g.relative.low)
     assert "the relative gap is undefined: the sim mean return is 0" in text
-    assert "0 \\[0, 0\\] (no spread: every run returned the same)" in report.to_markdown()
+    assert "0 \\[0, 0\\] (no spread: the same in every bootstrap resample)" in report.to_markdown()
     assert "undefined: the sim return is 0" in report.to_markdown()
 
 
@@ -221,3 +221,14 @@ def test_bad_training_and_labels_are_refused() -> None:
         GapReport.build(evaluation, policy_labels={"ppo": "x"})
     with pytest.raises(ValueError, match=r"`control_timestep` must be a number of seconds > 0 or None. Received 0."):
         GapReport.build(evaluation, control_timestep=0)
+
+
+def test_a_tail_statistic_without_spread_does_not_claim_every_run_agreed() -> None:
+    """CVaR 0.1 of 32 runs of which 8 return 0 is 0 in every resample, while the runs differ (0 to 960)."""
+    from sim2real.metrics import cvar
+    from sim2real.report.findings import cell
+
+    returns = np.concatenate([np.zeros(8), np.linspace(300.0, 960.0, 24)])[:, None]
+    (tail,) = cvar(returns, alpha=0.1, rng=0, num_resamples=500)
+    assert (tail.value, tail.low, tail.high) == (0.0, 0.0, 0.0)
+    assert cell(tail) == "0 [0, 0] (no spread: the same in every bootstrap resample)"

@@ -18,7 +18,7 @@ Example:
     >>> signed(Estimate(29.0, -10.0, 68.0, 0.95, 64, "percentile bootstrap"))
     '+29 [-10, +68]'
     >>> cell(Estimate(0.0, 0.0, 0.0, 0.95, 8, "percentile bootstrap"))
-    '0 [0, 0] (no spread: every run returned the same)'
+    '0 [0, 0] (no spread: the same in every bootstrap resample)'
 """
 
 from __future__ import annotations
@@ -58,7 +58,9 @@ def cell(e: Estimate | None, digits: int = 4) -> str:
         return "n/a"
     text = f"{num(e.value, digits)} [{num(e.low, digits)}, {num(e.high, digits)}]"
     if math.isfinite(e.value) and e.low == e.high == e.value:
-        text += " (no spread: every run returned the same)"
+        # Not "every run returned the same": a tail statistic (CVaR, worst) has no spread whenever the tail's runs
+        # agree (e.g. 10% of the episodes return 0), however different the others are.
+        text += " (no spread: the same in every bootstrap resample)"
     return text
 
 
