@@ -107,6 +107,10 @@ class _JobResult:
 
 #: Conditions per job: a job builds its envs once and reuses them for each of its conditions.
 _CONDITIONS_PER_JOB = 6
+#: Batched conditions a job steps side by side (one policy call acts for all of them). Wider is not faster: MuJoCo's
+#: stepping of a 32-world reacher batch costs 1.0x / 1.2x / 1.5x its time alone with 2 / 3 / 6 batches interleaved
+#: (the worlds' data no longer stay in the caches), which eats what the fewer policy calls save.
+_LOCKSTEP = 2
 
 
 def _observation(obs: Any, task: str) -> np.ndarray:
@@ -126,44 +130,183 @@ def _release(env: Any, base: Any) -> None:
 
 
 def _run_job(job: _Job) -> list[_JobResult]:
-    """Runs ``job.count`` episodes of every policy on each of the job's conditions, all envs stepped together."""
+    """Runs ``job.count`` episodes of every policy on each of the job's conditions. The conditions the batched
+    engine supports run together, in lockstep (:func:`_lockstep_episodes`); the others one after another on
+    shared envs stepped one by one."""
     from sim2real.agents.policy import as_policy
     from sim2real.tasks import headless_options
 
     n = job.count
     # Nothing here renders: build headless where the physics is the same (reacher's skybox was most of a build).
     options = headless_options(job.task, job.options, [cond.effects for cond in job.conditions])
-    base = [job.conditions[0].base_env(job.task, **options) for _ in range(n)]
     seeds = [episode_seed(job.seed, job.first + i) for i in range(n)]
     policies = [(name, as_policy(source, task=job.task)) for name, source in job.policies]
-    meter = None if job.safety is None else job.safety.meter(_physics(base[0]).model, n)
-    out = []
+    batched = [cond for cond in job.conditions if _batched_reason(job, cond) is None]
+    results: dict[str, _JobResult] = {}
     restore_threads = _single_torch_thread()
+    # Each batched condition of a lockstep chunk has its own worlds; the per-env conditions share the first set.
+    width = min(len(batched), _LOCKSTEP) or 1
+    bases = [[job.conditions[0].base_env(job.task, **options) for _ in range(n)] for _ in range(width)]
     try:
-        for cond in job.conditions:
-            if _batched_reason(job, cond) is None:
-                from sim2real.batched import BatchedEnv
+        meter = None if job.safety is None else job.safety.meter(_physics(bases[0][0]).model, n)
+        for first in range(0, len(batched), _LOCKSTEP):
+            from sim2real.batched import BatchedEnv
 
-                # The same single envs, reset seeds and streams, stepped together (bitwise the per-env results).
-                worlds = BatchedEnv(
-                    job.task, n, cond.effects, envs=base, stream_seeds=[job.seed] * n, end_diverged=bool(cond.effects)
-                )
-                try:
-                    out.append(_batched_episodes(job, cond, worlds, seeds, policies, meter))
-                finally:
-                    worlds.close()
-                continue
-            envs = [cond.wrap(b, seed=job.seed) for b in base]
+            chunk = batched[first : first + _LOCKSTEP]
+            worlds: list[Any] = []
             try:
-                out.append(_episodes(job, cond, envs, seeds, policies, meter))
+                # The same single envs, reset seeds and streams, stepped together (bitwise the per-env results).
+                # Side by side, each batch runs on this thread: several MuJoCo thread pools in one process fight over
+                # the cores (a 6-condition job: 2.4x the C stepping time with 2 threads each on the 2-core box).
+                threads = 1 if len(chunk) > 1 else None
+                for cond, base in zip(chunk, bases, strict=False):
+                    worlds.append(
+                        BatchedEnv(
+                            job.task, n, cond.effects, envs=base, stream_seeds=[job.seed] * n,
+                            end_diverged=bool(cond.effects), threads=threads,
+                        )
+                    )  # fmt: skip
+                meters = [None if meter is None else job.safety.meter(w.models[0], n) for w in worlds]
+                for res in _lockstep_episodes(job, chunk, worlds, seeds, policies, meters, _mergeable(job)):
+                    results[res.condition] = res
             finally:
-                for env, b in zip(envs, base, strict=True):
+                for w in worlds:
+                    w.close()
+        for cond in job.conditions:
+            if cond.name in results:
+                continue
+            envs = [cond.wrap(b, seed=job.seed) for b in bases[0]]
+            try:
+                results[cond.name] = _episodes(job, cond, envs, seeds, policies, meter)
+            finally:
+                for env, b in zip(envs, bases[0], strict=True):
                     _release(env, b)
     finally:
         restore_threads()
-        for env in base:
-            env.close()
-    return out
+        for base in bases:
+            for env in base:
+                env.close()
+    return [results[cond.name] for cond in job.conditions]
+
+
+def _mergeable(job: _Job) -> list[bool]:
+    """Per policy: whether one call may act for the worlds of all the job's conditions at once. Only a network
+    loaded from a checkpoint (stateless; a user's callable may keep state between calls, and a scripted baseline
+    is cheap anyway): its batched forward computes every row on its own, so the rows of a condition come out of
+    the joint call bitwise as out of a call of their own (which :func:`_rows_alike` checks on probe batches)."""
+    return [isinstance(source, (str, os.PathLike)) for _, source in job.policies]
+
+
+def _rows_alike(policy: Any, n: int, k: int, width: int) -> bool:
+    """Whether ``policy`` gives each block of ``n`` rows of a ``k * n``-row batch bitwise what it gives that block
+    alone, on four probe batches (a BLAS may compute a tiny batch through another kernel: one or two rows of a
+    torch MLP differ in the last bits of some actions on the 2-core box, four or more never did)."""
+    rng = np.random.default_rng(0)
+    for _ in range(4):
+        probe = rng.normal(size=(k * n, width)).astype(np.float32)
+        whole = policy(probe)
+        for j in range(k):
+            if not np.array_equal(policy(probe[j * n : (j + 1) * n]), whole[j * n : (j + 1) * n]):
+                return False
+    return True
+
+
+def _lockstep_episodes(
+    job: _Job,
+    conditions: list[Condition],
+    worlds: list[Any],
+    seeds: list[int],
+    policies: list[tuple[str, Any]],
+    meters: list[Any],
+    mergeable: list[bool],
+) -> list[_JobResult]:
+    """:func:`_episodes` on the batched engine, for every condition at once: policy by policy, all conditions'
+    worlds step control step by control step side by side, each condition in its own
+    :class:`~sim2real.batched.BatchedEnv` with its own safety meter, and a mergeable policy acts for all of them in
+    one call (a torch forward costs ~250 us whether it has 32 rows or 192). Each condition's resets, steps and sums
+    are those of the per-env loop, in the same order: a done world's reward is 0.0 and its sums stay untouched. With
+    a safety meter, every stepped world is measured after every step from the batch's arrays
+    (:meth:`~sim2real.safety_probe.SafetyMeter.observe_batch`: the quantities the single env's ``MjData`` gives)."""
+    c, n = len(conditions), worlds[0].num_envs
+    runs = [_Run(cond, w, m) for cond, w, m in zip(conditions, worlds, meters, strict=True)]
+    for run in runs:
+        if run.meter is not None:
+            run.meter.bind_batch(run.worlds.physics.batch)  # before the resets: a field bound between calls is 0
+    for p, (name, policy) in enumerate(policies):
+        merge = c > 1 and mergeable[p] and _rows_alike(policy, n, c, worlds[0].observation_dim)
+        for run in runs:
+            run.start(seeds, first=p == 0)
+        t = 0
+        while job.max_steps is None or t < job.max_steps:
+            going = [run for run in runs if not run.done.all()]
+            if not going:
+                break
+            if merge:  # rows of a finished condition are computed and not used, as a finished world's are
+                actions = policy(np.concatenate([run.obs for run in runs]))
+                for k, run in enumerate(runs):
+                    if not run.done.all():
+                        run.step(actions[k * n : (k + 1) * n])
+            else:
+                for run in going:
+                    run.step(policy(run.obs))
+            t += 1
+        for run in runs:
+            run.finish(name)
+    return [run.result(job) for run in runs]
+
+
+class _Run:
+    """One condition's episodes in :func:`_lockstep_episodes`: its worlds, meter and sums."""
+
+    def __init__(self, cond: Condition, worlds: Any, meter: Any) -> None:
+        self.cond, self.worlds, self.meter = cond, worlds, meter
+        n = worlds.num_envs
+        self.returns: dict[str, np.ndarray] = {}
+        self.lengths: dict[str, np.ndarray] = {}
+        self.successes: dict[str, np.ndarray] = {}
+        self.draws: dict[str, np.ndarray] = {}
+        self.safety: dict[str, dict[str, np.ndarray]] = {}
+        self.steps = 0
+        self.done = np.zeros(n, dtype=bool)
+
+    def start(self, seeds: list[int], first: bool) -> None:
+        n = self.worlds.num_envs
+        self.obs, params = self.worlds.reset(seed=seeds)
+        if first:
+            self.draws = {k: params[k] for k in sorted(params)}
+        self.total = np.zeros(n)
+        self.length = np.zeros(n, dtype=np.int64)
+        self.done = np.zeros(n, dtype=bool)
+        self.success = np.zeros(n, dtype=bool)
+        self.diverged = np.zeros(n, dtype=bool)
+        if self.meter is not None:
+            self.meter.reset()
+
+    def step(self, actions: np.ndarray) -> None:
+        worlds, active = self.worlds, ~self.done
+        self.obs, reward, terminated, truncated, bad = worlds.step(actions, mask=active)
+        if self.meter is not None:
+            self.diverged |= bad
+            self.meter.observe_batch(np.flatnonzero(active), worlds.models, worlds.physics.data)
+        self.total += reward  # 0.0 where a world is done, as the per-env loop leaves those sums untouched
+        self.length += active
+        self.success = np.where(active, terminated, self.success)  # a task's is_success is its termination
+        self.done |= terminated | truncated
+
+    def finish(self, name: str) -> None:
+        self.steps += int(self.length.sum())
+        self.returns[name] = self.total
+        self.lengths[name] = self.length
+        if self.worlds.kernel.reports_success:
+            self.successes[name] = self.success
+        if self.meter is not None:
+            self.safety[name] = self.meter.episodes(self.diverged)
+
+    def result(self, job: _Job) -> _JobResult:
+        return _JobResult(
+            self.cond.name, job.first, self.returns, self.lengths, self.successes, self.draws, self.steps,
+            "batched", self.safety,
+        )  # fmt: skip
 
 
 def _physics(env: Any) -> Any:
@@ -187,59 +330,6 @@ def _batched_reason(job: _Job, cond: Condition) -> str | None:
     from sim2real.batched import supports
 
     return supports(job.task, *cond.effects, options=job.options)
-
-
-def _batched_episodes(
-    job: _Job,
-    cond: Condition,
-    worlds: Any,
-    seeds: list[int],
-    policies: list[tuple[str, Any]],
-    meter: Any = None,
-) -> _JobResult:
-    """:func:`_episodes` on the batched engine: the same resets, the same sums in the same order. With a safety
-    ``meter``, every stepped world is measured after every step from the batch's arrays
-    (:meth:`~sim2real.safety_probe.SafetyMeter.observe_batch`: the quantities the single env's ``MjData`` gives)."""
-    n = worlds.num_envs
-    returns: dict[str, np.ndarray] = {}
-    lengths: dict[str, np.ndarray] = {}
-    successes: dict[str, np.ndarray] = {}
-    draws: dict[str, np.ndarray] = {}
-    safety: dict[str, dict[str, np.ndarray]] = {}
-    steps = 0
-    if meter is not None:
-        meter.bind_batch(worlds.physics.batch)  # before the resets: a field bound between calls reads zeros
-    for p, (name, policy) in enumerate(policies):
-        obs, params = worlds.reset(seed=seeds)
-        if p == 0:
-            draws = {k: params[k] for k in sorted(params)}
-        total = np.zeros(n)
-        length = np.zeros(n, dtype=np.int64)
-        done = np.zeros(n, dtype=bool)
-        success = np.zeros(n, dtype=bool)
-        diverged = np.zeros(n, dtype=bool)
-        if meter is not None:
-            meter.reset()
-        t = 0
-        while not done.all() and (job.max_steps is None or t < job.max_steps):
-            active = ~done
-            obs, reward, terminated, truncated, bad = worlds.step(policy(obs), mask=active)
-            if meter is not None:
-                diverged |= bad
-                meter.observe_batch(np.flatnonzero(active).tolist(), worlds.models, worlds.physics.data)
-            total += reward  # 0.0 where a world is done, as the per-env loop leaves those sums untouched
-            length += active
-            success = np.where(active, terminated, success)  # a task's is_success is its termination
-            done |= terminated | truncated
-            t += 1
-        steps += int(length.sum())
-        returns[name] = total
-        lengths[name] = length
-        if worlds.kernel.reports_success:
-            successes[name] = success
-        if meter is not None:
-            safety[name] = meter.episodes(diverged)
-    return _JobResult(cond.name, job.first, returns, lengths, successes, draws, steps, "batched", safety)
 
 
 def _single_torch_thread() -> Callable[[], None]:
