@@ -332,8 +332,10 @@ class SignalCorruptor:
         """Draws the next block of the ``k``-th ``side`` pipeline from its own stream (as its step would when
         its block is spent) and returns it."""
         pipe = self._pipes(side)[k]
-        pipe.refill()
-        return pipe.noise_block()
+        pipe.refill(rows=False)  # the reader takes the offsets whole: no per-row views (half a refill's cost)
+        block = pipe.noise_block()
+        pipe.r = BLOCK  # the reader steps the block: this pipeline's own next step draws the block after it
+        return block
 
     def pipeline_sizes(self, side: str) -> tuple[int, ...]:
         """Signal length of each ``side`` pipeline (after :meth:`bind`)."""

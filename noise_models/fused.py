@@ -55,7 +55,7 @@ class _Affine:
         self.F = np.zeros((BLOCK, size), dtype=dtype)
         self.G: np.ndarray | None = None
 
-    def refill(self, block: int) -> None:
+    def refill(self, block: int, rows: bool = True) -> None:
         F = np.zeros((BLOCK, self.size))
         G = np.ones(self.size)
         for p in self.parts:
@@ -67,7 +67,9 @@ class _Affine:
             else:
                 F[:, p.sel] += p.block(block)  # type: ignore[attr-defined]
         self.F = F.astype(self.dtype)
-        self.rows = list(self.F)  # row views made once per block, not per step
+        # Row views made once per block, not per step; skipped (`rows=False`) for code that reads F whole
+        # (NoiseBlock: the batched engine), where 256 views cost as much as the block's draws.
+        self.rows = list(self.F) if rows else []
         self.G = None if bool((G == 1.0).all()) else G.astype(self.dtype)
 
     def apply(self, x: np.ndarray, r: int) -> np.ndarray:
@@ -159,10 +161,15 @@ class Pipeline:
         self.simple = (1 if self.low is None else 3 if self.guard else 2) if plain else 0
         self.rows = stage.rows if plain else []
 
-    def refill(self) -> None:
+    def refill(self, rows: bool = True) -> None:
+        """Draws the next block (``rows=False``: without the per-row views the step's add reads, for a
+        :meth:`noise_block` reader that takes the offsets whole and steps them itself)."""
         self.block += 1
         for stage in self.stages:
-            stage.refill(self.block)
+            if isinstance(stage, _Affine):
+                stage.refill(self.block, rows)
+            else:
+                stage.refill(self.block)
         self.r = 0
         self._decide()
 

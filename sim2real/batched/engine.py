@@ -322,9 +322,10 @@ class BatchedEnv:
             raise ValueError(f"`actions` must have shape ({self.num_envs}, {self._action_dim}). Received {shape}.")
         n = self.num_envs
         active = np.ones(n, bool) if mask is None else np.asarray(mask, dtype=bool).copy()
+        everyone = mask is None or bool(active.all())
         signals = self._signals
         if signals is not None:  # a world's noise advances on every step its env takes, stepped or not
-            actions = signals.act(actions, active)
+            actions = signals.act(actions, active, everyone)
         actions = np.asarray(actions, dtype=np.float64)
         stuck = active & self._reset_diverged  # a reset that diverged: the next step ends the episode unstepped
         signalled = active.copy()
@@ -358,7 +359,7 @@ class BatchedEnv:
         if self._adr is not None:  # after every world's step, in world order (then the collector's resets)
             self._adr.observe(reward, terminated, terminated | truncated, signalled, stuck)
         if signals is not None:
-            self._out = signals.observe(self._obs, signalled, self._out)
+            self._out = signals.observe(self._obs, signalled, self._out, everyone)
         else:
             self._out = self._obs.copy()
         return self._out.copy(), reward, terminated, truncated, self._diverged & (diverged | stuck)

@@ -65,7 +65,13 @@ def action_latency_bound(corruptor: Any) -> int:
 
 
 class _Pipes:
-    """One pipeline position (the k-th observation or action pipeline) across all worlds."""
+    """One pipeline position (the k-th observation or action pipeline) across all worlds.
+
+    Worlds reset together and stepped unmasked sit on the same row of their blocks (``common``): the step's
+    noise is then ``F[:, row]``, a view, instead of a per-world gather, and their blocks run out together
+    (refilled in one pass). Any reset of some worlds or a masked step returns to per-world rows (``r``); the
+    values are the same either way.
+    """
 
     def __init__(self, n: int, side: str, k: int, size: int, dtype: np.dtype) -> None:
         self.side, self.k = side, k
@@ -74,39 +80,77 @@ class _Pipes:
         self.G = np.ones((n, size), dtype=dtype)
         self.unit = np.ones(n, bool)  # worlds without gain: x + F (x * 1.0 is x, so skipping it is exact)
         self.rows = np.arange(n)
-        self.r = np.zeros(n, np.int64)
-        self.block: NoiseBlock | None = None  # clip bounds: the same for every world (the same signal layout)
+        self.r = np.zeros(n, np.int64)  # each world's row (stale while ``common`` is set)
+        self.common: int | None = None  # the row of every world, when they line up
+        self.check = False  # rows may line up again (after resets or masked steps): look at the next full step
+        # The pipeline's clip (NoiseBlock.clip), None without bounds: the same for every world (one signal layout).
+        self.clip: Any = None
         self.all_unit = True  # every world without gain
         # Calls before any world can reach the end of its block (r grows by at most 1 a call): until then no
         # world needs a refill and the check is skipped.
         self.headroom = 0
 
+    def _split(self) -> None:
+        """Back to per-world rows."""
+        if self.common is not None:
+            self.r[:] = self.common
+            self.common = None
+            self.headroom = 0
+
     def take(self, i: int, corruptor: Any, block: NoiseBlock) -> None:
         """World ``i``'s pipeline after its reset (or after a refill): its current block and position."""
+        self._split()
+        self._hold(i, corruptor, block)
+        self.all_unit = bool(self.unit.all())
+        self.check = True
+
+    def _hold(self, i: int, corruptor: Any, block: NoiseBlock) -> None:
         self.corruptors[i] = corruptor
         self.F[i] = block.offsets
         self.G[i] = 1.0 if block.gain is None else block.gain
         self.unit[i] = block.gain is None
-        self.all_unit = bool(self.unit.all())
         self.r[i] = block.row
-        self.block = block
+        self.clip = None if block.low is None else block.clip
         self.headroom = 0  # recomputed at the next call
 
-    def __call__(self, x: np.ndarray, active: np.ndarray) -> np.ndarray:
-        """The noisy signal of every world; only the ``active`` worlds' noise advances."""
+    def _refill(self, worlds: list[int]) -> None:
+        """The next block of each of ``worlds``, each from its own stream (as its single env would draw it)."""
+        for i in worlds:
+            corruptor = self.corruptors[i]
+            self._hold(i, corruptor, corruptor.next_noise_block(self.side, self.k))
+        self.all_unit = bool(self.unit.all())
+
+    def __call__(self, x: np.ndarray, active: np.ndarray, everyone: bool) -> np.ndarray:
+        """The noisy signal of every world; only the ``active`` worlds' noise advances (``everyone``: all are)."""
+        if everyone:
+            if self.check:
+                self.check = False
+                first = int(self.r[0])
+                if self.common is None and bool((self.r == first).all()):
+                    self.common = first
+            row = self.common
+            if row is not None:
+                if row == BLOCK:  # every world's block is spent at once
+                    self._refill(list(range(len(self.corruptors))))
+                    row = int(self.r[0])  # 0: a fresh block's first row, for every world
+                self.common = row + 1
+                noise = self.F[:, row]
+                w = x + noise if self.all_unit else x * self.G + noise
+                if self.clip is not None:
+                    self.clip(x, w)
+                return w
+        else:
+            self._split()
+            self.check = True
         if self.headroom <= 0:
-            idx = np.flatnonzero(active & (self.r == BLOCK))
-            for i in idx.tolist():
-                corruptor = self.corruptors[i]  # the world's own next block, from its own stream
-                self.take(i, corruptor, corruptor.next_noise_block(self.side, self.k))
+            self._refill(np.flatnonzero(active & (self.r == BLOCK)).tolist())
             self.headroom = BLOCK - int(self.r.max())
         self.headroom -= 1
-        everyone = bool(active.all())
         noise = self.F[self.rows, self.r if everyone else np.minimum(self.r, BLOCK - 1)]
         w = x + noise if self.all_unit else x * self.G + noise
         self.r += active
-        if self.block is not None:
-            self.block.clip(x, w)
+        if self.clip is not None:
+            self.clip(x, w)
         return w if everyone else np.where(active[:, None], w, x)
 
 
@@ -133,7 +177,10 @@ class BatchedSignals:
         self.action_dtype = first.action_dtype
         self._latency = ObservationLatency in first.timing
         self._lag = np.zeros(num_envs, np.int64)
-        self._k = np.zeros(num_envs, np.int64)
+        self._k = np.zeros(num_envs, np.int64)  # each world's observations this episode (stale while _kc is set)
+        self._kc: int | None = None  # the count of every world, when they line up (see _Pipes)
+        self._lagc: int | None = None  # the lag of every world, when they are the same
+        self._line_up = False  # counts may line up again (after resets or masked steps): look at the next full step
         self._ring = np.zeros((num_envs, 1, 0), dtype=first.obs_dtype or np.float32)
         self._rows = np.arange(num_envs)
         # ActionLatency. On the "action" path (the action does not map onto ctrl: arm-reach's IK targets) each
@@ -180,6 +227,8 @@ class BatchedSignals:
         for pipes, block in zip(self._act, c.noise_blocks("action"), strict=True):
             pipes.take(i, c, block)
         if self._latency:
+            self._counts()
+            self._line_up = True
             lag = c.observation_lag
             if lag is None:
                 raise ValueError("`effects`: an observation latency without a fixed lag is not batched.")
@@ -199,15 +248,17 @@ class BatchedSignals:
                 ring[rows, (self._k - d) % size] = old[rows, (self._k - d) % old.shape[1]]
         self._ring = ring
 
-    def act(self, actions: np.ndarray, active: np.ndarray) -> np.ndarray:
+    def act(self, actions: np.ndarray, active: np.ndarray, everyone: bool | None = None) -> np.ndarray:
         """The actions the worlds' envs get (the policy's, through each world's action noise and, on the
-        ``"action"`` path, its action latency)."""
+        ``"action"`` path, its action latency); ``everyone``: whether every world is ``active`` (None: look)."""
         if not self._act and self.action_path != "action":
             return actions
+        if everyone is None:
+            everyone = bool(active.all())
         if type(actions) is not np.ndarray:
             actions = np.asarray(actions, dtype=self.action_dtype)
         for pipes in self._act:
-            actions = pipes(actions, active)
+            actions = pipes(actions, active, everyone)
         if self.action_path == "action":
             ring, t, rows = self._act_ring, self._act_t, self._rows
             size = ring.shape[1]
@@ -218,23 +269,55 @@ class BatchedSignals:
             self._act_t = t + active
         return actions
 
-    def observe(self, obs: np.ndarray, active: np.ndarray, previous: np.ndarray) -> np.ndarray:
+    def observe(
+        self, obs: np.ndarray, active: np.ndarray, previous: np.ndarray, everyone: bool | None = None
+    ) -> np.ndarray:
         """What the policy sees: each world's fresh observation through its noise and latency (the
-        ``previous`` output stays for worlds not stepped)."""
+        ``previous`` output stays for worlds not stepped; ``everyone``: whether every world is ``active``, None:
+        look). The result may be ``previous`` itself, overwritten."""
+        if everyone is None:
+            everyone = bool(active.all())
         sample = obs
         for pipes in self._obs:
-            sample = pipes(sample, active)
+            sample = pipes(sample, active, everyone)
         if not self._latency:
+            if everyone:
+                np.copyto(previous, sample)
+                return previous
             return np.where(active[:, None], sample, previous)
         size = self._ring.shape[1]
+        if everyone:
+            if self._line_up:
+                self._line_up = False
+                self._kc = int(self._k[0]) if bool((self._k == self._k[0]).all()) else None
+                self._lagc = int(self._lag[0]) if bool((self._lag == self._lag[0]).all()) else None
+            kc = self._kc
+            if kc is not None:  # every world at the same step of its episode: slots are views
+                kc += 1
+                self._kc = kc
+                ring = self._ring
+                ring[:, kc % size] = sample
+                if self._lagc is not None:
+                    # The sample of ``lag`` control steps ago; before that, the reset sample (still in its slot).
+                    np.copyto(previous, ring[:, (kc - self._lagc) % size])
+                    return previous
+                return ring[self._rows, (kc - self._lag) % size]
+        else:
+            self._counts()
+            self._line_up = True
         k = self._k + active
         self._k = k
         rows = self._rows
         slot = k % size
-        if active.all():
+        if everyone:
             self._ring[rows, slot] = sample
-            # The sample of ``lag`` control steps ago; before that, the reset sample (still in its slot).
             return self._ring[rows, (k - self._lag) % size]
         self._ring[rows, slot] = np.where(active[:, None], sample, self._ring[rows, slot])
         delayed = self._ring[rows, (k - self._lag) % size]
         return np.where(active[:, None], delayed, previous)
+
+    def _counts(self) -> None:
+        """Back to per-world step counts of the observation ring."""
+        if self._kc is not None:
+            self._k[:] = self._kc
+            self._kc = None
