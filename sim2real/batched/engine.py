@@ -337,7 +337,7 @@ class BatchedEnv:
         controls = kernel.controls(actions, qpos, gathered)
         ids = None if active.all() else np.flatnonzero(active).astype(np.int32)
         if self._delayed:
-            self._step_delayed(np.arange(n, dtype=np.int32) if ids is None else ids, controls)
+            self._step_delayed(ids, controls)
         else:
             physics.step(ids, controls)
         # A warning during the step: MuJoCo reset the world (bad positions, velocities or accelerations) or
@@ -364,20 +364,44 @@ class BatchedEnv:
             self._out = self._obs.copy()
         return self._out.copy(), reward, terminated, truncated, self._diverged & (diverged | stuck)
 
-    def _step_delayed(self, ids: np.ndarray, controls: np.ndarray) -> None:
-        """One control step of the worlds ``ids`` with ActionLatency on the actuator command, as the single env's
-        signal clock applies it.
+    def _step_delayed(self, ids: np.ndarray | None, controls: np.ndarray) -> None:
+        """One control step of the worlds ``ids`` (None: all) with ActionLatency on the actuator command, as the
+        single env's signal clock applies it.
 
         World ``i``'s command of control step ``k`` is sent at physics step ``k * n`` and applied from ``k * n + d``
         on (``d = q * n + r`` physics steps, this episode's draw); until then the command at reset holds. With
         ``r == 0`` (or before the first delayed command arrives) a control step runs one command, the one sent
         ``q`` steps ago, as a whole step; else two pieces, ``r`` substeps of the older command and ``n - r`` of the
         newer (:meth:`~sim2real.batched.worlds.BatchedPhysics.step_split`, one call pair per distinct ``r``).
+        Worlds that reset together, drew the same latency and have all been stepped since (``command_common``)
+        share one ring slot per step: the writes and reads are views, not per-world gathers.
         """
         signals = self._signals
         assert signals is not None  # _delayed implies signal models
         ring = signals.command_ring
         size = ring.shape[1]
+        if ids is None:
+            if signals.command_check:
+                signals.command_check = False
+                lag, rest, steps = signals.command_lag, signals.command_rest, self._steps
+                if (steps == steps[0]).all() and (lag == lag[0]).all() and (rest == rest[0]).all():
+                    signals.command_common = (int(lag[0]), int(rest[0]))
+            common = signals.command_common
+            if common is not None:
+                q, r = common
+                k = int(self._steps[0])  # the commands every world sent before this one this episode
+                ring[:, k % size] = controls
+                newer = ring[:, (k - q) % size]  # a slot not yet written this episode holds the reset command
+                if r == 0 or k < q:
+                    self.physics.step(None, newer)
+                else:
+                    every = np.arange(self.num_envs, dtype=np.int32)
+                    self.physics.step_split(every, r, ring[:, (k - q - 1) % size], newer)
+                return
+            ids = np.arange(self.num_envs, dtype=np.int32)
+        else:  # a masked step: the worlds' commands no longer line up
+            signals.command_common = None
+            signals.command_check = True
         # All the worlds' ring writes and reads at once: k = the commands a world sent before this one this episode.
         k, q, rests = self._steps[ids], signals.command_lag[ids], signals.command_rest[ids]
         ring[ids, k % size] = controls[ids]

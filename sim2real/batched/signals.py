@@ -201,6 +201,10 @@ class BatchedSignals:
         #: Each world's latency as (whole control steps, remaining physics steps) of this episode.
         self.command_lag = np.zeros(num_envs, np.int64)
         self.command_rest = np.zeros(num_envs, np.int64)
+        #: The ``(lag, rest)`` of every world when they are the same and the worlds' commands line up (all reset
+        #: together, all stepped since); None: per world. ``command_check``: look again at the next full step.
+        self.command_common: tuple[int, int] | None = None
+        self.command_check = False
         self._n_sub = n_sub
 
     def reset_world(self, i: int, env: Any, first_obs: np.ndarray, ctrl: np.ndarray | None = None) -> None:
@@ -222,6 +226,8 @@ class BatchedSignals:
             self.command_lag[i], self.command_rest[i] = divmod(
                 int(c.current_params["action_latency_steps"]), self._n_sub
             )
+            self.command_common = None
+            self.command_check = True
         for pipes, block in zip(self._obs, c.noise_blocks("observation"), strict=True):
             pipes.take(i, c, block)
         for pipes, block in zip(self._act, c.noise_blocks("action"), strict=True):

@@ -1,0 +1,155 @@
+"""The batched engine's lockstep paths (issue 15): worlds reset together and stepped unmasked read their noise row,
+observation-latency slot and command slot as views shared by all worlds, refill their noise blocks in one pass,
+and drop back to per-world gathers after a partial reset or a masked step. Every path must stay bitwise each
+world's single env, on effect mixes the benchmark stack does not use (gains, drift, outliers, uniform noise,
+per-world drawn lags, a fixed mid-step action latency) and past block refills."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+import sim2real as s2r
+from noise_models import ActionNoise, Gaussian, ObservationNoise, SignalCorruptor
+from noise_models.processes import BLOCK
+from noise_models.values import Layout
+from sim2real.batched import make_batched
+from tests.conftest import reset_and_compare
+
+
+def _singles(task: str, effects: list[Any], seed: int, num: int, **options: Any) -> list[Any]:
+    return [s2r.wrap(s2r.make(task, **options), *effects, seed=(seed, i)) for i in range(num)]
+
+
+def _step_both(batched: Any, singles: list[Any], actions: np.ndarray, mask: np.ndarray | None = None) -> None:
+    obs, reward, terminated, truncated, _ = batched.step(actions, mask=mask)
+    for i, env in enumerate(singles):
+        if mask is not None and not mask[i]:
+            continue
+        o, r, te, tr, _ = env.step(actions[i])
+        assert np.array_equal(o, obs[i]), i
+        assert r == reward[i] and (te, tr) == (terminated[i], truncated[i]), i
+
+
+def _lined_up(batched: Any) -> bool:
+    signals = batched._signals
+    pipes = [*signals._obs, *signals._act]
+    return all(p.common is not None for p in pipes) and signals._kc is not None
+
+
+@pytest.mark.parametrize("drawn", [False, True])
+def test_noise_and_observation_latency_stay_bitwise_through_lockstep_and_per_world_paths(drawn: bool) -> None:
+    # Gains (not the add-only case), drift and outliers in the observation pipeline, uniform noise with a gain and
+    # the actuator clip on the actions, an observation lag fixed (one slot for all worlds) or drawn per world
+    # (lockstep counts, per-world lags).
+    effects = [
+        s2r.ObservationNoise(
+            s2r.Gaussian(std=0.02),
+            s2r.Scale(gain=s2r.Uniform(0.9, 1.1)),
+            s2r.Drift(std=0.001),
+            s2r.Outlier(probability=0.05, magnitude=0.5),
+        ),
+        s2r.ActionNoise(s2r.UniformNoise(half_width=0.3), s2r.Scale(gain=1.5)),
+        s2r.ObservationLatency(steps=s2r.Choice([0, 1, 3]) if drawn else 2),
+        s2r.Damping(scale=s2r.Uniform(0.5, 2.0)),
+    ]
+    num, seed = 4, 7
+    batched = make_batched("dmc/reacher-easy", num, *effects, seed=seed)
+    singles = _singles("dmc/reacher-easy", effects, seed, num)
+    rng = np.random.default_rng(3)
+
+    def actions() -> np.ndarray:
+        return rng.uniform(-1.2, 1.2, (num, 2)).astype(np.float32)  # beyond the bounds: the clip acts
+
+    try:
+        _, params = reset_and_compare(batched, singles, [10, 11, 12, 13])
+        lags = set(params["obs_latency_steps"].tolist())
+        for _ in range(BLOCK + 20):  # lockstep through every world's block refill at row 256
+            _step_both(batched, singles, actions())
+        assert _lined_up(batched)
+        assert not batched._signals._obs[0].all_unit  # the gain path
+        # A partial reset: per-world rows and counts from here (the reset world's block starts over).
+        reset_and_compare_some(batched, singles, [2])
+        for _ in range(30):
+            _step_both(batched, singles, actions())
+        assert not _lined_up(batched)
+        for t in range(40):  # masked steps: only the stepped worlds' noise and rings advance
+            _step_both(batched, singles, actions(), mask=np.arange(num) % 2 == t % 2)
+        # All worlds reset together: in lockstep again, through another refill.
+        _, params = reset_and_compare(batched, singles, None)
+        lags |= set(params["obs_latency_steps"].tolist())
+        for _ in range(BLOCK + 5):
+            _step_both(batched, singles, actions())
+        assert _lined_up(batched)
+        assert (batched._signals._lagc is None) == drawn
+        assert len(lags) == (3 if drawn else 1)  # drawn: different lags in play in the lockstep path
+    finally:
+        batched.close()
+        for env in singles:
+            env.close()
+
+
+def reset_and_compare_some(batched: Any, singles: list[Any], indices: list[int]) -> None:
+    obs, params = batched.reset(indices=indices)
+    for i in indices:
+        o, info = singles[i].reset()
+        assert np.array_equal(o, obs[i])
+        for key, value in info["sim2real"]["params"].items():
+            assert params[key][i] == value, key
+
+
+@pytest.mark.parametrize("steps", [3, 13])
+def test_a_fixed_mid_step_action_latency_shares_one_split_call_pair_in_lockstep(steps: int) -> None:
+    # Manipulator: 10 physics steps per control step, so 3 and 13 physics steps arrive mid step (13: one whole
+    # control step of lag first, during which the reset command holds). Every world drew the same latency: one
+    # command slot per step.
+    effects = [
+        s2r.ActionLatency(steps=steps),
+        s2r.ActionNoise(Gaussian(std=0.1)),
+        s2r.Mass(scale=s2r.Uniform(0.8, 1.2)),
+    ]
+    num, seed = 3, 2
+    options = {"time_limit": 0.2}
+    batched = make_batched("dmc/manipulator-bring_ball", num, *effects, seed=seed, **options)
+    singles = _singles("dmc/manipulator-bring_ball", effects, seed, num, **options)
+    rng = np.random.default_rng(steps)
+    try:
+        for episode in range(2):
+            reset_and_compare(batched, singles, [5, 6, 7] if episode == 0 else None)
+            for t in range(20):
+                mask = np.array([True, t % 3 != 1, True]) if episode == 1 and 8 <= t < 12 else None
+                _step_both(batched, singles, rng.uniform(-1, 1, (num, batched.action_dim)), mask=mask)
+                if t == 5:
+                    assert batched._n_sub == 10 and batched._signals.command_common == divmod(steps, 10)
+                if episode == 1 and t == 11:
+                    assert batched._signals.command_common is None  # the masked steps broke the lockstep
+    finally:
+        batched.close()
+        for env in singles:
+            env.close()
+
+
+def test_next_noise_block_hands_the_block_over_and_the_pipeline_draws_the_one_after() -> None:
+    # The batched engine steps a block it took with next_noise_block itself; the corruptor's own next step must draw
+    # the block after it (its stream's next), never reuse the rows the engine consumed.
+    def corruptor() -> SignalCorruptor:
+        c = SignalCorruptor([ObservationNoise(Gaussian(std=0.1)), ActionNoise(Gaussian(std=0.2))], seed=9)
+        c.bind(obs=Layout(3), action=Layout(2, low=-np.ones(2), high=np.ones(2)), timestep=0.01, substeps=1)
+        c.begin_episode()
+        return c
+
+    ours, twin = corruptor(), corruptor()
+    zero = np.zeros(2, np.float32)
+    first = ours.next_noise_block("action", 0)
+    assert first.row == 0 and first.offsets.shape == (BLOCK, 2)
+    expected = []
+    for _ in range(2 * BLOCK):
+        expected.append(twin.act(zero))
+    assert np.array_equal(np.stack(expected[:BLOCK]), np.clip(first.offsets, -1, 1))
+    # The next step of `ours` draws block 1, as the twin did at its step BLOCK.
+    assert np.array_equal(ours.act(zero), expected[BLOCK])
+    second = ours.next_noise_block("action", 0)  # then block 2, the block after the one its own step drew
+    twin_rows = [twin.act(zero) for _ in range(BLOCK)]
+    assert np.array_equal(np.stack(twin_rows), np.clip(second.offsets, -1, 1))
