@@ -262,19 +262,21 @@ bench = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(bench)
 if sys.argv[7] == "cpu":
     bench._clock = time.process_time
-print(bench._p4_engine(sys.argv[3], int(sys.argv[4]), int(sys.argv[5]), int(sys.argv[6]))[0])
+chosen = {"effects": None, "raw": [], "stack": bench.stack()}[sys.argv[8]]
+print(bench._p4_engine(sys.argv[3], int(sys.argv[4]), int(sys.argv[5]), int(sys.argv[6]), chosen=chosen)[0])
 """
 
 
-def _p4_engine_at(path: str, task: str, num: int, steps: int, threads: int) -> float:
+def _p4_engine_at(path: str, task: str, num: int, steps: int, threads: int, chosen: str = "effects") -> float:
     """:func:`_p4_engine` in a fresh process importing sim2real from ``path`` (a checkout's root), timed by this
-    run's clock: the engine of another commit side by side with this one's (``--before``)."""
+    run's clock: the engine of another commit side by side with this one's (``--before``). ``chosen``: the
+    effects, ``"effects"`` (:func:`effects`), ``"raw"`` (none) or ``"stack"`` (:func:`stack`)."""
     import subprocess
     import sys
 
     clock = "cpu" if _clock is time.process_time else "wall"
     argv = [sys.executable, "-c", _ENGINE_SNIPPET, path, os.path.abspath(__file__), task, str(num), str(steps),
-            str(threads), clock]  # fmt: skip
+            str(threads), clock, chosen]  # fmt: skip
     out = subprocess.run(argv, capture_output=True, text=True, check=True)
     return float(out.stdout.strip().splitlines()[-1])
 
@@ -400,6 +402,10 @@ def main(argv: list[str] | None = None) -> None:
                 for arm, path in (("now", here), ("before", os.path.abspath(args.before))):
                     arms[arm] = lambda t=task, s=steps, p=path: _p4_engine_at(p, t, n, s, 1)
                     arms[f"{arm}_threads"] = lambda t=task, s=steps, p=path, k=threads: _p4_engine_at(p, t, n, s, k)
+                    for which in ("raw", "stack"):  # the full stack over raw of each checkout, threads=1
+                        arms[f"{arm}_{which}"] = lambda t=task, s=steps, p=path, c=which: _p4_engine_at(
+                            p, t, n, s, 1, c
+                        )
         rates: dict[str, list[float]] = {k: [] for k in arms}
         for r in range(args.repeats):
             order = list(arms) if r % 2 == 0 else list(arms)[::-1]
@@ -418,7 +424,11 @@ def main(argv: list[str] | None = None) -> None:
                            ("now", "engine, this checkout, fresh process, threads=1"),
                            ("now_threads", f"engine, this checkout, fresh process, threads={os.cpu_count()}"),
                            ("before", f"engine, {args.before}, fresh process, threads=1"),
-                           ("before_threads", f"engine, {args.before}, fresh process, threads={os.cpu_count()}")):  # fmt: skip
+                           ("before_threads", f"engine, {args.before}, fresh process, threads={os.cpu_count()}"),
+                           ("now_raw", "engine raw, this checkout, fresh process"),
+                           ("now_stack", "engine full stack, this checkout, fresh process"),
+                           ("before_raw", f"engine raw, {args.before}, fresh process"),
+                           ("before_stack", f"engine full stack, {args.before}, fresh process")):  # fmt: skip
             if arm in med:
                 runs = ", ".join(f"{x:.0f}" for x in rates[arm])
                 print(f"{label:48s} {med[arm]:10.0f} control steps/s  (runs: {runs})")
@@ -441,6 +451,9 @@ def main(argv: list[str] | None = None) -> None:
                   f"threads={os.cpu_count()} {med['now_threads'] / med['before_threads']:.2f}x; "
                   f"threads={os.cpu_count()} / threads=1: now {med['now_threads'] / med['now']:.2f}, "
                   f"before {med['before_threads'] / med['before']:.2f}")  # fmt: skip
+            print(f"RESULT {task} full stack / raw (fresh processes, threads=1): now "
+                  f"{med['now_stack'] / med['now_raw']:.2f}, before {med['before_stack'] / med['before_raw']:.2f} "
+                  f"(goal >= 0.95)")  # fmt: skip
 
 
 # ------------------------------------------------------------------------------------------ issue 15: make x N
