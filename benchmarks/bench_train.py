@@ -30,9 +30,10 @@ The last line printed is ``RESULT ...`` with each task's ratio against the goal.
 
 ``--arm batched`` measures PPO collection through the batched engine (issue #15, P5), side by side in one run,
 alternating after a warm-up of each: *single* (``engine="per-env"``: one TorchRL env, today's collector), *batched*
-(``engine="auto"``, ``num_envs`` worlds, no effects) and *batched-stack* (the batched engine under the stack
-without ``ActionLatency``, which the engine does not batch: ``train`` would collect that run per env, and the run
-says so). Ratios, medians of per-repeat pairs: batched/single (goal >= 3) and batched-stack/batched (goal >= 0.95).
+(``engine="auto"``, ``num_envs`` worlds, no effects) and *batched-stack* (the batched engine under the whole stack,
+``ActionLatency`` included since the engine batches it; without it when the engine refuses the whole stack, which
+the run prints). The arms' order reverses every repeat. Ratios, medians of per-repeat pairs: batched/single
+(goal >= 3) and batched-stack/batched (goal >= 0.95).
 
     .venv/bin/python benchmarks/bench_train.py --arm batched [--num-envs 16 --repeats 3]
 
@@ -98,10 +99,11 @@ def fps(task: str, config: PPOConfig, effects: list[Any], seed: int) -> tuple[fl
 
 def bench_batched(task: str, config: PPOConfig, warmup: PPOConfig, repeats: int, stack: list[Any]) -> dict[str, Any]:
     """``--arm batched``: single-env collection vs the batched engine, plain and under the batched stack."""
-    from sim2real.agents.collect import choose_collection
+    from sim2real.agents.collect import BATCHED, choose_collection
 
-    batched_stack = [e for e in stack if not isinstance(e, ActionLatency)]
-    print(f"  full stack with ActionLatency: {choose_collection(task, stack, config)}")
+    whole = choose_collection(task, stack, config)
+    batched_stack = stack if whole.engine == BATCHED else [e for e in stack if not isinstance(e, ActionLatency)]
+    print(f"  full stack with ActionLatency: {whole}")
     print(f"  batched-stack arm:             {choose_collection(task, batched_stack, config)}")
     arms: dict[str, tuple[PPOConfig, PPOConfig, list[Any]]] = {
         "single": (replace(config, engine="per-env"), replace(warmup, engine="per-env"), []),
@@ -113,7 +115,8 @@ def bench_batched(task: str, config: PPOConfig, warmup: PPOConfig, repeats: int,
     wall: dict[str, list[float]] = {arm: [] for arm in arms}
     cpu: dict[str, list[float]] = {arm: [] for arm in arms}
     for rep in range(repeats):
-        for arm, (cfg, _, effects) in arms.items():
+        for arm in list(arms) if rep % 2 == 0 else list(arms)[::-1]:  # alternate: drift hits every arm alike
+            cfg, _, effects = arms[arm]
             w, c = fps(task, cfg, effects, seed=rep)
             wall[arm].append(w)
             cpu[arm].append(c)
