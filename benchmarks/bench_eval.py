@@ -46,6 +46,7 @@ GOAL = 10.0
 
 #: Signal models P4's --action-latency adds to every sim2real arm's effects (not to the SyncVectorEnv or limit arms).
 _EXTRA: list[Any] = []
+_LATENCY: float | None = None  # its ActionLatency's seconds (passed on to the fresh processes of --before)
 
 
 def effects() -> list[Any]:
@@ -262,6 +263,8 @@ bench = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(bench)
 if sys.argv[7] == "cpu":
     bench._clock = time.process_time
+if sys.argv[9] != "none":  # --action-latency of the calling run
+    bench._EXTRA[:] = [bench.s2r.ActionLatency(seconds=float(sys.argv[9]))]
 chosen = {"effects": None, "raw": [], "stack": bench.stack()}[sys.argv[8]]
 print(bench._p4_engine(sys.argv[3], int(sys.argv[4]), int(sys.argv[5]), int(sys.argv[6]), chosen=chosen)[0])
 """
@@ -276,7 +279,7 @@ def _p4_engine_at(path: str, task: str, num: int, steps: int, threads: int, chos
 
     clock = "cpu" if _clock is time.process_time else "wall"
     argv = [sys.executable, "-c", _ENGINE_SNIPPET, path, os.path.abspath(__file__), task, str(num), str(steps),
-            str(threads), clock, chosen]  # fmt: skip
+            str(threads), clock, chosen, "none" if _LATENCY is None else repr(_LATENCY)]  # fmt: skip
     out = subprocess.run(argv, capture_output=True, text=True, check=True)
     return float(out.stdout.strip().splitlines()[-1])
 
@@ -368,6 +371,8 @@ def main(argv: list[str] | None = None) -> None:
     if args.quick:
         args.samples, args.steps, args.repeats = 8, [50, 20], 1
     if args.action_latency is not None:
+        global _LATENCY
+        _LATENCY = args.action_latency
         _EXTRA[:] = [s2r.ActionLatency(seconds=args.action_latency)]
         print(f"# extra effects on the sim2real arms (not sync/limit): {_EXTRA}")
     if args.cpu_time:
