@@ -9,7 +9,11 @@ preallocated ``(N, R, size)`` ring at each world's own lag. ``ActionLatency`` (f
 each world's corruptor from its own stream) delays either the actuator command at physics rate (``"ctrl"``: the
 engine applies each world's delayed command from a preallocated ``(N, S, nu)`` ring inside its physics step,
 mid control step when the latency is not whole control steps) or, where the action does not map onto ``ctrl``,
-the action by whole control steps (``"action"``: a preallocated ``(N, S, act_dim)`` ring here). What is supported
+the action by whole control steps (``"action"``: a preallocated ``(N, S, act_dim)`` ring here). Worlds in lockstep
+(reset together, stepped unmasked since: the usual case) sit on the same noise row and ring slot, so the step
+reads ``F[:, row]`` and ``ring[:, slot]`` as views instead of gathering one row per world, and their blocks run
+out together; a partial reset or a masked step drops back to per-world rows until the worlds line up again (the
+same values either way; ``tests/test_batched_lockstep.py``). What is supported
 (:func:`signals_reason`): noise pipelines of additive and multiplicative processes (fused by ``noise_models``
 into one affine stage), ``ObservationLatency`` with a fixed per-episode lag and ``ActionLatency`` without jitter;
 sample-and-hold, jitter and the element-wise processes (quantise, dropout, ...) keep the per-env path.
