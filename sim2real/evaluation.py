@@ -32,6 +32,7 @@ Example:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import sys
@@ -90,6 +91,7 @@ class _Job:
     max_steps: int | None
     engine: str = "auto"
     safety: Any = None  # a sim2real.safety.SafetyLimits: measure the envelope quantities of every episode
+    chunks: int = 1  # runs of `count` episodes each: first, first + count, ... (a one-condition group's are paired)
 
 
 @dataclass(frozen=True)
@@ -139,27 +141,29 @@ def _run_job(job: _Job) -> list[_JobResult]:
     n = job.count
     # Nothing here renders: build headless where the physics is the same (reacher's skybox was most of a build).
     options = headless_options(job.task, job.options, [cond.effects for cond in job.conditions])
-    seeds = [episode_seed(job.seed, job.first + i) for i in range(n)]
+    firsts = [job.first + c * n for c in range(job.chunks)]
+    seeds = {f: [episode_seed(job.seed, f + i) for i in range(n)] for f in firsts}
     policies = [(name, as_policy(source, task=job.task)) for name, source in job.policies]
-    batched = [cond for cond in job.conditions if _batched_reason(job, cond) is None]
-    results: dict[str, _JobResult] = {}
+    # (condition, first episode) of every run on the batched engine
+    batched = [(cond, f) for cond in job.conditions if _batched_reason(job, cond) is None for f in firsts]
+    results: dict[tuple[str, int], _JobResult] = {}
     restore_threads = _single_torch_thread()
-    # Each batched condition of a lockstep chunk has its own worlds; the per-env conditions share the first set.
+    # Each batched run of a lockstep chunk has its own worlds; the per-env conditions share the first set.
     width = min(len(batched), _LOCKSTEP) or 1
     bases = [[job.conditions[0].base_env(job.task, **options) for _ in range(n)] for _ in range(width)]
     try:
         meter = None if job.safety is None else job.safety.meter(_physics(bases[0][0]).model, n)
-        for first in range(0, len(batched), _LOCKSTEP):
+        for start in range(0, len(batched), _LOCKSTEP):
             from sim2real.batched import BatchedEnv
 
-            chunk = batched[first : first + _LOCKSTEP]
+            chunk = batched[start : start + _LOCKSTEP]
             worlds: list[Any] = []
             try:
                 # The same single envs, reset seeds and streams, stepped together (bitwise the per-env results).
                 # Side by side, each batch runs on this thread: several MuJoCo thread pools in one process fight over
                 # the cores (a 6-condition job: 2.4x the C stepping time with 2 threads each on the 2-core box).
                 threads = 1 if len(chunk) > 1 else None
-                for cond, base in zip(chunk, bases, strict=False):
+                for (cond, _), base in zip(chunk, bases, strict=False):
                     worlds.append(
                         BatchedEnv(
                             job.task, n, cond.effects, envs=base, stream_seeds=[job.seed] * n,
@@ -167,34 +171,39 @@ def _run_job(job: _Job) -> list[_JobResult]:
                         )
                     )  # fmt: skip
                 meters = [None if meter is None else job.safety.meter(w.models[0], n) for w in worlds]
-                for res in _lockstep_episodes(job, chunk, worlds, seeds, policies, meters, _mergeable(job)):
-                    results[res.condition] = res
+                runs = [_Run(cond, f, w, m, seeds[f]) for (cond, f), w, m in zip(chunk, worlds, meters, strict=True)]
+                for res in _lockstep_episodes(job, runs, policies, _mergeable(job)):
+                    results[res.condition, res.first] = res
             finally:
                 for w in worlds:
                     w.close()
         for cond in job.conditions:
-            if cond.name in results:
-                continue
-            envs = [cond.wrap(b, seed=job.seed) for b in bases[0]]
-            try:
-                results[cond.name] = _episodes(job, cond, envs, seeds, policies, meter)
-            finally:
-                for env, b in zip(envs, bases[0], strict=True):
-                    _release(env, b)
+            for f in firsts:
+                if (cond.name, f) in results:
+                    continue
+                envs = [cond.wrap(b, seed=job.seed) for b in bases[0]]
+                try:
+                    res = _episodes(job, cond, envs, seeds[f], policies, meter)
+                    results[cond.name, f] = dataclasses.replace(res, first=f)
+                finally:
+                    for env, b in zip(envs, bases[0], strict=True):
+                        _release(env, b)
     finally:
         restore_threads()
         for base in bases:
             for env in base:
                 env.close()
-    return [results[cond.name] for cond in job.conditions]
+    return [results[cond.name, f] for cond in job.conditions for f in firsts]
 
 
 def _mergeable(job: _Job) -> list[bool]:
     """Per policy: whether one call may act for the worlds of all the job's conditions at once. Only a network
     loaded from a checkpoint (stateless; a user's callable may keep state between calls, and a scripted baseline
-    is cheap anyway): its batched forward computes every row on its own, so the rows of a condition come out of
-    the joint call bitwise as out of a call of their own (which :func:`_rows_alike` checks on probe batches)."""
-    return [isinstance(source, (str, os.PathLike)) for _, source in job.policies]
+    is cheap anyway), and only for runs of at least 4 worlds: its batched forward then computes every row on its
+    own, so the rows of a condition come out of the joint call bitwise as out of a call of their own (which
+    :func:`_rows_alike` checks on probe batches). With 1 or 2 rows the study's SAC actors gave other last bits in
+    a quarter to a half of the probes on the 2-core box (another matrix kernel), with 4 to 128 rows never."""
+    return [isinstance(source, (str, os.PathLike)) and job.count >= 4 for _, source in job.policies]
 
 
 def _rows_alike(policy: Any, n: int, k: int, width: int) -> bool:
@@ -212,13 +221,7 @@ def _rows_alike(policy: Any, n: int, k: int, width: int) -> bool:
 
 
 def _lockstep_episodes(
-    job: _Job,
-    conditions: list[Condition],
-    worlds: list[Any],
-    seeds: list[int],
-    policies: list[tuple[str, Any]],
-    meters: list[Any],
-    mergeable: list[bool],
+    job: _Job, runs: list[_Run], policies: list[tuple[str, Any]], mergeable: list[bool]
 ) -> list[_JobResult]:
     """:func:`_episodes` on the batched engine, for every condition at once: policy by policy, all conditions'
     worlds step control step by control step side by side, each condition in its own
@@ -227,15 +230,14 @@ def _lockstep_episodes(
     are those of the per-env loop, in the same order: a done world's reward is 0.0 and its sums stay untouched. With
     a safety meter, every stepped world is measured after every step from the batch's arrays
     (:meth:`~sim2real.safety_probe.SafetyMeter.observe_batch`: the quantities the single env's ``MjData`` gives)."""
-    c, n = len(conditions), worlds[0].num_envs
-    runs = [_Run(cond, w, m) for cond, w, m in zip(conditions, worlds, meters, strict=True)]
+    c, n = len(runs), runs[0].worlds.num_envs
     for run in runs:
         if run.meter is not None:
             run.meter.bind_batch(run.worlds.physics.batch)  # before the resets: a field bound between calls is 0
     for p, (name, policy) in enumerate(policies):
-        merge = c > 1 and mergeable[p] and _rows_alike(policy, n, c, worlds[0].observation_dim)
+        merge = c > 1 and mergeable[p] and _rows_alike(policy, n, c, runs[0].worlds.observation_dim)
         for run in runs:
-            run.start(seeds, first=p == 0)
+            run.start(first=p == 0)
         t = 0
         while job.max_steps is None or t < job.max_steps:
             going = [run for run in runs if not run.done.all()]
@@ -256,10 +258,11 @@ def _lockstep_episodes(
 
 
 class _Run:
-    """One condition's episodes in :func:`_lockstep_episodes`: its worlds, meter and sums."""
+    """One condition's episodes ``first``, ``first + 1``, ... in :func:`_lockstep_episodes`: its worlds (one per
+    episode, reset with ``seeds``), meter and sums."""
 
-    def __init__(self, cond: Condition, worlds: Any, meter: Any) -> None:
-        self.cond, self.worlds, self.meter = cond, worlds, meter
+    def __init__(self, cond: Condition, first: int, worlds: Any, meter: Any, seeds: list[int]) -> None:
+        self.cond, self.first, self.worlds, self.meter, self.seeds = cond, first, worlds, meter, seeds
         n = worlds.num_envs
         self.returns: dict[str, np.ndarray] = {}
         self.lengths: dict[str, np.ndarray] = {}
@@ -269,9 +272,9 @@ class _Run:
         self.steps = 0
         self.done = np.zeros(n, dtype=bool)
 
-    def start(self, seeds: list[int], first: bool) -> None:
+    def start(self, first: bool) -> None:
         n = self.worlds.num_envs
-        self.obs, params = self.worlds.reset(seed=seeds)
+        self.obs, params = self.worlds.reset(seed=self.seeds)
         if first:
             self.draws = {k: params[k] for k in sorted(params)}
         self.total = np.zeros(n)
@@ -304,7 +307,7 @@ class _Run:
 
     def result(self, job: _Job) -> _JobResult:
         return _JobResult(
-            self.cond.name, job.first, self.returns, self.lengths, self.successes, self.draws, self.steps,
+            self.cond.name, self.first, self.returns, self.lengths, self.successes, self.draws, self.steps,
             "batched", self.safety,
         )  # fmt: skip
 
@@ -436,6 +439,7 @@ def evaluate(
     progress: bool = False,
     engine: str = "auto",
     safety: Any = None,
+    start: int = 0,
 ) -> Evaluation:
     """Scores every policy on every condition with batched closed-loop episodes.
 
@@ -460,13 +464,17 @@ def evaluate(
             limit hits, effort ratio, contact force, end-effector speed, divergence; :mod:`sim2real.safety_probe`)
             into ``Evaluation.safety``, on either engine. Its names are resolved against the task's model before
             any episode runs. None (the default) measures nothing and costs nothing.
+        start: the index of the first episode: ``start`` continues an evaluation of ``start`` episodes with the next
+            ``episodes`` (episode ``e`` is reset with ``episode_seed(seed, e)``; with ``start`` a multiple of
+            ``batch`` it runs in the same batches as in a run from 0, so its rows are bitwise that run's rows
+            ``start``, ...).
 
     Raises:
         ValueError: bad counts, duplicate names, an unknown backend.
         sim2real.agents.CheckpointError: (a ``ValueError``) a checkpoint path that is broken, tampered with or
             trained on another task; raised before any episode runs.
     """
-    for argument, value, low in (("episodes", episodes, 1), ("batch", batch, 1)):
+    for argument, value, low in (("episodes", episodes, 1), ("batch", batch, 1), ("start", start, 0)):
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
             raise ValueError(f"`{argument}` must be an int >= {low}. Received {value!r}.")
     if max_steps is not None and (isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 1):
@@ -500,26 +508,24 @@ def evaluate(
         if cond.simulated:
             key = None if cond.params is None else tuple(sorted(cond.params.items()))
             groups.setdefault(key, []).append(cond)
-    jobs = [
-        _Job(
-            task,
-            options,
-            tuple(group[i : i + _CONDITIONS_PER_JOB]),
-            named,
-            first,
-            min(batch, episodes - first),
-            int(seed),
-            max_steps,
-            engine,
-            safety,
-        )
-        for group in groups.values()
-        for first in range(0, episodes, batch)
-        for i in range(0, len(group), _CONDITIONS_PER_JOB)
-    ]
-    start = time.perf_counter()
+    end = start + episodes
+    jobs = []
+    for group in groups.values():
+        for i in range(0, len(group), _CONDITIONS_PER_JOB):
+            conds = tuple(group[i : i + _CONDITIONS_PER_JOB])
+            firsts = list(range(start, end, batch))
+            while firsts:
+                # A lone condition (the twin) steps two runs of `batch` episodes side by side, as conditions are.
+                count = min(batch, end - firsts[0])
+                chunks = 1
+                while len(conds) == 1 and chunks < min(_LOCKSTEP, len(firsts)) and end - firsts[chunks] >= count:
+                    chunks += 1
+                job = _Job(task, options, conds, named, firsts[0], count, int(seed), max_steps, engine, safety, chunks)
+                jobs.append(job)
+                firsts = firsts[chunks:]
+    clock = time.perf_counter()
     results = _dispatch(jobs, backend, workers, progress)
-    seconds = time.perf_counter() - start
+    seconds = time.perf_counter() - clock
     return _collect(task, int(seed), episodes, max_steps, policy_names, conditions, results, seconds)
 
 

@@ -102,10 +102,16 @@ class EvaluationSpec:
         return contact_sheet(self.task, effects, n=n, seed=self.seed, size=(64, 64))
 
     def run(
-        self, *, backend: str = "serial", workers: int | None = None, progress: bool = False, safety: Any = None
+        self,
+        *,
+        backend: str = "serial",
+        workers: int | None = None,
+        progress: bool = False,
+        safety: Any = None,
+        start: int = 0,
     ) -> Any:
         """Evaluates the spec's policies on its conditions (see :func:`sim2real.evaluation.evaluate`; ``safety``
-        is its :class:`sim2real.safety.SafetyLimits`)."""
+        is its :class:`sim2real.safety.SafetyLimits`, ``start`` the first episode's index)."""
         from sim2real.evaluation import evaluate
 
         return evaluate(
@@ -121,6 +127,7 @@ class EvaluationSpec:
             workers=workers,
             progress=progress,
             safety=safety,
+            start=start,
         )
 
 

@@ -9,8 +9,10 @@ episodes of every policy (:attr:`Budget.max_target_episodes` is the cap that kee
 budget), and the report reads the half-width it reached from its own interval
 (:meth:`sim2real.report.GapReport.with_episode_target`) and says whether the goal was met.
 
-The longer twin run starts again from episode 0 with the same episode seeds, so its first ``pilot`` episodes are the
-pilot's own (bitwise) and its rows keep sharing initial states with every other condition's.
+The longer twin run continues the pilot: episodes ``pilot``, ``pilot + 1``, ... with the same episode seeds and in the
+same batches as a run from episode 0 (:func:`run_target` with ``pilot=``; the pilot's episodes are not run again), so
+its first ``pilot`` episodes are the pilot's own (bitwise) and its rows keep sharing initial states with every other
+condition's.
 
 Example:
     >>> import numpy as np
@@ -105,13 +107,53 @@ def plan_target(
     )
 
 
-def run_target(spec: Any, condition: str, episodes: int, **run: Any) -> Any:
+def run_target(spec: Any, condition: str, episodes: int, *, pilot: Any = None, **run: Any) -> Any:
     """``spec`` (an :class:`sim2real.spec.EvaluationSpec`) run on ``condition`` alone for ``episodes`` episodes of
-    every policy; ``run`` goes to ``spec.run`` (backend, workers, progress, safety)."""
+    every policy; ``run`` goes to ``spec.run`` (backend, workers, progress, safety).
+
+    With ``pilot`` (an evaluation of ``spec`` that has ``condition``, e.g. the study's main one), its episodes are
+    not run again when they fill whole batches of ``spec.batch``: only episodes ``pilot.episodes``, ... run (in the
+    batches a run from 0 has) and the pilot's rows are put in front, so the result is bitwise the run from 0 (its
+    ``seconds`` are the new episodes' alone)."""
     chosen = tuple(c for c in spec.conditions if c.name == condition)
     if not chosen:
         raise ValueError(f"`condition` must be one of {[c.name for c in spec.conditions]}. Received {condition!r}.")
-    return dataclasses.replace(spec, conditions=chosen, episodes=int(episodes)).run(**run)
+    start = 0 if pilot is None else int(pilot.episodes)
+    if pilot is not None and (start % spec.batch or start >= episodes or pilot.policies != tuple(spec.policies)):
+        start = 0  # not whole batches of a run from 0 (or nothing to add): run every episode
+    target = dataclasses.replace(spec, conditions=chosen, episodes=int(episodes) - start)
+    more = target.run(start=start, **run)
+    return more if start == 0 else _stitch(pilot, more, condition, int(episodes))
+
+
+def _stitch(pilot: Any, more: Any, condition: str, episodes: int) -> Any:
+    """``more`` (episodes ``pilot.episodes``, ... of ``condition``) with the pilot's rows of ``condition`` in front."""
+    from sim2real.evaluation import _safety_view
+    from sim2real.evaluation_results import _nested
+
+    def joined(before: Any, after: Any, dtype: Any) -> Any:
+        out = {p: {c: np.concatenate([before[p][c], x]) if c == condition else x for c, x in v.items()}
+               for p, v in after.items()}  # fmt: skip
+        return _nested(out, dtype)
+
+    draws = {}
+    if condition in more.draws:
+        old = pilot.draws.get(condition, {})
+        nan = np.full(pilot.episodes, math.nan)
+        draws[condition] = {k: np.concatenate([old.get(k, nan), v]) for k, v in more.draws[condition].items()}
+    safety = {p: {condition: {q: np.concatenate([pilot.safety[p][condition][q], v]) for q, v in d[condition].items()}}
+              for p, d in more.safety.items() if condition in d}  # fmt: skip
+    steps = sum(int(pilot.lengths[p][condition].sum()) for p in pilot.policies if condition in pilot.lengths.get(p, {}))
+    return dataclasses.replace(
+        more,
+        episodes=episodes,
+        returns=joined(pilot.returns, more.returns, np.float64),
+        lengths=joined(pilot.lengths, more.lengths, np.int64),
+        successes=joined(pilot.successes, more.successes, bool),
+        draws=_nested(draws, np.float64),
+        safety=_safety_view(safety),
+        env_steps=more.env_steps + steps,
+    )
 
 
 def extend(evaluation: Any, more: Any, condition: str) -> Any:

@@ -231,7 +231,14 @@ def _run(
             f"{target.episodes} episodes of every policy on the real twin (the pilot asks for {target.needed} to "
             f"reach +-{target.goal:.3g}; cap {target.cap})",
             lambda: run_target(
-                spec, "real", target.episodes, backend=backend, workers=workers, progress=progress, safety=safety
+                spec,
+                "real",
+                target.episodes,
+                pilot=evaluation,
+                backend=backend,
+                workers=workers,
+                progress=progress,
+                safety=safety,
             ),
         )
         evaluation = extend(evaluation, more, "real")
