@@ -252,6 +252,32 @@ def _p4_engine(task: str, num: int, steps: int, threads: int = 1, chosen: Any = 
     return rate, build
 
 
+def _p4_interleaved(task: str, num: int, steps: int, chunk: int = 25) -> float:
+    """Full stack over raw on the engine with the load drift cancelled: both sets of ``num`` worlds built in this
+    process and stepped in alternating chunks of ``chunk`` control steps (the order flips every chunk), each arm's
+    clock summed over its own chunks. Returns raw time / stack time (the stack's rate over raw's)."""
+    from sim2real.batched import make_batched
+
+    arms = {
+        "raw": make_batched(task, num, seed=0, threads=1),
+        "stack": make_batched(task, num, *stack(), seed=0, threads=1),
+    }
+    policy = NumpyMLP(arms["raw"].observation_dim, arms["raw"].action_dim)
+    obs = {arm: worlds.reset(seed=0)[0] for arm, worlds in arms.items()}
+    spent = dict.fromkeys(arms, 0.0)
+    for c, first in enumerate(range(0, steps, chunk)):
+        for arm in list(arms) if c % 2 == 0 else list(arms)[::-1]:
+            worlds, o = arms[arm], obs[arm]
+            start = _clock()
+            for _ in range(min(chunk, steps - first)):
+                o, *_ = worlds.step(policy(o))
+            spent[arm] += _clock() - start
+            obs[arm] = o
+    for worlds in arms.values():
+        worlds.close()
+    return spent["raw"] / spent["stack"]
+
+
 _ENGINE_SNIPPET = """
 import importlib.util, os, sys, time
 sys.path.insert(0, sys.argv[1])
@@ -265,6 +291,9 @@ if sys.argv[7] == "cpu":
     bench._clock = time.process_time
 if sys.argv[9] != "none":  # --action-latency of the calling run
     bench._EXTRA[:] = [bench.s2r.ActionLatency(seconds=float(sys.argv[9]))]
+if sys.argv[8] == "interleaved":
+    print(bench._p4_interleaved(sys.argv[3], int(sys.argv[4]), int(sys.argv[5])))
+    sys.exit(0)
 chosen = {"effects": None, "raw": [], "stack": bench.stack()}[sys.argv[8]]
 print(bench._p4_engine(sys.argv[3], int(sys.argv[4]), int(sys.argv[5]), int(sys.argv[6]), chosen=chosen)[0])
 """
@@ -273,7 +302,8 @@ print(bench._p4_engine(sys.argv[3], int(sys.argv[4]), int(sys.argv[5]), int(sys.
 def _p4_engine_at(path: str, task: str, num: int, steps: int, threads: int, chosen: str = "effects") -> float:
     """:func:`_p4_engine` in a fresh process importing sim2real from ``path`` (a checkout's root), timed by this
     run's clock: the engine of another commit side by side with this one's (``--before``). ``chosen``: the
-    effects, ``"effects"`` (:func:`effects`), ``"raw"`` (none) or ``"stack"`` (:func:`stack`)."""
+    effects, ``"effects"`` (:func:`effects`), ``"raw"`` (none) or ``"stack"`` (:func:`stack`); ``"interleaved"``:
+    :func:`_p4_interleaved`'s ratio instead of a rate."""
     import subprocess
     import sys
 
@@ -417,6 +447,15 @@ def main(argv: list[str] | None = None) -> None:
             for arm in order:
                 rates[arm].append(arms[arm]())
         med = {k: statistics.median(v) for k, v in rates.items()}
+        paired = [_p4_interleaved(task, n, steps) for _ in range(args.repeats)] if batched else []
+        checkouts: dict[str, list[float]] = {}
+        if batched and args.before:  # the interleaved ratio of each checkout, in fresh processes, alternating
+            here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+            checkouts = {"now": [], "before": []}
+            for r in range(args.repeats):
+                for arm in ("now", "before") if r % 2 == 0 else ("before", "now"):
+                    path = here if arm == "now" else os.path.abspath(args.before)
+                    checkouts[arm].append(_p4_engine_at(path, task, n, steps, 1, "interleaved"))
         print(f"\n## {task}: {n} worlds x {steps} control steps")
         for arm, label in (("engine", "batched engine (stepping; make_batched)"),
                            ("threads", f"batched engine, threads={os.cpu_count()}"),
@@ -451,11 +490,17 @@ def main(argv: list[str] | None = None) -> None:
             f"evaluate auto/per-env (both end to end, builds included) = {med['evaluate'] / med['today']:.1f}x "
             f"(goal >= {P4_GOALS['today']:.0f}x); engine stepping / today end to end = {e / med['today']:.1f}x"
         )
+        print(f"RESULT {task} full stack / raw, interleaved in chunks of 25 steps (one process, threads=1): "
+              f"{statistics.median(paired):.3f} (runs: {', '.join(f'{x:.3f}' for x in paired)}; goal >= 0.95)")  # fmt: skip
         if args.before:
             print(f"RESULT {task} engine now / before (fresh processes): threads=1 {med['now'] / med['before']:.2f}x, "
                   f"threads={os.cpu_count()} {med['now_threads'] / med['before_threads']:.2f}x; "
                   f"threads={os.cpu_count()} / threads=1: now {med['now_threads'] / med['now']:.2f}, "
                   f"before {med['before_threads'] / med['before']:.2f}")  # fmt: skip
+            print(f"RESULT {task} full stack / raw interleaved (fresh processes): now "
+                  f"{statistics.median(checkouts['now']):.3f} (runs: {', '.join(f'{x:.3f}' for x in checkouts['now'])}), "
+                  f"before {statistics.median(checkouts['before']):.3f} "
+                  f"(runs: {', '.join(f'{x:.3f}' for x in checkouts['before'])})")  # fmt: skip
             print(f"RESULT {task} full stack / raw (fresh processes, threads=1): now "
                   f"{med['now_stack'] / med['now_raw']:.2f}, before {med['before_stack'] / med['before_raw']:.2f} "
                   f"(goal >= 0.95)")  # fmt: skip
