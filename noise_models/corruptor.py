@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from noise_models.fused import NoiseBlock, Pipeline, hot_pipe
+from noise_models.fused import NoiseBlock, Pipeline, hot_pipe, next_blocks
 from noise_models.pipelines import ActionNoise, ObservationNoise
 from noise_models.processes import BLOCK
 from noise_models.seeding import SeedLike, StreamFactory, normalize_seed, reseeded_root
@@ -336,6 +336,16 @@ class SignalCorruptor:
         block = pipe.noise_block()
         pipe.r = BLOCK  # the reader steps the block: this pipeline's own next step draws the block after it
         return block
+
+    @staticmethod
+    def next_noise_blocks(
+        corruptors: Sequence[SignalCorruptor], side: str, k: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`next_noise_block` of the ``k``-th ``side`` pipeline of many corruptors with the same models (the
+        worlds of one batched engine), each from its own stream, composed at once: ``(offsets, gains, unit)``,
+        ``(P, BLOCK, size)``, ``(P, size)`` and ``(P,)`` (True: no gain), bitwise those blocks' values
+        (:func:`noise_models.fused.next_blocks`)."""
+        return next_blocks([c._pipes(side)[k] for c in corruptors])
 
     def pipeline_sizes(self, side: str) -> tuple[int, ...]:
         """Signal length of each ``side`` pipeline (after :meth:`bind`)."""

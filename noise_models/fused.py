@@ -19,7 +19,7 @@ Example:
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -32,7 +32,7 @@ from noise_models.values import Layout, selection_repr
 if TYPE_CHECKING:
     from noise_models.corruptor import SignalCorruptor
 
-__all__ = ["NoiseBlock", "Pipeline", "hot_pipe"]
+__all__ = ["NoiseBlock", "Pipeline", "hot_pipe", "next_blocks"]
 
 
 # -- compiled runtime --------------------------------------------------------------------------
@@ -216,6 +216,48 @@ class Pipeline:
             _clip(w, low, high, out=w)
             return
         np.copyto(w, _clip(w, low, high), where=(x >= low) & (x <= high))
+
+
+def next_blocks(pipes: Sequence[Pipeline]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The next block of each of ``pipes`` (one affine stage each, of the same processes: the worlds of one batched
+    engine), each drawn from its own streams as its own refill would, composed for all pipelines at once.
+
+    The same per-element arithmetic as :meth:`Pipeline.refill` then :meth:`Pipeline.noise_block` one pipeline at a
+    time (zeros, then each part's ``*=`` or ``+=`` in order, then the cast to the signal's dtype), in one numpy call
+    per part instead of several per pipeline. Each pipeline counts its block as handed over, as
+    ``SignalCorruptor.next_noise_block`` does: its own next step draws the block after it.
+
+    Returns:
+        ``(offsets, gains, unit)``: ``(P, BLOCK, size)`` offsets and ``(P, size)`` gains in the signal's dtype (a
+        pipeline without gain: ones), and ``(P,)`` bool, True where a pipeline has no gain (``NoiseBlock.gain`` None).
+    """
+    stages: list[_Affine] = []
+    for pipe in pipes:
+        if len(pipe.stages) != 1 or not isinstance(pipe.stages[0], _Affine):
+            raise ValueError(f"`{pipe.names[0]}`: the pipeline is not one affine stage (see NoiseBlock).")
+        pipe.block += 1
+        pipe.r = BLOCK  # handed over, as next_noise_block
+        stages.append(pipe.stages[0])
+    first = stages[0]
+    F = np.zeros((len(stages), BLOCK, first.size))
+    G = np.ones((len(stages), first.size))
+    n = len(stages)
+    for j, part in enumerate(first.parts):
+        sel = part.sel
+        # A part's gain or offset is a scalar or one value per selected entry: (n, 1) or (n, k), broadcast as each
+        # pipeline's own refill broadcasts it.
+        if part.kind == "gain":
+            gain = np.stack([s.parts[j].gain for s in stages]).reshape(n, -1)  # type: ignore[attr-defined]
+            F[:, :, sel] *= gain[:, None, :]
+            G[:, sel] *= gain
+        elif part.kind == "add":
+            offset = np.stack([s.parts[j].offset for s in stages]).reshape(n, -1)  # type: ignore[attr-defined]
+            F[:, :, sel] += offset[:, None, :]
+        else:
+            F[:, :, sel] += np.stack(
+                [s.parts[j].block(pipe.block) for s, pipe in zip(stages, pipes, strict=True)]  # type: ignore[attr-defined]
+            )
+    return F.astype(first.dtype), G.astype(first.dtype), (G == 1.0).all(axis=1)
 
 
 def hot_pipe(pipe: Pipeline) -> Callable[[np.ndarray], np.ndarray]:

@@ -153,3 +153,36 @@ def test_next_noise_block_hands_the_block_over_and_the_pipeline_draws_the_one_af
     second = ours.next_noise_block("action", 0)  # then block 2, the block after the one its own step drew
     twin_rows = [twin.act(zero) for _ in range(BLOCK)]
     assert np.array_equal(np.stack(twin_rows), np.clip(second.offsets, -1, 1))
+
+
+def test_next_noise_blocks_composes_many_corruptors_bitwise_their_own_blocks() -> None:
+    # Gains and offsets per episode (scalars and per-entry arrays), a non-contiguous selection, drift and uniform
+    # noise: the blocks composed at once equal each corruptor's next_noise_block, block after block.
+    from noise_models import Bias, Drift, Scale, UniformNoise
+    from randomizers import Uniform
+
+    models = [
+        ObservationNoise(
+            Gaussian(std=Uniform(0.01, 0.1)),
+            Scale(gain=Uniform(0.8, 1.2), select=[0, 2, 3]),
+            Bias(Uniform(-0.1, 0.1)),
+            Drift(std=0.01, select=[1, 4]),
+            UniformNoise(half_width=0.05),
+        )
+    ]
+
+    def corruptor(i: int) -> SignalCorruptor:
+        c = SignalCorruptor(models, seed=(3, i))
+        c.bind(obs=Layout(5), action=None, timestep=0.01, substeps=1)
+        c.begin_episode()
+        return c
+
+    ours = [corruptor(i) for i in range(4)]
+    twins = [corruptor(i) for i in range(4)]
+    for _ in range(3):
+        offsets, gains, unit = SignalCorruptor.next_noise_blocks(ours, "observation", 0)
+        for i, twin in enumerate(twins):
+            block = twin.next_noise_block("observation", 0)
+            assert offsets.dtype == block.offsets.dtype and np.array_equal(offsets[i], block.offsets)
+            assert block.gain is not None and not unit[i] and np.array_equal(gains[i], block.gain)
+    assert len({float(g[0]) for g in gains}) == 4  # each corruptor its own episode draws

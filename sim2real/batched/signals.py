@@ -118,10 +118,23 @@ class _Pipes:
         self.headroom = 0  # recomputed at the next call
 
     def _refill(self, worlds: list[int]) -> None:
-        """The next block of each of ``worlds``, each from its own stream (as its single env would draw it)."""
-        for i in worlds:
-            corruptor = self.corruptors[i]
-            self._hold(i, corruptor, corruptor.next_noise_block(self.side, self.k))
+        """The next block of each of ``worlds``, each from its own stream (as its single env would draw it),
+        composed for all of them at once (``SignalCorruptor.next_noise_blocks``)."""
+        if not worlds:
+            return
+        corruptors = [self.corruptors[i] for i in worlds]
+        offsets, gains, unit = type(corruptors[0]).next_noise_blocks(corruptors, self.side, self.k)
+        if len(worlds) == len(self.corruptors):  # every world, in order (lockstep)
+            self.F[...] = offsets
+            self.G[...] = gains
+            self.unit[...] = unit
+            self.r[...] = 0
+        else:
+            self.F[worlds] = offsets
+            self.G[worlds] = gains
+            self.unit[worlds] = unit
+            self.r[worlds] = 0
+        self.headroom = 0
         self.all_unit = bool(self.unit.all())
 
     def __call__(self, x: np.ndarray, active: np.ndarray, everyone: bool) -> np.ndarray:
