@@ -149,6 +149,13 @@ class SafetyMeter:
             names += ["cvel", "subtree_com", "xipos" if body else "site_xpos"]
         self._bound = {name: batch.bind(name) for name in names}
         self._scratch: mujoco.MjData | None = None
+        self._worlds = len(self._bound["qpos"])
+        # The checks of observe, as arrays over all worlds at once.
+        self._adrs = np.array([adr for adr, _, _ in self._ranges], np.intp)
+        self._lows = np.array([low for _, low, _ in self._ranges])
+        self._highs = np.array([high for _, _, high in self._ranges])
+        self._act_idx = np.array([k for k, _ in self._scales], np.intp)
+        self._act_scale = np.array([scale for _, scale in self._scales])
 
     def observe_batch(
         self,
@@ -157,7 +164,7 @@ class SafetyMeter:
         data_of: Callable[[int], mujoco.MjData],
     ) -> None:
         """:meth:`observe` for worlds stepped in one ``mujoco.batch.Batch`` (after :meth:`bind_batch`): the same
-        quantities, bitwise, from the batch's bound ``(N, ...)`` arrays, one numpy operation per quantity for all
+        quantities, bitwise, from the batch's bound ``(N, ...)`` arrays, a few numpy operations per quantity for all
         ``worlds``. A world's whole ``MjData`` is copied out (``data_of(i)``, ~18 us) only when it has constraint
         rows to look through for a joint limit or contacts with a declared geom. The end-effector speed is screened
         for all worlds at once (the same spatial transform as ``mj_objectVelocity``, in numpy) and computed exactly
@@ -168,45 +175,52 @@ class SafetyMeter:
         idx = np.asarray(worlds, dtype=np.intp).reshape(-1)
         if not idx.size:
             return
-        qpos = bound["qpos"][idx]
-        hit = np.zeros(idx.size, bool)
-        for adr, low, high in self._ranges:
-            value = qpos[:, adr]
-            hit |= (value < low) | (value > high)  # NaN is neither, as in observe's comparisons
+        every = idx.size == self._worlds  # sorted distinct worlds: all of them, in order (views, no copies)
+        sel: Any = slice(None) if every else idx
+
+        def at(mask: np.ndarray) -> np.ndarray:  # the worlds where ``mask`` (over the observed ones) holds
+            return np.flatnonzero(mask) if every else idx[mask]
+
+        if self._adrs.size:
+            q = bound["qpos"][sel][:, self._adrs]
+            hit = ((q < self._lows) | (q > self._highs)).any(axis=1)  # NaN is neither, as in observe's comparisons
+        else:
+            hit = np.zeros(idx.size, bool)
         if self._any_limited:
-            for k in np.flatnonzero(~hit & (bound["nefc"][idx] != 0)).tolist():
+            for k in np.flatnonzero(~hit & (bound["nefc"][sel] != 0)).tolist():
                 data = data_of(int(idx[k]))
                 hit[k] = _LIMIT_JOINT in data.efc_type[: data.nefc].tolist()
-        self.hits[idx[hit]] += 1.0
-        if self._scales:
-            force = bound["actuator_force"][idx]
-            ratio: np.ndarray | None = None
-            for k, scale in self._scales:
-                term = np.abs(force[:, k]) * scale
+        if hit.any():
+            self.hits[at(hit)] += 1.0
+        if self._act_idx.size:
+            terms = np.abs(bound["actuator_force"][sel][:, self._act_idx]) * self._act_scale
+            ratio = terms[:, 0]
+            for j in range(1, terms.shape[1]):
                 # Python's max keeps the first of equal or unordered (NaN) values: replace only where strictly >.
-                ratio = term if ratio is None else np.where(term > ratio, term, ratio)
-            assert ratio is not None
-            peak = ratio > self.effort[idx]
-            self.effort[idx[peak]] = ratio[peak]
+                ratio = np.where(terms[:, j] > ratio, terms[:, j], ratio)
+            peak = ratio > self.effort[sel]
+            if peak.any():
+                self.effort[at(peak)] = ratio[peak]
         if len(self._geoms):
-            for k in np.flatnonzero(bound["ncon"][idx] != 0).tolist():
+            for k in np.flatnonzero(bound["ncon"][sel] != 0).tolist():
                 i = int(idx[k])
                 value = self._contact_peak(models[i], data_of(i))
                 if value > self.contact[i]:
                     self.contact[i] = value
         if self._object is not None:
-            self._speeds(idx, models)
+            self._speeds(idx, sel, models)
 
-    def _speeds(self, idx: np.ndarray, models: Sequence[mujoco.MjModel]) -> None:
-        """The end-effector speed of the worlds ``idx`` into their peaks (see :meth:`observe_batch`)."""
+    def _speeds(self, idx: np.ndarray, sel: Any, models: Sequence[mujoco.MjModel]) -> None:
+        """The end-effector speed of the worlds ``idx`` (``sel`` of the batch) into their peaks (see
+        :meth:`observe_batch`)."""
         assert self._object is not None
         bound = self._bound
         objtype, objid = self._object
         body = objid if objtype == int(mujoco.mjtObj.mjOBJ_BODY) else int(models[0].site_bodyid[objid])
         root = int(models[0].body_rootid[body])
         point_all = bound["xipos"] if "xipos" in bound else bound["site_xpos"]
-        cvel = bound["cvel"][idx, body]
-        dif = point_all[idx, objid] - bound["subtree_com"][idx, root]
+        cvel = bound["cvel"][sel, body]
+        dif = point_all[sel, objid] - bound["subtree_com"][sel, root]
         ang, lin = cvel[:, :3], cvel[:, 3:]
         # lin - dif x ang: mj_objectVelocity's transform of the body's spatial velocity to the point.
         moved = lin - (dif[:, _NEXT] * ang[:, _PREV] - dif[:, _PREV] * ang[:, _NEXT])
@@ -214,9 +228,9 @@ class SafetyMeter:
         scale = np.abs(lin).sum(axis=1) + np.abs(dif).sum(axis=1) * np.abs(ang).sum(axis=1)  # >= the terms' norms
         # MuJoCo's own sums may differ in the last bits (order, fused multiply-adds): far below this margin.
         reach = np.sqrt(screened) + 1e-12 * scale + 1e-300
-        below = reach < self.speed[idx]
+        candidates = np.flatnonzero(~(reach < self.speed[sel]))  # NaN screens as a candidate: the exact path decides
         velocity = self._vel6
-        for k in np.flatnonzero(~below).tolist():  # NaN screens as a candidate: the exact path decides
+        for k in candidates.tolist():
             i = int(idx[k])
             moving = self._scratch
             if moving is None:
