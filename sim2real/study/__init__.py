@@ -7,7 +7,7 @@ Stages (each prints its progress and time):
    :class:`~sim2real.conditions.Condition`. Its excitation logs are recorded through the very environment the
    evaluation scores it on (:func:`sim2real.twin.record_condition`). The report reveals it only in an appendix.
 2. **sysid** - the twin's logs fitted with :func:`sysid.fit` (independent
-   multi-starts run on the backend, the lowest cost wins), turned into a *calibrated, randomised*
+   multi-starts run one after another in this process, the lowest cost wins), turned into a *calibrated, randomised*
    simulator: each fitted value rounded to ``digits`` significant digits and randomised by
    ``max(relative_width, 2 stderr / estimate)`` around it, the fitted action latency and sensor noise,
    plus the profile's ``keep`` randomisation (what the fit does not cover).

@@ -29,7 +29,7 @@ class Budget:
         sweep_points: points kept per sweep (None: all; otherwise both bounds and the nominal first).
         grid_points: points kept per grid axis (None: all).
         log_episodes, log_steps: excitation episodes and control steps recorded on the twin.
-        fit_starts: independent sysid multi-starts (seeds), run on the backend.
+        fit_starts: independent sysid multi-starts (seeds), run one after another in the study's process.
         train_frames: frames for policies that must be trained (None: the profile's agent frames).
         retrain: train every policy even when a shipped checkpoint matches.
         num_resamples: bootstrap resamples of every interval.
