@@ -316,6 +316,9 @@ class SACConfig(_ConfigBase):
             An unbounded hinge's raw angle leaves the range the networks were trained on once the joint has turned
             past +-pi (dm-control reacher's shoulder); empty (the default) feeds every entry raw. The env and its
             observations are unchanged: this is part of the policy, stored with its checkpoint.
+        mean_action_every: every ``k``-th training episode after the random warm-up acts with the actor's mean
+            action (no sampling; its transitions are stored and counted in ``frames`` as usual), so the critics see
+            where the deterministic policy that is evaluated comes to rest; 0 (the default) samples every episode.
     """
 
     algo: ClassVar[str] = "sac"
@@ -339,8 +342,11 @@ class SACConfig(_ConfigBase):
     target_entropy: float | None = None
     n_step: int = 1
     angle_obs: tuple[int, ...] = ()
+    mean_action_every: int = 0
 
-    _omit_default: ClassVar[frozenset[str]] = frozenset({"adr", "target_entropy", "n_step", "angle_obs"})
+    _omit_default: ClassVar[frozenset[str]] = frozenset(
+        {"adr", "target_entropy", "n_step", "angle_obs", "mean_action_every"}
+    )
 
     def _validate(self) -> None:
         if isinstance(self.angle_obs, list):  # YAML and JSON give lists
@@ -356,6 +362,7 @@ class SACConfig(_ConfigBase):
         _positive_int("frames_per_batch", self.frames_per_batch)
         _nonnegative_int("init_random_frames", self.init_random_frames)
         _positive_int("n_step", self.n_step)
+        _nonnegative_int("mean_action_every", self.mean_action_every)
         if self.target_entropy is not None and not _is_real(self.target_entropy):
             raise ValueError(f"`target_entropy` must be None or a finite number. Received {self.target_entropy!r}.")
         _positive_int("buffer_size", self.buffer_size)

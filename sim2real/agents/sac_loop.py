@@ -142,6 +142,9 @@ def train_sac(
         buffer = ReplayBuffer(min(cfg.buffer_size, cfg.frames), steps.obs_dim, act_dim, seed)
         writer = NStepWriter(buffer, cfg.n_step, cfg.gamma)
         explore = _explorer(update, act_dim)
+        mean_action = _mean_actor(update)
+        every = cfg.mean_action_every
+        episode = 0  # index of the episode being collected (0-based, warm-up episodes included)
         mid = (np.asarray(steps.high) + np.asarray(steps.low)) / 2
         half = (np.asarray(steps.high) - np.asarray(steps.low)) / 2
         updates = max(1, round(cfg.utd_ratio * cfg.frames_per_batch))
@@ -155,7 +158,12 @@ def train_sac(
                 rewards = np.empty(n)
                 finished: list[float] = []
                 for i in range(n):
-                    a_n = torch.rand(act_dim) * 2.0 - 1.0 if frames + i < cfg.init_random_frames else explore(obs)
+                    if frames + i < cfg.init_random_frames:
+                        a_n = torch.rand(act_dim) * 2.0 - 1.0
+                    elif every and episode % every == every - 1:
+                        a_n = mean_action(obs)
+                    else:
+                        a_n = explore(obs)
                     a_np = a_n.numpy()
                     next_obs, reward, terminated, truncated = steps.step(mid + half * a_np)
                     writer.add(obs, a_np, reward * cfg.reward_scale, next_obs, terminated, truncated)
@@ -164,6 +172,7 @@ def train_sac(
                     if terminated or truncated:
                         finished.append(episode_return)
                         episode_return = 0.0
+                        episode += 1
                         obs = steps.reset()
                     else:
                         obs = next_obs
@@ -196,6 +205,17 @@ def _explorer(update: SACUpdate, act_dim: int) -> Callable[[np.ndarray], torch.T
         with torch.no_grad():
             loc, scale = update.extractor(update.mlp(update.norm(torch.from_numpy(obs))))
             return torch.tanh(loc + scale * torch.randn(act_dim))
+
+    return act
+
+
+def _mean_actor(update: SACUpdate) -> Callable[[np.ndarray], torch.Tensor]:
+    """The current policy's mean action (what a deterministic evaluation plays) in the normalised box."""
+
+    def act(obs: np.ndarray) -> torch.Tensor:
+        with torch.no_grad():
+            loc, _ = update.extractor(update.mlp(update.norm(torch.from_numpy(obs))))
+            return torch.tanh(loc)
 
     return act
 
