@@ -319,6 +319,10 @@ class SACConfig(_ConfigBase):
         mean_action_every: every ``k``-th training episode after the random warm-up acts with the actor's mean
             action (no sampling; its transitions are stored and counted in ``frames`` as usual), so the critics see
             where the deterministic policy that is evaluated comes to rest; 0 (the default) samples every episode.
+        action_repeat: training only: each action the actor chooses is held for this many environment steps and
+            stored as one transition (the held steps' rewards summed, ``gamma`` per held block; shorter at an
+            episode's end). ``frames`` and ``utd_ratio`` still count environment steps, so ``utd_ratio=1/k`` is one
+            update per decision. The trained policy is deployed acting at every step (evaluation, the study).
     """
 
     algo: ClassVar[str] = "sac"
@@ -343,9 +347,10 @@ class SACConfig(_ConfigBase):
     n_step: int = 1
     angle_obs: tuple[int, ...] = ()
     mean_action_every: int = 0
+    action_repeat: int = 1
 
     _omit_default: ClassVar[frozenset[str]] = frozenset(
-        {"adr", "target_entropy", "n_step", "angle_obs", "mean_action_every"}
+        {"adr", "target_entropy", "n_step", "angle_obs", "mean_action_every", "action_repeat"}
     )
 
     def _validate(self) -> None:
@@ -363,6 +368,7 @@ class SACConfig(_ConfigBase):
         _nonnegative_int("init_random_frames", self.init_random_frames)
         _positive_int("n_step", self.n_step)
         _nonnegative_int("mean_action_every", self.mean_action_every)
+        _positive_int("action_repeat", self.action_repeat)
         if self.target_entropy is not None and not _is_real(self.target_entropy):
             raise ValueError(f"`target_entropy` must be None or a finite number. Received {self.target_entropy!r}.")
         _positive_int("buffer_size", self.buffer_size)

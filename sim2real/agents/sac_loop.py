@@ -152,21 +152,31 @@ def train_sac(
         frames = 0
         obs = steps.reset()
         episode_return = 0.0
+        held = 0  # environment steps left on the current decision (cfg.action_repeat)
+        a_np = env_action = decision_obs = np.zeros(0)
+        decision_reward = 0.0
         with progress_bar(cfg.frames, progress, "sac") as bar:
             while frames < cfg.frames:
                 n = min(cfg.frames_per_batch, cfg.frames - frames)
                 rewards = np.empty(n)
                 finished: list[float] = []
                 for i in range(n):
-                    if frames + i < cfg.init_random_frames:
-                        a_n = torch.rand(act_dim) * 2.0 - 1.0
-                    elif every and episode % every == every - 1:
-                        a_n = mean_action(obs)
-                    else:
-                        a_n = explore(obs)
-                    a_np = a_n.numpy()
-                    next_obs, reward, terminated, truncated = steps.step(mid + half * a_np)
-                    writer.add(obs, a_np, reward * cfg.reward_scale, next_obs, terminated, truncated)
+                    if held == 0:  # a new decision: held for cfg.action_repeat steps
+                        if frames + i < cfg.init_random_frames:
+                            a_n = torch.rand(act_dim) * 2.0 - 1.0
+                        elif every and episode % every == every - 1:
+                            a_n = mean_action(obs)
+                        else:
+                            a_n = explore(obs)
+                        a_np = a_n.numpy()
+                        env_action = mid + half * a_np
+                        decision_obs, decision_reward, held = obs, 0.0, cfg.action_repeat
+                    next_obs, reward, terminated, truncated = steps.step(env_action)
+                    decision_reward += reward * cfg.reward_scale
+                    held -= 1
+                    if held == 0 or terminated or truncated:
+                        writer.add(decision_obs, a_np, decision_reward, next_obs, terminated, truncated)
+                        held = 0
                     rewards[i] = reward
                     episode_return += reward
                     if terminated or truncated:
