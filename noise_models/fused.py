@@ -54,6 +54,11 @@ class _Affine:
         self.dtype = dtype
         self.F = np.zeros((BLOCK, size), dtype=dtype)
         self.G: np.ndarray | None = None
+        self.rows: list[np.ndarray] = []
+        # The step's rows: views made once into a buffer each block is cast into (``refill(rows=True)``; handed on
+        # to the next episode's stage by Pipeline.begin), since 256 fresh views per block cost as much as its draws.
+        self._buf: np.ndarray | None = None
+        self._buf_rows: list[np.ndarray] = []
 
     def refill(self, block: int, rows: bool = True) -> None:
         F = np.zeros((BLOCK, self.size))
@@ -66,10 +71,18 @@ class _Affine:
                 F[:, p.sel] += p.offset  # type: ignore[attr-defined]
             else:
                 F[:, p.sel] += p.block(block)  # type: ignore[attr-defined]
-        self.F = F.astype(self.dtype)
-        # Row views made once per block, not per step; skipped (`rows=False`) for code that reads F whole
-        # (NoiseBlock: the batched engine), where 256 views cost as much as the block's draws.
-        self.rows = list(self.F) if rows else []
+        if rows:
+            buf = self._buf
+            if buf is None:
+                buf = self._buf = np.empty((BLOCK, self.size), dtype=self.dtype)
+                self._buf_rows = list(buf)
+            buf[...] = F  # astype's cast, into the buffer the step's row views look at
+            self.F = buf
+            self.rows = self._buf_rows
+        else:
+            # Code that reads F whole (NoiseBlock: the batched engine) gets a block of its own and no row views.
+            self.F = F.astype(self.dtype)
+            self.rows = []
         self.G = None if bool((G == 1.0).all()) else G.astype(self.dtype)
 
     def apply(self, x: np.ndarray, r: int) -> np.ndarray:
@@ -148,6 +161,9 @@ class Pipeline:
                 stages[-1].parts.append(part)
             else:
                 stages.append(_Affine([part], self.layout.size, self.dtype))
+        for old, new in zip(self.stages, stages, strict=False):
+            if isinstance(old, _Affine) and isinstance(new, _Affine):  # the rows' buffer outlives the episode
+                new._buf, new._buf_rows = old._buf, old._buf_rows
         self.stages = stages
         self.first_affine = isinstance(stages[0], _Affine)
         self.simple = 0  # decided after the first refill, when the gain is known (see _decide)
@@ -208,7 +224,8 @@ class Pipeline:
         if len(self.stages) != 1 or not isinstance(self.stages[0], _Affine):
             raise ValueError(f"`{self.names[0]}`: the pipeline is not one affine stage (see NoiseBlock).")
         stage = self.stages[0]
-        return NoiseBlock(stage.F, stage.G, self.r, self.low, self.high, self.guard)
+        F = stage.F.copy() if stage.F is stage._buf else stage.F  # the step's buffer is overwritten next block
+        return NoiseBlock(F, stage.G, self.r, self.low, self.high, self.guard)
 
     def _clip(self, x: np.ndarray, w: np.ndarray) -> None:
         low, high = self.low, self.high
