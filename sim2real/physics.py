@@ -110,7 +110,11 @@ class PhysicsHandle:
                 return int(value)
         return None
 
-    def intercept_step(self, stepper: Callable[[Any, int, Any], None]) -> Callable[[], None]:
+    def intercept_step(
+        self,
+        stepper: Callable[[Any, int, Any], None],
+        direct: Callable[[Any, Any], Callable[[int], None]] | None = None,
+    ) -> Callable[[], None]:
         """Routes the env's physics stepping through ``stepper(run, nstep, runner)``.
 
         The env asks for ``nstep`` physics steps (once per control step, or once per substep on
@@ -119,6 +123,10 @@ class PhysicsHandle:
         ``runner.split([(ctrl, k), ...])`` to advance in pieces with a command each, which does the
         same work as one unsplit step (no extra kinematics or collision passes). Returns a function
         that removes the interception.
+
+        ``direct(run, runner)``, when given, returns the function installed as dm-control's ``Physics.step``
+        itself (it must do what ``stepper`` does): one Python call per physics step instead of two, for a stepper
+        on the hot path. Other envs ignore it.
 
         Raises:
             TypeError: the env steps MuJoCo in a way that cannot be intercepted.
@@ -133,7 +141,7 @@ class PhysicsHandle:
                 def step(nstep: int = 1) -> None:
                     stepper(original, nstep, runner)
 
-                physics.step = step
+                physics.step = step if direct is None else direct(original, runner)
 
             install(owner.physics)
             hook = None

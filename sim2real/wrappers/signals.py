@@ -164,7 +164,7 @@ class SignalClock:
         if handle is not None and handle.recompiles:
             self._hook = handle.on_recompile(lambda model, data: None)  # keeps handle.data current
         if corruptor.needs_physics_hook:
-            self._remove = handle.intercept_step(self._stepper)  # type: ignore[union-attr]
+            self._remove = handle.intercept_step(self._stepper, self._direct)  # type: ignore[union-attr]
         self._latency = corruptor.has_action and handle is not None and self.action_path != "action"
         # Composer steps one substep at a time and its hooks may rewrite ctrl between substeps.
         self._whole_steps = handle is not None and not handle.recompiles
@@ -206,6 +206,29 @@ class SignalClock:
         self._control += 1
         self._passed = 0
         self._in_step = True
+
+    def _direct(self, run: Any, runner: Any) -> Any:
+        """dm-control's ``Physics.step`` as one function (see ``PhysicsHandle.intercept_step``): a latency of whole
+        control steps (the episode's command ring, set by begin_episode) handled in it, the rest by
+        :meth:`_stepper`."""
+        stepper = self._stepper
+
+        def step(nstep: int = 1) -> None:
+            ring = self._ring
+            if ring is None or not self._in_step:
+                stepper(run, nstep, runner)
+                return
+            if self._passed == 0:  # as in _stepper
+                ctrl = self._ctrl
+                k = self._sent
+                self._sent = k + 1
+                size = len(ring)
+                ring[k % size][...] = ctrl
+                ctrl[...] = ring[(k + 1) % size]
+            self._passed += nstep
+            run(nstep)
+
+        return step
 
     def _stepper(self, run: Any, nstep: int, runner: Any = None) -> None:
         if not self._in_step:  # physics stepped outside a control step (e.g. inside reset)
