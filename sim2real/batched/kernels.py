@@ -6,9 +6,9 @@ which per-world MjData arrays it reads (:attr:`Kernel.fields`; the engine copies
 buffers become observations, rewards and terminations (:meth:`Kernel.outputs`), each one numpy operation over
 all worlds. Every kernel repeats its task's arithmetic operation for operation (same operands, same order,
 float64 until the float32 observation cast), so each world's values are bitwise those of the single env;
-``tests/test_batched.py`` checks it episode by episode. Batched and per-row numpy agree bitwise on what the
-kernels use (``sqrt`` of the explicit sum of squares vs ``np.linalg.norm``; stacked ``matmul`` and
-``linalg.solve`` vs one matrix at a time), checked on random inputs and end to end.
+``tests/test_batched.py`` checks it episode by episode. What goes through BLAS in the task (small products and dots,
+whose last bit depends on the CPU's BLAS kernel) is called per world with the single env's expression; everything
+else is elementwise numpy over all worlds, the same float on every machine.
 
 Example:
     >>> from sim2real.batched.kernels import KERNELS, kernel_for
@@ -145,10 +145,13 @@ class ArmReachKernel(Kernel):
 
     def controls(self, actions: np.ndarray, qpos: np.ndarray, gathered: dict[str, np.ndarray]) -> np.ndarray:
         dx = np.clip(actions, -self._max_delta, self._max_delta)
-        jac = gathered["jacobian"][:, :, self._dof_idx]
-        jt = jac.transpose(0, 2, 1)
-        solved = np.linalg.solve(jac @ jt + self._damping_eye, dx[:, :, None])
-        dq = (jt @ solved)[:, :, 0]
+        jacs = gathered["jacobian"][:, :, self._dof_idx]
+        dq = np.empty((len(dx), len(self._dof_idx)))
+        # One world at a time, the single env's expression on same-shaped contiguous operands: these products go
+        # through BLAS, whose kernel (and so the last bit of a small product: `a @ a.T` is a syrk, a stacked matmul
+        # is not) depends on the CPU; only the same call is bitwise the same everywhere.
+        for i, jac in enumerate(jacs):
+            dq[i] = jac.T @ np.linalg.solve(jac @ jac.T + self._damping_eye, dx[i])
         return np.clip(qpos[:, self._qpos_idx] + dq, self._low, self._high)
 
     def outputs(self, qpos: np.ndarray, qvel: np.ndarray, gathered: dict[str, np.ndarray]) -> Outputs:
@@ -233,7 +236,9 @@ class ManipulatorKernel(Kernel):
         def is_close(pair: int) -> np.ndarray:
             a, b = ids["sites"][2 * pair], ids["sites"][2 * pair + 1]
             d = site_xpos[:, a] - site_xpos[:, b]
-            distance = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
+            # dm-control's np.linalg.norm is sqrt(x.dot(x)), a BLAS dot whose kernel (and last bit) depends on the
+            # CPU: the same call per world is bitwise the single env's on every machine.
+            distance = np.sqrt(np.array([row.dot(row) for row in d]))
             return np.asarray(rewards.tolerance(distance, (0, close), close * 2))
 
         if self._use_peg:

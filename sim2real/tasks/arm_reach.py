@@ -307,7 +307,7 @@ class ArmReachEnv(gym.Env[np.ndarray, np.ndarray]):
         mujoco.mj_kinematics(self.model, self.data)
 
         self._elapsed_steps = 0
-        distance = float(np.linalg.norm(start_ee - target))
+        distance = _distance(start_ee, target)
         return self._get_obs(), {"distance": distance, "is_success": distance < self.success_threshold}
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
@@ -337,7 +337,7 @@ class ArmReachEnv(gym.Env[np.ndarray, np.ndarray]):
         mujoco.mj_forward(model, data)
         self._elapsed_steps += 1
 
-        distance = float(np.linalg.norm(data.site_xpos[self._ee_site] - self._target_pos))
+        distance = _distance(data.site_xpos[self._ee_site], self._target_pos)
         terminated = distance < self.success_threshold
         truncated = self._elapsed_steps >= self.max_episode_steps
         info = {"distance": distance, "is_success": terminated}
@@ -398,9 +398,14 @@ class ArmReachEnv(gym.Env[np.ndarray, np.ndarray]):
             scratch.qpos[self._qpos_idx] = self.np_random.uniform(low, high)
             mujoco.mj_kinematics(self.model, scratch)
             candidate = scratch.site_xpos[self._ee_site]
-            if (
-                candidate[2] >= self.MIN_TARGET_HEIGHT
-                and np.linalg.norm(candidate - start_ee) >= self.MIN_TARGET_DISTANCE
-            ):
+            if candidate[2] >= self.MIN_TARGET_HEIGHT and _distance(candidate, start_ee) >= self.MIN_TARGET_DISTANCE:
                 return candidate.copy()
         raise RuntimeError(f"No valid target found in {max_tries} samples; the workspace limits are too tight.")
+
+
+def _distance(a: np.ndarray, b: np.ndarray) -> float:
+    """The distance of two 3-vectors as ``sqrt(dx*dx + dy*dy + dz*dz)``, summed in that order: the same float on
+    every machine (``np.linalg.norm`` goes through BLAS, whose kernel, and with it the last bit, depends on the CPU)
+    and what the batched engine computes for all worlds at once (``sim2real.batched.kernels.ArmReachKernel``)."""
+    dx, dy, dz = float(a[0] - b[0]), float(a[1] - b[1]), float(a[2] - b[2])
+    return math.sqrt(dx * dx + dy * dy + dz * dz)
