@@ -145,6 +145,9 @@ def test_the_report_says_whether_the_precision_goal_was_met() -> None:
     assert "Episodes on real: 64, chosen so that the 95% interval of 'calibrated' - 'randomized' on real is at most" \
         in text  # fmt: skip
     assert "the budget caps it at 64" in text and "goal not met" in text
+    # what would meet the goal is re-estimated from the achieved interval, not repeated from the pilot
+    assert t.needed_now == max(65, math.ceil(64 * (t.half_width / t.goal) ** 2 - 1e-9))
+    assert f"goal not met (about {t.needed_now} episodes would meet it)" in text
     assert any(w.startswith("Precision goal not met: 'calibrated' - 'randomized' on real") for w in
                json.loads(report.to_json())["budget_warnings"])  # fmt: skip
     data = json.loads(report.to_json())["episode_target"]

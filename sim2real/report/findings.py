@@ -220,7 +220,7 @@ def episode_target_sentence(report: GapReport) -> str:
     )
     if t.capped:
         ask += f"; the budget caps it at {t.cap}"
-    verdict = "goal met" if t.met else f"goal not met (about {t.needed} episodes would meet it)"
+    verdict = "goal met" if t.met else f"goal not met (about {t.needed_now} episodes would meet it)"
     return (
         f"Episodes on {t.condition}: {t.episodes}, chosen so that {what} is at most +-{num(t.goal, 3)} "
         f"({t.fraction:.0%} of the mean return {num(t.reference_return)} of {t.reference_policy!r} on "
@@ -240,7 +240,7 @@ def budget_warnings(report: GapReport) -> tuple[str, ...]:
             f"Precision goal not met: {t.x!r} - {t.y!r} on {t.condition} has a {t.confidence:.0%} half-width of "
             f"{num(t.half_width, 3)} at {t.episodes} episodes, above the goal {num(t.goal, 3)} ({t.fraction:.0%} of "
             f"the mean return of {t.reference_policy!r} on {t.reference_condition!r})"
-            + (f"; about {t.needed} episodes would meet it." if t.needed is not None else ".")
+            + (f"; about {t.needed_now} episodes would meet it." if t.needed_now is not None else ".")
         )
     counts = sorted({s.n for s in report.stats})
     if counts and counts[0] < need:

@@ -11,6 +11,7 @@ Example:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -343,6 +344,22 @@ class EpisodeTarget:
     def met(self) -> bool:
         """True when the achieved half-width is at most the goal."""
         return bool(self.half_width <= self.goal)
+
+    @property
+    def needed_now(self) -> int | None:
+        """The episodes the goal asks for, re-estimated from the achieved interval (its half-width shrinks as one
+        over the square root of the episodes): ``ceil(episodes * (half_width / goal) ** 2)``; :attr:`needed` when the
+        goal was met or has no width. Differs from the pilot's :attr:`needed` when the pilot's spread was off.
+
+        Example:
+            >>> t = EpisodeTarget("real", "calibrated", "randomized", "nominal", "sim", 974.5, 0.05, 48.7, 32, 173.0,
+            ...                   49, 128, 49, 55.8, 0.95)
+            >>> t.met, t.needed, t.needed_now
+            (False, 49, 65)
+        """
+        if self.met or self.needed is None or not math.isfinite(self.goal) or not math.isfinite(self.half_width):
+            return self.needed
+        return max(self.episodes + 1, math.ceil(self.episodes * (self.half_width / self.goal) ** 2 - 1e-9))
 
     @property
     def capped(self) -> bool:
