@@ -217,3 +217,34 @@ def test_safety_section_says_what_the_sampling_sees() -> None:
     assert "physics_steps_per_sample" not in SafetyTable.build(ev, limits).to_dict()
     with pytest.raises(ValueError, match=r"`substeps` must be None or an int >= 1\. Received 0\."):
         SafetyTable.build(ev, limits, substeps=0)
+
+
+def test_replan_rounds_runs_again_while_the_longer_run_asks_for_more() -> None:
+    from sim2real.report.results import EpisodeTarget
+    from sim2real.study.precision import replan_rounds
+
+    base = EpisodeTarget("real", "a", "b", "a", "sim", 900.0, 0.05, 45.0, 32, 150.0, 43, 128, 43, math.nan, 0.95)
+    ran: list[int] = []
+    notes: list[str] = []
+
+    def run_to(n: int) -> int:
+        ran.append(n)
+        return n
+
+    def replan(asks: dict[int, int]):  # type: ignore[no-untyped-def]
+        return lambda n: dataclasses.replace(base, episodes=asks[n], pilot_episodes=n)
+
+    # the pilot's 43 are run; their spread asks 60, then 60's asks 61, then 61's asks no more: three runs
+    last, plan = replan_rounds(base, run_to, replan({43: 60, 60: 61, 61: 58}), note=notes.append)
+    assert (ran, last, plan.episodes, plan.pilot_episodes) == ([43, 60, 61], 61, 61, 60)
+    assert notes == ["the 43 episodes put the spread higher than the pilot did: 60 episodes (cap 128)",
+                     "the 60 episodes put the spread higher than the pilot did: 61 episodes (cap 128)"]  # fmt: skip
+    # at most `rounds` runs, and the plan reported is the one that ran last
+    ran.clear()
+    last, plan = replan_rounds(base, run_to, replan({43: 50, 50: 70, 70: 90}), rounds=2)
+    assert (ran, last, plan.episodes) == ([43, 50], 50, 50)
+    # a spread that asks for no more than ran: one run
+    ran.clear()
+    assert replan_rounds(base, run_to, replan({43: 43}))[0] == 43 and ran == [43]
+    with pytest.raises(ValueError, match=r"`rounds` must be an int >= 1. Received 0."):
+        replan_rounds(base, run_to, replan({}), rounds=0)

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from statistics import NormalDist
 from typing import Any
 
@@ -40,7 +41,7 @@ import numpy as np
 
 from sim2real.report.results import EpisodeTarget
 
-__all__ = ["extend", "plan_target", "run_target"]
+__all__ = ["extend", "plan_target", "replan_rounds", "run_target"]
 
 
 def plan_target(
@@ -105,6 +106,42 @@ def plan_target(
         half_width=math.nan,
         confidence=float(confidence),
     )
+
+
+def replan_rounds(
+    plan: EpisodeTarget,
+    run_to: Callable[[int], Any],
+    replan: Callable[[Any], EpisodeTarget],
+    *,
+    rounds: int = 4,
+    note: Callable[[str], None] | None = None,
+) -> tuple[Any, EpisodeTarget]:
+    """Runs ``run_to(plan.episodes)`` (the evaluation with that many episodes on the target), plans again from it
+    with ``replan`` and, while the new plan asks for more episodes, runs that, at most ``rounds`` runs in all: a
+    pilot's spread is off when returns are bimodal (one stall moves a paired difference by ~1000), so the longer
+    run's spread plans the next. Returns the last evaluation and the plan that ran (the report's target).
+
+    Example:
+        >>> import dataclasses
+        >>> base = EpisodeTarget("real", "a", "b", "a", "sim", 900.0, 0.05, 45.0, 32, 150.0, 43, 128, 43, 0.0, 0.95)
+        >>> asks = {43: 60, 60: 61, 61: 61}  # episodes run -> what their spread asks for
+        >>> ran, plan = replan_rounds(base, lambda n: n, lambda n: dataclasses.replace(base, episodes=asks[n]))
+        >>> ran, plan.episodes
+        (61, 61)
+    """
+    if isinstance(rounds, bool) or not isinstance(rounds, int) or rounds < 1:
+        raise ValueError(f"`rounds` must be an int >= 1. Received {rounds!r}.")
+    current: Any = None
+    for round_ in range(rounds):
+        current = run_to(plan.episodes)
+        again = replan(current)
+        if round_ == rounds - 1 or again.episodes <= plan.episodes:
+            break
+        if note is not None:
+            note(f"the {plan.episodes} episodes put the spread higher than the pilot did: {again.episodes} episodes "
+                 f"(cap {again.cap})")  # fmt: skip
+        plan = again
+    return current, plan
 
 
 def run_target(spec: Any, condition: str, episodes: int, *, pilot: Any = None, **run: Any) -> Any:

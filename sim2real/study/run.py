@@ -154,7 +154,7 @@ def _run(
         study_roles,
         train_one,
     )
-    from sim2real.study.precision import extend, plan_target, run_target
+    from sim2real.study.precision import extend, plan_target, replan_rounds, run_target
     from sim2real.study.summary import DISPLAY_CONDITIONS, DISPLAY_POLICIES, TRAINING, study_summary
     from sim2real.tasks import make
 
@@ -228,22 +228,28 @@ def _run(
     # Enough episodes to decide: the evaluation above is the pilot of the headline's precision goal on the twin.
     target = plan_target(evaluation, fraction=budget.precision, cap=budget.max_target_episodes)
     if target.episodes > evaluation.episodes:
-        more = stages.run(
+        pilot = evaluation
+
+        def target_stage() -> tuple[Any, Any]:
+            # Each run is bitwise the run from episode 0 (run_target continues the pilot); see replan_rounds.
+            def run_to(episodes: int) -> Any:
+                more = run_target(spec, "real", episodes, pilot=pilot, backend=backend, workers=workers,
+                                  progress=progress, safety=safety)  # fmt: skip
+                return extend(pilot, more, "real")
+
+            return replan_rounds(
+                target,
+                run_to,
+                lambda current: plan_target(current, fraction=budget.precision, cap=budget.max_target_episodes),
+                note=None if log is None else (lambda text: print(f"      {text}", file=log)),
+            )
+
+        evaluation, target = stages.run(
             "target",
             f"{target.episodes} episodes of every policy on the real twin (the pilot asks for {target.needed} to "
             f"reach +-{target.goal:.3g}; cap {target.cap})",
-            lambda: run_target(
-                spec,
-                "real",
-                target.episodes,
-                pilot=evaluation,
-                backend=backend,
-                workers=workers,
-                progress=progress,
-                safety=safety,
-            ),
+            target_stage,
         )
-        evaluation = extend(evaluation, more, "real")
     else:
         stages.run("target", f"the pilot's {evaluation.episodes} episodes reach the precision goal", lambda: None)
     env = make(profile.task)
