@@ -98,6 +98,13 @@ def test_plan_target_asks_for_the_episodes_the_pilot_sd_implies() -> None:
     assert (capped.episodes, capped.capped) == (100, True)
     loose = plan_target(ev, fraction=1.0, cap=100)
     assert loose.needed is not None and loose.needed < 16 and loose.episodes == 16  # never fewer than the pilot
+    # whole batches (so a longer run continues this one), within the cap
+    batched = plan_target(ev, fraction=0.05, cap=4000, batch=16)
+    assert batched.needed == t.needed and batched.episodes == -(-t.needed // 16) * 16 >= t.needed
+    assert plan_target(ev, fraction=0.05, cap=100, batch=64).episodes == 100
+    assert plan_target(ev, fraction=1.0, cap=100, batch=16).episodes == 16
+    with pytest.raises(ValueError, match=r"`batch` must be an int >= 1\. Received 0\."):
+        plan_target(ev, fraction=0.05, cap=10, batch=0)
     with pytest.raises(ValueError, match=r"`fraction` must be a number in \(0, 1\]. Received 0."):
         plan_target(ev, fraction=0, cap=10)
     with pytest.raises(ValueError, match=r"`cap` must be an int >= 1\. Received 0\."):

@@ -46,7 +46,8 @@ def test_quick_study_decides_its_twin_episodes_and_reports_safety_and_units(quic
     # capped by the budget (quick: 4 episodes, at most 8 on the twin).
     t = report["episode_target"]
     assert (t["condition"], t["x"], t["y"], t["pilot_episodes"], t["cap"]) == ("real", "calibrated", "randomized", 4, 8)
-    assert t["episodes"] == (4 if t["needed"] is None else min(max(t["needed"], 4), 8))
+    # whole batches of 4 (the quick budget's batch), so a longer run continues the last one
+    assert t["episodes"] == (4 if t["needed"] is None else min(-(-max(t["needed"], 4) // 4) * 4, 8))
     assert report["evaluation"]["episodes"] == 4
     if t["episodes"] != 4:
         assert report["evaluation"]["episodes_by_condition"]["real"] == [t["episodes"]]

@@ -93,6 +93,12 @@ def test_target_run_continues_the_pilot_bitwise() -> None:
     assert continued.env_steps == from_zero.env_steps == 2 * 12 * 40
     merged = extend(pilot, continued, "real")
     assert np.array_equal(merged.returns["nominal"]["real"][:4], pilot.returns["nominal"]["real"])
+    # a second round continues the first (the study's re-planned target stage): only episodes 12..19 run
+    again = run_target(spec, "real", 20, pilot=continued, safety=limits)
+    assert again.to_json() == run_target(spec, "real", 20, safety=limits).to_json()
+    assert again.env_steps == 2 * 20 * 40
+    assert np.array_equal(extend(pilot, again, "real").returns["scripted"]["real"][:12],
+                          merged.returns["scripted"]["real"])  # fmt: skip
 
 
 def test_start_must_be_an_int_at_least_0() -> None:

@@ -49,6 +49,7 @@ def plan_target(
     *,
     fraction: float,
     cap: int,
+    batch: int = 1,
     x: str = "calibrated",
     y: str = "randomized",
     condition: str = "real",
@@ -57,7 +58,8 @@ def plan_target(
 ) -> EpisodeTarget:
     """The episodes ``condition`` needs so that the ``confidence`` interval of ``mean(x) - mean(y)`` there has a
     half-width of at most ``fraction`` of ``reference``'s mean return (see the module docstring); the evaluation's
-    episodes are the pilot. ``half_width`` is NaN until the report fills it in.
+    episodes are the pilot. With ``batch`` > 1 the episodes are rounded up to whole batches (within ``cap``), so a
+    longer run can continue this one (:func:`run_target`) instead of starting again after the pilot. ``half_width`` is NaN until the report fills it in.
 
     Raises:
         ValueError: ``fraction`` not in (0, 1], ``cap`` not an int >= 1, or returns missing for ``x`` or ``y`` on
@@ -67,6 +69,8 @@ def plan_target(
         raise ValueError(f"`fraction` must be a number in (0, 1]. Received {fraction!r}.")
     if isinstance(cap, bool) or not isinstance(cap, int) or cap < 1:
         raise ValueError(f"`cap` must be an int >= 1. Received {cap!r}.")
+    if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
+        raise ValueError(f"`batch` must be an int >= 1. Received {batch!r}.")
     returns = evaluation.returns
 
     def get(policy: str, cond: str) -> np.ndarray:
@@ -88,7 +92,7 @@ def plan_target(
         needed, goal = None, (goal if goal > 0 else math.nan)
     else:
         needed = max(2, math.ceil((z * sd / goal) ** 2 - 1e-9))
-    episodes = pilot if needed is None else min(max(needed, pilot), max(cap, pilot))
+    episodes = pilot if needed is None else min(-(-max(needed, pilot) // batch) * batch, max(cap, pilot))
     return EpisodeTarget(
         condition=condition,
         x=x,

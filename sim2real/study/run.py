@@ -226,22 +226,28 @@ def _run(
         lambda: spec.run(backend=backend, workers=workers, progress=progress, safety=safety),
     )
     # Enough episodes to decide: the evaluation above is the pilot of the headline's precision goal on the twin.
-    target = plan_target(evaluation, fraction=budget.precision, cap=budget.max_target_episodes)
+    batch = spec.batch  # whole batches: each round of the target stage continues the last one
+
+    def plan(current: Any) -> Any:
+        return plan_target(current, fraction=budget.precision, cap=budget.max_target_episodes, batch=batch)
+
+    target = plan(evaluation)
     if target.episodes > evaluation.episodes:
         pilot = evaluation
 
         def target_stage() -> tuple[Any, Any]:
-            # Each run is bitwise the run from episode 0 (run_target continues the pilot); see replan_rounds.
+            # Each run continues the last (run_target with its result as the pilot; whole batches, so bitwise the
+            # run from episode 0); see replan_rounds.
+            last = pilot
+
             def run_to(episodes: int) -> Any:
-                more = run_target(spec, "real", episodes, pilot=pilot, backend=backend, workers=workers,
+                nonlocal last
+                last = run_target(spec, "real", episodes, pilot=last, backend=backend, workers=workers,
                                   progress=progress, safety=safety)  # fmt: skip
-                return extend(pilot, more, "real")
+                return extend(pilot, last, "real")
 
             return replan_rounds(
-                target,
-                run_to,
-                lambda current: plan_target(current, fraction=budget.precision, cap=budget.max_target_episodes),
-                note=None if log is None else (lambda text: print(f"      {text}", file=log)),
+                target, run_to, plan, note=None if log is None else (lambda text: print(f"      {text}", file=log))
             )
 
         evaluation, target = stages.run(
