@@ -16,8 +16,9 @@ Five quantities per episode (the names :mod:`sim2real.safety` aggregates and gat
   (``mj_objectVelocity``), m/s; NaN without one;
 * ``diverged``: 1.0 when the episode's physics diverged (the wrappers' ``diverged`` flag), else 0.0.
 
-Sampling: once per control step, from ``MjData`` as the step leaves it (forces and contacts of the last physics
-step's forward pass). A peak that lives only between two control samples (inside the substeps) is not seen.
+Sampling: once per control step, from ``MjData`` as the step leaves it. Contact forces are solved for that state
+(``mj_forward`` on a scratch copy: after dm-control's legacy step the data's ``efc_force`` belongs to the previous
+contact set). A peak that lives only between two control samples (inside the substeps) is not seen.
 
 Example:
     >>> import mujoco
@@ -126,6 +127,7 @@ class SafetyMeter:
         self._force6 = np.zeros(6)
         self._vel6 = np.zeros(6)
         self._net = np.zeros((len(self._geoms), 3))
+        self._solved: mujoco.MjData | None = None  # scratch data the contact forces are solved in
         self._n = int(num_envs)
         self.reset()
 
@@ -288,6 +290,15 @@ class SafetyMeter:
         pairs = data.contact.geom[: data.ncon]
         side1 = pairs[:, 0, None] == self._geoms[None, :]  # (ncon, G): the declared geom is geom1
         side2 = pairs[:, 1, None] == self._geoms[None, :]
+        if not (side1.any() or side2.any()):
+            return 0.0
+        # The forces are solved for the state as it is, in a scratch copy: after dm-control's legacy step
+        # (mj_step2, then mj_step1) the contacts are the new state's but efc_force is the previous solve's, and a
+        # constraint row that did not exist then reads whatever the arena held (seen: 1.4e146 N).
+        data = self._solve(model, data)
+        pairs = data.contact.geom[: data.ncon]
+        side1 = pairs[:, 0, None] == self._geoms[None, :]
+        side2 = pairs[:, 1, None] == self._geoms[None, :]
         touching = np.flatnonzero(side1.any(1) | side2.any(1))
         if not len(touching):
             return 0.0
@@ -301,6 +312,16 @@ class SafetyMeter:
             net[side2[k]] += world
             net[side1[k]] -= world
         return float(np.linalg.norm(net, axis=1).max())
+
+    def _solve(self, model: mujoco.MjModel, data: mujoco.MjData) -> mujoco.MjData:
+        """``data`` copied into a scratch ``MjData`` and ``mj_forward`` there: contacts and their forces of the
+        same state (the env's own data is not touched; its next step is unchanged)."""
+        solved = self._solved
+        if solved is None or solved.nbuffer != data.nbuffer:
+            solved = self._solved = mujoco.MjData(model)
+        mujoco.mj_copyData(solved, model, data)
+        mujoco.mj_forward(model, solved)
+        return solved
 
     def episode(self, i: int, *, diverged: bool) -> dict[str, float]:
         """Env ``i``'s quantities for the episode observed since :meth:`reset` (see :data:`QUANTITIES`)."""

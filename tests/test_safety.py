@@ -473,3 +473,32 @@ def test_an_env_without_mujoco_exits_2(tmp_path: Path, capsys: pytest.CaptureFix
         "env; found none in CartPoleEnv.\n"
     )
     assert not (tmp_path / "o").exists()
+
+
+def test_contact_forces_are_solved_for_the_state_not_read_from_a_stale_solve() -> None:
+    """After dm-control's legacy step (mj_step2, then mj_step1) the contacts are the new state's while efc_force is
+    the previous solve's; a row that did not exist then held whatever the arena had (1.4e146 N once in CI). The
+    meter solves the forces of the state it is given, in a copy, and leaves the env's data alone."""
+    from sim2real.safety import SafetyLimits
+    from sim2real.safety_probe import SafetyMeter
+
+    model = mujoco.MjModel.from_xml_string(
+        '<mujoco><worldbody><geom name="floor" type="plane" size="1 1 .1"/>'
+        '<body name="box" pos="0 0 .2"><freejoint/><geom name="box" type="box" size=".05 .05 .05" mass="2"/></body>'
+        "</worldbody></mujoco>"
+    )
+    data = mujoco.MjData(model)
+    for _ in range(400):  # falls and comes to rest on the floor: weight 2 kg x 9.81
+        mujoco.mj_step(model, data)
+    assert data.ncon > 0
+    limits = SafetyLimits(contact_geoms=("box",), max_contact_force=100.0)
+    honest = SafetyMeter(model, limits, num_envs=1)
+    honest.observe(0, model, data)
+    weight = honest.episode(0, diverged=False)["contact_force"]
+    assert weight == pytest.approx(2 * 9.81, rel=0.02)
+    data.efc_force[:] = 1.4e146  # a stale or garbage solve
+    before = data.efc_force.copy()
+    poisoned = SafetyMeter(model, limits, num_envs=1)
+    poisoned.observe(0, model, data)
+    assert poisoned.episode(0, diverged=False)["contact_force"] == weight
+    assert np.array_equal(data.efc_force, before)  # the env's own data untouched
