@@ -286,19 +286,20 @@ class SafetyMeter:
             if speed > self.speed[i]:
                 self.speed[i] = speed
 
-    def _contact_peak(self, model: mujoco.MjModel, data: mujoco.MjData) -> float:
+    def _sides(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
+        """``(ncon, G)`` masks: contact ``k`` has declared geom ``g`` as its geom1 / as its geom2."""
         pairs = data.contact.geom[: data.ncon]
-        side1 = pairs[:, 0, None] == self._geoms[None, :]  # (ncon, G): the declared geom is geom1
-        side2 = pairs[:, 1, None] == self._geoms[None, :]
+        return pairs[:, 0, None] == self._geoms[None, :], pairs[:, 1, None] == self._geoms[None, :]
+
+    def _contact_peak(self, model: mujoco.MjModel, data: mujoco.MjData) -> float:
+        side1, side2 = self._sides(data)
         if not (side1.any() or side2.any()):
             return 0.0
         # The forces are solved for the state as it is, in a scratch copy: after dm-control's legacy step
         # (mj_step2, then mj_step1) the contacts are the new state's but efc_force is the previous solve's, and a
         # constraint row that did not exist then reads whatever the arena held (seen: 1.4e146 N).
         data = self._solve(model, data)
-        pairs = data.contact.geom[: data.ncon]
-        side1 = pairs[:, 0, None] == self._geoms[None, :]
-        side2 = pairs[:, 1, None] == self._geoms[None, :]
+        side1, side2 = self._sides(data)
         touching = np.flatnonzero(side1.any(1) | side2.any(1))
         if not len(touching):
             return 0.0

@@ -348,8 +348,9 @@ class EpisodeTarget:
     @property
     def needed_now(self) -> int | None:
         """The episodes the goal asks for, re-estimated from the achieved interval (its half-width shrinks as one
-        over the square root of the episodes): ``ceil(episodes * (half_width / goal) ** 2)``; :attr:`needed` when the
-        goal was met or has no width. Differs from the pilot's :attr:`needed` when the pilot's spread was off.
+        over the square root of the episodes): ``ceil(episodes * (half_width / goal) ** 2)``, at least one more than
+        ran; :attr:`needed` when the goal was met or has no width. Differs from the pilot's :attr:`needed` when the
+        pilot's spread was off.
 
         Example:
             >>> t = EpisodeTarget("real", "calibrated", "randomized", "nominal", "sim", 974.5, 0.05, 48.7, 32, 173.0,

@@ -4,15 +4,16 @@ The headline is the paired difference ``calibrated - randomized`` on the real tw
 pilot: its ``budget.episodes`` episodes estimate the standard deviation ``sd`` of the per-episode differences, and
 with the normal approximation a ``confidence`` interval over ``n`` episodes has half-width ``z * sd / sqrt(n)``.
 The goal is a half-width of at most ``budget.precision`` of the nominal return (the nominal policy's mean in the
-nominal sim), so ``needed = ceil((z * sd / goal) ** 2)``; the twin then runs ``min(max(needed, pilot), cap)``
-episodes of every policy (:attr:`Budget.max_target_episodes` is the cap that keeps the study within its wall-time
-budget), and the report reads the half-width it reached from its own interval
+nominal sim), so ``needed = ceil((z * sd / goal) ** 2)``; the twin then runs ``max(needed, pilot)`` episodes of every
+policy, rounded up to whole batches and at most the cap (:attr:`Budget.max_target_episodes` keeps the study within
+its wall-time budget). While the longer run's spread asks for more, the episodes are planned again from it
+(:func:`replan_rounds`, the study's target stage). The report reads the half-width reached from its own interval
 (:meth:`sim2real.report.GapReport.with_episode_target`) and says whether the goal was met.
 
-The longer twin run continues the pilot: episodes ``pilot``, ``pilot + 1``, ... with the same episode seeds and in the
-same batches as a run from episode 0 (:func:`run_target` with ``pilot=``; the pilot's episodes are not run again), so
-its first ``pilot`` episodes are the pilot's own (bitwise) and its rows keep sharing initial states with every other
-condition's.
+The longer twin run continues the pilot (or the previous round): episodes ``pilot``, ``pilot + 1``, ... with the same
+episode seeds and in the same batches as a run from episode 0 (:func:`run_target` with ``pilot=``; the pilot's
+episodes are not run again), so its first ``pilot`` episodes are the pilot's own (bitwise) and its rows keep sharing
+initial states with every other condition's.
 
 Example:
     >>> import numpy as np
@@ -59,11 +60,12 @@ def plan_target(
     """The episodes ``condition`` needs so that the ``confidence`` interval of ``mean(x) - mean(y)`` there has a
     half-width of at most ``fraction`` of ``reference``'s mean return (see the module docstring); the evaluation's
     episodes are the pilot. With ``batch`` > 1 the episodes are rounded up to whole batches (within ``cap``), so a
-    longer run can continue this one (:func:`run_target`) instead of starting again after the pilot. ``half_width`` is NaN until the report fills it in.
+    longer run can continue this one (:func:`run_target`) instead of starting again after the pilot. ``half_width``
+    is NaN until the report fills it in.
 
     Raises:
-        ValueError: ``fraction`` not in (0, 1], ``cap`` not an int >= 1, or returns missing for ``x`` or ``y`` on
-            ``condition`` or for the reference (the names and what the evaluation has are given).
+        ValueError: ``fraction`` not in (0, 1], ``cap`` or ``batch`` not an int >= 1, or returns missing for ``x``
+            or ``y`` on ``condition`` or for the reference (the names and what the evaluation has are given).
     """
     if isinstance(fraction, bool) or not isinstance(fraction, (int, float)) or not 0 < fraction <= 1:
         raise ValueError(f"`fraction` must be a number in (0, 1]. Received {fraction!r}.")
