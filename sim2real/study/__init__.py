@@ -36,7 +36,7 @@ Example (the CI-sized budget, in a temporary folder):
 
     >>> from sim2real.study import BUDGETS
     >>> BUDGETS["quick"].episodes, BUDGETS["standard"].episodes
-    (4, 32)
+    (4, 128)
 """
 
 from __future__ import annotations

@@ -56,8 +56,9 @@ class Budget:
 
 BUDGETS: dict[str, Budget] = {
     "quick": Budget("quick", 4, 200, 3, 2, 4, 200, 2, 2_000, False, 500, 0.05, 8),
-    "standard": Budget("standard", 32, None, None, None, 4, 200, 2, None, False, 2_000, 0.05, 128),
-    "full": Budget("full", 100, None, None, None, 8, 200, 4, None, True, 5_000, 0.05, 1_024),
+    # standard: 128 episodes per condition (4x the 32 of issue 15's day), within P7's 180 s for install + study.
+    "standard": Budget("standard", 128, None, None, None, 4, 200, 2, None, False, 2_000, 0.05, 256),
+    "full": Budget("full", 256, None, None, None, 8, 200, 4, None, True, 5_000, 0.05, 1_024),
 }
 
 
