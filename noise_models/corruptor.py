@@ -339,13 +339,16 @@ class SignalCorruptor:
 
     @staticmethod
     def next_noise_blocks(
-        corruptors: Sequence[SignalCorruptor], side: str, k: int
+        corruptors: Sequence[SignalCorruptor],
+        side: str,
+        k: int,
+        out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`next_noise_block` of the ``k``-th ``side`` pipeline of many corruptors with the same models (the
         worlds of one batched engine), each from its own stream, composed at once: ``(offsets, gains, unit)``,
         ``(P, BLOCK, size)``, ``(P, size)`` and ``(P,)`` (True: no gain), bitwise those blocks' values
-        (:func:`noise_models.fused.next_blocks`)."""
-        return next_blocks([c._pipes(side)[k] for c in corruptors])
+        (:func:`noise_models.fused.next_blocks`, into ``out`` when given)."""
+        return next_blocks([c._pipes(side)[k] for c in corruptors], out)
 
     def pipeline_sizes(self, side: str) -> tuple[int, ...]:
         """Signal length of each ``side`` pipeline (after :meth:`bind`)."""

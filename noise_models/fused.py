@@ -68,7 +68,7 @@ class _Affine:
                 F[:, p.sel] *= p.gain  # type: ignore[attr-defined]
                 G[p.sel] *= p.gain  # type: ignore[attr-defined]
             elif p.kind == "add":
-                F[:, p.sel] += p.offset  # type: ignore[attr-defined]
+                F[:, p.sel] += p.rows()  # type: ignore[attr-defined]
             else:
                 F[:, p.sel] += p.block(block)  # type: ignore[attr-defined]
         if rows:
@@ -235,14 +235,23 @@ class Pipeline:
         np.copyto(w, _clip(w, low, high), where=(x >= low) & (x <= high))
 
 
-def next_blocks(pipes: Sequence[Pipeline]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def next_blocks(
+    pipes: Sequence[Pipeline], out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The next block of each of ``pipes`` (one affine stage each, of the same processes: the worlds of one batched
     engine), each drawn from its own streams as its own refill would, composed for all pipelines at once.
 
     The same per-element arithmetic as :meth:`Pipeline.refill` then :meth:`Pipeline.noise_block` one pipeline at a
-    time (zeros, then each part's ``*=`` or ``+=`` in order, then the cast to the signal's dtype), in one numpy call
-    per part instead of several per pipeline. Each pipeline counts its block as handed over, as
+    time (zeros, then each part's ``*=`` or ``+=`` in order, then the cast to the signal's dtype), composed one
+    pipeline at a time in one small float64 array that stays in cache and cast straight into the pipeline's rows of
+    the result: one ``(P, BLOCK, size)`` float64 composition was several passes over memory the physics step had just
+    evicted, and cost more than the per-pipeline calls. Each pipeline counts its block as handed over, as
     ``SignalCorruptor.next_noise_block`` does: its own next step draws the block after it.
+
+    Args:
+        pipes: the pipelines.
+        out: ``(offsets, gains, unit)`` arrays of the returned shapes and dtypes (any strides) to write the result
+            into and return, e.g. the batched engine's own blocks: no ``(P, BLOCK, size)`` array is allocated.
 
     Returns:
         ``(offsets, gains, unit)``: ``(P, BLOCK, size)`` offsets and ``(P, size)`` gains in the signal's dtype (a
@@ -256,25 +265,28 @@ def next_blocks(pipes: Sequence[Pipeline]) -> tuple[np.ndarray, np.ndarray, np.n
         pipe.r = BLOCK  # handed over, as next_noise_block
         stages.append(pipe.stages[0])
     first = stages[0]
-    F = np.zeros((len(stages), BLOCK, first.size))
-    G = np.ones((len(stages), first.size))
     n = len(stages)
+    G = np.ones((n, first.size))
     for j, part in enumerate(first.parts):
-        sel = part.sel
-        # A part's gain or offset is a scalar or one value per selected entry: (n, 1) or (n, k), broadcast as each
-        # pipeline's own refill broadcasts it.
-        if part.kind == "gain":
-            gain = np.stack([s.parts[j].gain for s in stages]).reshape(n, -1)  # type: ignore[attr-defined]
-            F[:, :, sel] *= gain[:, None, :]
-            G[:, sel] *= gain
-        elif part.kind == "add":
-            offset = np.stack([s.parts[j].offset for s in stages]).reshape(n, -1)  # type: ignore[attr-defined]
-            F[:, :, sel] += offset[:, None, :]
-        else:
-            F[:, :, sel] += np.stack(
-                [s.parts[j].block(pipe.block) for s, pipe in zip(stages, pipes, strict=True)]  # type: ignore[attr-defined]
-            )
-    return F.astype(first.dtype), G.astype(first.dtype), (G == 1.0).all(axis=1)
+        if part.kind == "gain":  # a scalar or one value per selected entry: (n, 1) or (n, k), as each refill has it
+            G[:, part.sel] *= np.stack([s.parts[j].gain for s in stages]).reshape(n, -1)  # type: ignore[attr-defined]
+    if out is None:
+        out = (np.empty((n, BLOCK, first.size), first.dtype), np.empty((n, first.size), first.dtype), np.empty(n, bool))
+    offsets, gains, unit = out
+    F = np.empty((BLOCK, first.size))
+    for i, (stage, pipe) in enumerate(zip(stages, pipes, strict=True)):
+        F.fill(0.0)
+        for part in stage.parts:
+            if part.kind == "gain":
+                F[:, part.sel] *= part.gain  # type: ignore[attr-defined]
+            elif part.kind == "add":
+                F[:, part.sel] += part.rows()  # type: ignore[attr-defined]
+            else:
+                F[:, part.sel] += part.block(pipe.block)  # type: ignore[attr-defined]
+        offsets[i] = F  # astype's cast
+    np.copyto(gains, G)
+    np.all(G == 1.0, axis=1, out=unit)
+    return out
 
 
 def hot_pipe(pipe: Pipeline) -> Callable[[np.ndarray], np.ndarray]:

@@ -130,15 +130,17 @@ class StreamFactory:
         return np.random.Generator(np.random.Philox(key=self._key(name)))
 
     def _key(self, name: str) -> np.ndarray:
-        return self._state(name)["state"]["key"]
+        return np.array(self._state(name)["state"]["key"], dtype=np.uint64)
 
     def _state(self, name: str) -> dict[str, Any]:
         state = self._states.get(name)
         if state is None:
+            # Python ints, not uint64 arrays: numpy's state setter reads each entry, and a Python int is read
+            # several times faster than a numpy scalar is made and read (start runs once per block of draws).
             state = self._states[name] = {
                 "bit_generator": "Philox",
-                "state": {"counter": np.zeros(4, dtype=np.uint64), "key": _philox_key(self._root_key, name)},
-                "buffer": np.zeros(4, dtype=np.uint64),
+                "state": {"counter": [0, 0, 0, 0], "key": [int(k) for k in _philox_key(self._root_key, name)]},
+                "buffer": [0, 0, 0, 0],
                 "buffer_pos": 4,
                 "has_uint32": 0,
                 "uinteger": 0,
