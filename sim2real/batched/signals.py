@@ -41,6 +41,12 @@ from noise_models.corruptor import ActionNoise, NoiseBlock, ObservationNoise
 from noise_models.processes import BLOCK, Bias, Drift, Gaussian, Outlier, Scale, UniformNoise
 from noise_models.timing import ActionLatency, ObservationLatency
 
+try:  # the clip ufunc itself: np.clip's Python dispatch costs more than the clipping (as noise_models.fused)
+    # numpy's stubs do not declare the `clip` ufunc in umath, though numpy 2 exports it there.
+    from numpy._core.umath import clip as _clip  # type: ignore[attr-defined]
+except ImportError:  # pragma: no cover - numpy < 2
+    from numpy.core.umath import clip as _clip  # type: ignore[no-redef]
+
 __all__ = ["BatchedSignals", "action_latency_bound", "signals_reason"]
 
 #: Processes ``noise_models`` fuses into one affine stage (``x * G + F``): the ones batched here.
@@ -72,15 +78,15 @@ class _Pipes:
     """One pipeline position (the k-th observation or action pipeline) across all worlds.
 
     Worlds reset together and stepped unmasked sit on the same row of their blocks (``common``): the step's
-    noise is then ``F[:, row]``, a view, instead of a per-world gather, and their blocks run out together
-    (refilled in one pass). Any reset of some worlds or a masked step returns to per-world rows (``r``); the
-    values are the same either way.
+    noise is then ``F[row]``, one contiguous ``(N, size)`` view (blocks are stored row-major over worlds,
+    ``(BLOCK, N, size)``), instead of a per-world gather, and their blocks run out together (refilled in one pass).
+    Any reset of some worlds or a masked step returns to per-world rows (``r``); the values are the same either way.
     """
 
     def __init__(self, n: int, side: str, k: int, size: int, dtype: np.dtype) -> None:
         self.side, self.k = side, k
         self.corruptors: list[Any] = [None] * n
-        self.F = np.zeros((n, BLOCK, size), dtype=dtype)
+        self.F = np.zeros((BLOCK, n, size), dtype=dtype)
         self.G = np.ones((n, size), dtype=dtype)
         self.unit = np.ones(n, bool)  # worlds without gain: x + F (x * 1.0 is x, so skipping it is exact)
         self.rows = np.arange(n)
@@ -89,6 +95,9 @@ class _Pipes:
         self.check = False  # rows may line up again (after resets or masked steps): look at the next full step
         # The pipeline's clip (NoiseBlock.clip), None without bounds: the same for every world (one signal layout).
         self.clip: Any = None
+        # A clip of the whole signal (actions): its bounds broadcast to (N, size) once, so the step's clip is one
+        # ufunc loop over all worlds instead of one short loop per world (NoiseBlock.clip's arithmetic).
+        self.bounds: tuple[np.ndarray, np.ndarray] | None = None
         self.all_unit = True  # every world without gain
         # Calls before any world can reach the end of its block (r grows by at most 1 a call): until then no
         # world needs a refill and the check is skipped.
@@ -110,11 +119,17 @@ class _Pipes:
 
     def _hold(self, i: int, corruptor: Any, block: NoiseBlock) -> None:
         self.corruptors[i] = corruptor
-        self.F[i] = block.offsets
+        self.F[:, i] = block.offsets
         self.G[i] = 1.0 if block.gain is None else block.gain
         self.unit[i] = block.gain is None
         self.r[i] = block.row
         self.clip = None if block.low is None else block.clip
+        low, high = block.low, block.high
+        if low is None or high is None or block.guard:
+            self.bounds = None
+        elif self.bounds is None:
+            shape = self.G.shape
+            self.bounds = (np.broadcast_to(low, shape).copy(), np.broadcast_to(high, shape).copy())
         self.headroom = 0  # recomputed at the next call
 
     def _refill(self, worlds: list[int]) -> None:
@@ -123,22 +138,29 @@ class _Pipes:
         if not worlds:
             return
         corruptors = [self.corruptors[i] for i in worlds]
-        offsets, gains, unit = type(corruptors[0]).next_noise_blocks(corruptors, self.side, self.k)
-        if len(worlds) == len(self.corruptors):  # every world, in order (lockstep)
-            self.F[...] = offsets
-            self.G[...] = gains
-            self.unit[...] = unit
+        compose = type(corruptors[0]).next_noise_blocks
+        if len(worlds) == len(self.corruptors):  # every world, in order (lockstep): composed into the blocks
+            compose(corruptors, self.side, self.k, (self.F.transpose(1, 0, 2), self.G, self.unit))
             self.r[...] = 0
         else:
-            self.F[worlds] = offsets
+            offsets, gains, unit = compose(corruptors, self.side, self.k)
+            self.F[:, worlds] = offsets.transpose(1, 0, 2)
             self.G[worlds] = gains
             self.unit[worlds] = unit
             self.r[worlds] = 0
         self.headroom = 0
         self.all_unit = bool(self.unit.all())
 
-    def __call__(self, x: np.ndarray, active: np.ndarray, everyone: bool) -> np.ndarray:
-        """The noisy signal of every world; only the ``active`` worlds' noise advances (``everyone``: all are)."""
+    def _clip(self, x: np.ndarray, w: np.ndarray) -> None:
+        bounds = self.bounds
+        if bounds is not None:
+            _clip(w, bounds[0], bounds[1], w)
+        elif self.clip is not None:
+            self.clip(x, w)
+
+    def __call__(self, x: np.ndarray, active: np.ndarray, everyone: bool, out: np.ndarray | None = None) -> np.ndarray:
+        """The noisy signal of every world; only the ``active`` worlds' noise advances (``everyone``: all are).
+        ``out``: an ``(N, size)`` array to write it into when every world is on one row (returned then)."""
         if everyone:
             if self.check:
                 self.check = False
@@ -151,10 +173,13 @@ class _Pipes:
                     self._refill(list(range(len(self.corruptors))))
                     row = int(self.r[0])  # 0: a fresh block's first row, for every world
                 self.common = row + 1
-                noise = self.F[:, row]
-                w = x + noise if self.all_unit else x * self.G + noise
-                if self.clip is not None:
-                    self.clip(x, w)
+                noise = self.F[row]
+                if self.all_unit:
+                    w = np.add(x, noise, out)
+                else:
+                    w = np.multiply(x, self.G, out)
+                    w += noise
+                self._clip(x, w)
                 return w
         else:
             self._split()
@@ -163,11 +188,10 @@ class _Pipes:
             self._refill(np.flatnonzero(active & (self.r == BLOCK)).tolist())
             self.headroom = BLOCK - int(self.r.max())
         self.headroom -= 1
-        noise = self.F[self.rows, self.r if everyone else np.minimum(self.r, BLOCK - 1)]
+        noise = self.F[self.r if everyone else np.minimum(self.r, BLOCK - 1), self.rows]
         w = x + noise if self.all_unit else x * self.G + noise
         self.r += active
-        if self.clip is not None:
-            self.clip(x, w)
+        self._clip(x, w)
         return w if everyone else np.where(active[:, None], w, x)
 
 
@@ -191,6 +215,7 @@ class BatchedSignals:
             _Pipes(num_envs, "action", k, size, first.action_dtype)
             for k, size in enumerate(first.pipeline_sizes("action"))
         ]
+        self._obs_inner, self._obs_last = self._obs[:-1], (self._obs[-1] if self._obs else None)
         self.action_dtype = first.action_dtype
         self._latency = ObservationLatency in first.timing
         self._lag = np.zeros(num_envs, np.int64)
@@ -198,7 +223,8 @@ class BatchedSignals:
         self._kc: int | None = None  # the count of every world, when they line up (see _Pipes)
         self._lagc: int | None = None  # the lag of every world, when they are the same
         self._line_up = False  # counts may line up again (after resets or masked steps): look at the next full step
-        self._ring = np.zeros((num_envs, 1, 0), dtype=first.obs_dtype or np.float32)
+        # (slots, N, size): slot k of every world is one contiguous (N, size) array.
+        self._ring = np.zeros((1, num_envs, 0), dtype=first.obs_dtype or np.float32)
         self._rows = np.arange(num_envs)
         # ActionLatency. On the "action" path (the action does not map onto ctrl: arm-reach's IK targets) each
         # world's action waits ``lag`` whole control steps in a float64 ring, zeros until the first arrives, as
@@ -255,20 +281,20 @@ class BatchedSignals:
             lag = c.observation_lag
             if lag is None:
                 raise ValueError("`effects`: an observation latency without a fixed lag is not batched.")
-            if lag + 1 > self._ring.shape[1] or self._ring.shape[2] != first_obs.size:
+            if lag + 1 > self._ring.shape[0] or self._ring.shape[2] != first_obs.size:
                 self._grow(lag + 1, first_obs)
-            self._ring[i] = first_obs  # every slot holds the reset sample, as the single env's ring does
+            self._ring[:, i] = first_obs  # every slot holds the reset sample, as the single env's ring does
             self._lag[i] = lag
             self._k[i] = 0
 
     def _grow(self, size: int, first_obs: np.ndarray) -> None:
         """A ring of ``size`` slots; every world's last samples move to the slots their step counts map to."""
         old = self._ring
-        ring = np.zeros((self.num_envs, size, first_obs.size), dtype=first_obs.dtype)
+        ring = np.zeros((size, self.num_envs, first_obs.size), dtype=first_obs.dtype)
         if old.shape[2] == first_obs.size:
             rows = np.arange(self.num_envs)
-            for d in range(old.shape[1]):  # at a reset only; the ring grows at most to the largest lag drawn
-                ring[rows, (self._k - d) % size] = old[rows, (self._k - d) % old.shape[1]]
+            for d in range(old.shape[0]):  # at a reset only; the ring grows at most to the largest lag drawn
+                ring[(self._k - d) % size, rows] = old[(self._k - d) % old.shape[0], rows]
         self._ring = ring
 
     def act(self, actions: np.ndarray, active: np.ndarray, everyone: bool | None = None) -> np.ndarray:
@@ -300,15 +326,15 @@ class BatchedSignals:
         look). The result may be ``previous`` itself, overwritten."""
         if everyone is None:
             everyone = bool(active.all())
-        sample = obs
-        for pipes in self._obs:
-            sample = pipes(sample, active, everyone)
         if not self._latency:
             if everyone:
-                np.copyto(previous, sample)
+                sample = self._noisy(obs, active, True, previous)
+                if sample is not previous:
+                    np.copyto(previous, sample)
                 return previous
-            return np.where(active[:, None], sample, previous)
-        size = self._ring.shape[1]
+            return np.where(active[:, None], self._noisy(obs, active, False), previous)
+        ring = self._ring
+        size = ring.shape[0]
         if everyone:
             if self._line_up:
                 self._line_up = False
@@ -318,26 +344,38 @@ class BatchedSignals:
             if kc is not None:  # every world at the same step of its episode: slots are views
                 kc += 1
                 self._kc = kc
-                ring = self._ring
-                ring[:, kc % size] = sample
+                slot = ring[kc % size]
+                sample = self._noisy(obs, active, True, slot)  # straight into the slot when the noise can
+                if sample is not slot:
+                    np.copyto(slot, sample)
                 if self._lagc is not None:
                     # The sample of ``lag`` control steps ago; before that, the reset sample (still in its slot).
-                    np.copyto(previous, ring[:, (kc - self._lagc) % size])
+                    np.copyto(previous, ring[(kc - self._lagc) % size])
                     return previous
-                return ring[self._rows, (kc - self._lag) % size]
+                return ring[(kc - self._lag) % size, self._rows]
         else:
             self._counts()
             self._line_up = True
+        sample = self._noisy(obs, active, everyone)
         k = self._k + active
         self._k = k
         rows = self._rows
-        slot = k % size
+        slot_k = k % size
         if everyone:
-            self._ring[rows, slot] = sample
-            return self._ring[rows, (k - self._lag) % size]
-        self._ring[rows, slot] = np.where(active[:, None], sample, self._ring[rows, slot])
-        delayed = self._ring[rows, (k - self._lag) % size]
+            ring[slot_k, rows] = sample
+            return ring[(k - self._lag) % size, rows]
+        ring[slot_k, rows] = np.where(active[:, None], sample, ring[slot_k, rows])
+        delayed = ring[(k - self._lag) % size, rows]
         return np.where(active[:, None], delayed, previous)
+
+    def _noisy(self, obs: np.ndarray, active: np.ndarray, everyone: bool, out: np.ndarray | None = None) -> np.ndarray:
+        """The observations through the noise pipelines (``obs`` itself without any); the last pipeline writes
+        into ``out`` when it can (every world on one row)."""
+        sample = obs
+        for pipes in self._obs_inner:
+            sample = pipes(sample, active, everyone)
+        last = self._obs_last
+        return sample if last is None else last(sample, active, everyone, out)
 
     def _counts(self) -> None:
         """Back to per-world step counts of the observation ring."""
