@@ -502,3 +502,35 @@ def test_as_policy_fast_path_matches_torchrl_bitwise() -> None:
         with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
             expected = actor(TensorDict({"observation": obs}, batch_size=[33]))["action"].numpy()
         np.testing.assert_array_equal(as_policy(actor)(obs.numpy()), expected)
+
+
+@pytest.mark.parametrize("activation, angles", [("relu", ()), ("tanh", (0, 3)), ("elu", ())])
+def test_as_policy_flat_sac_path_is_the_torchrl_mean_action_bitwise(activation: str, angles: tuple[int, ...]) -> None:
+    """SAC actors act through one flat function (layers called directly, the scale head skipped, TorchRL's safe tanh
+    as its forward): bitwise the TorchRL path's deterministic action, saturated actions included, and still after the
+    weights change in place (as training does); layouts it does not know (ELU) keep the general fast path."""
+    import torch
+    from tensordict import TensorDict
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    from sim2real.agents.nets import build_actor
+    from sim2real.agents.policy import _tanh_normal_fast_path
+
+    torch.manual_seed(1)
+    actor = build_actor("sac", 6, [-0.5, 0.0, -2.0], [0.5, 1.0, 3.0], (32, 32), activation, -0.5, angle_obs=angles)
+    fn = _tanh_normal_fast_path(actor, "observation", "action", torch.float32)
+    assert fn is not None and fn.__name__ == ("fn" if activation == "elu" else "flat")
+    policy = as_policy(actor)
+
+    def torchrl(obs: torch.Tensor) -> np.ndarray:
+        with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+            return actor(TensorDict({"observation": obs}, batch_size=[obs.shape[0]]))["action"].numpy()
+
+    for rows, scale in ((1, 1.0), (64, 3.0), (257, 1e4)):  # 1e4: tanh saturates, the clamp decides
+        obs = torch.randn(rows, 6) * scale
+        np.testing.assert_array_equal(policy(obs.numpy()), torchrl(obs), strict=True)
+    with torch.no_grad():
+        for p in actor.parameters():
+            p.mul_(1.5).add_(0.01)
+    obs = torch.randn(40, 6) * 2
+    np.testing.assert_array_equal(policy(obs.numpy()), torchrl(obs), strict=True)
