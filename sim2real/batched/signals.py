@@ -179,7 +179,11 @@ class _Pipes:
                 else:
                     w = np.multiply(x, self.G, out)
                     w += noise
-                self._clip(x, w)
+                bounds = self.bounds  # _clip, inline: this is every step's path
+                if bounds is not None:
+                    _clip(w, bounds[0], bounds[1], w)
+                elif self.clip is not None:
+                    self.clip(x, w)
                 return w
         else:
             self._split()
@@ -345,7 +349,11 @@ class BatchedSignals:
                 kc += 1
                 self._kc = kc
                 slot = ring[kc % size]
-                sample = self._noisy(obs, active, True, slot)  # straight into the slot when the noise can
+                last = self._obs_last
+                if last is not None and not self._obs_inner:  # one pipeline (_noisy, inline): into the slot
+                    sample = last(obs, active, True, slot)
+                else:
+                    sample = self._noisy(obs, active, True, slot)  # straight into the slot when the noise can
                 if sample is not slot:
                     np.copyto(slot, sample)
                 if self._lagc is not None:
