@@ -201,6 +201,18 @@ class _Block(Part):
 # -- additive / multiplicative processes (fused into one affine map per step) -------------------
 
 
+def _block_scale(values: np.ndarray, k: int) -> float | np.ndarray:
+    """What a ``(BLOCK, k)`` block of unit draws is multiplied by for per-entry scales ``values``: one float when
+    every entry has the same (a constant or shared parameter: a contiguous multiply by a scalar), else ``values``
+    repeated over the block's rows (a contiguous multiply instead of one short broadcast loop per row). The products
+    are those of ``block * values`` either way."""
+    values = np.asarray(values, dtype=np.float64)
+    bits = values.view(np.uint64)
+    if bool((bits == bits[0]).all()):  # bit for bit (0.0 and -0.0 are not the same scale)
+        return float(values[0])
+    return np.broadcast_to(values, (BLOCK, k)).copy()
+
+
 class Gaussian(Process):
     """White Gaussian noise with standard deviation ``std``.
 
@@ -223,8 +235,7 @@ class Gaussian(Process):
     def compile(self, ctx: Compile) -> Part:
         std = ctx.param("std", "std")
         k = ctx.k
-        # std over a block's rows: one contiguous multiply instead of one short broadcast loop per row (same products)
-        scale = np.broadcast_to(std, (BLOCK, k)).copy()
+        scale = _block_scale(std, k)
 
         def block(b: int) -> np.ndarray:
             w = ctx.block_rng(b).standard_normal((BLOCK, k))
@@ -257,7 +268,7 @@ class UniformNoise(Process):
     def compile(self, ctx: Compile) -> Part:
         hw = ctx.param("half_width", "half_width")
         k = ctx.k
-        scale = np.broadcast_to(hw, (BLOCK, k)).copy()  # as Gaussian's
+        scale = _block_scale(hw, k)
 
         def block(b: int) -> np.ndarray:
             w = ctx.block_rng(b).uniform(-1.0, 1.0, (BLOCK, k))
