@@ -274,9 +274,21 @@ def next_blocks(
         out = (np.empty((n, BLOCK, first.size), first.dtype), np.empty((n, first.size), first.dtype), np.empty(n, bool))
     offsets, gains, unit = out
     F = np.empty((BLOCK, first.size))
+    whole = slice(0, first.size)
+    head = first.parts[0]
+    # A first process that draws every entry and can draw into an array: its draws go straight into F, then + 0.0
+    # (what the zeros they are added to would give: -0.0 becomes 0.0), instead of zeros, an array of draws and a sum.
+    direct = head.kind == "block" and isinstance(head.sel, slice) and head.sel == whole
     for i, (stage, pipe) in enumerate(zip(stages, pipes, strict=True)):
-        F.fill(0.0)
-        for part in stage.parts:
+        parts = stage.parts
+        draw_into = parts[0].draw_into if direct else None  # type: ignore[attr-defined]
+        if draw_into is not None:
+            draw_into(pipe.block, F)
+            F += 0.0
+            parts = parts[1:]
+        else:
+            F.fill(0.0)
+        for part in parts:
             if part.kind == "gain":
                 F[:, part.sel] *= part.gain  # type: ignore[attr-defined]
             elif part.kind == "add":

@@ -189,13 +189,21 @@ class _Add(Part):
 
 
 class _Block(Part):
-    """Additive per-step randomness: ``block(b)`` returns a (BLOCK, k) array."""
+    """Additive per-step randomness: ``block(b)`` returns a (BLOCK, k) array; ``draw_into(b, out)``, where a process
+    has one, writes the same values into a C-contiguous (BLOCK, k) float64 ``out`` instead."""
 
     kind = "block"
 
-    def __init__(self, idx: np.ndarray, size: int, block: Callable[[int], np.ndarray]) -> None:
+    def __init__(
+        self,
+        idx: np.ndarray,
+        size: int,
+        block: Callable[[int], np.ndarray],
+        draw_into: Callable[[int, np.ndarray], None] | None = None,
+    ) -> None:
         super().__init__(idx, size)
         self.block = block
+        self.draw_into = draw_into
 
 
 # -- additive / multiplicative processes (fused into one affine map per step) -------------------
@@ -237,12 +245,16 @@ class Gaussian(Process):
         k = ctx.k
         scale = _block_scale(std, k)
 
+        def draw_into(b: int, out: np.ndarray) -> None:
+            ctx.block_rng(b).standard_normal(out=out)
+            out *= scale
+
         def block(b: int) -> np.ndarray:
-            w = ctx.block_rng(b).standard_normal((BLOCK, k))
-            w *= scale
+            w = np.empty((BLOCK, k))
+            draw_into(b, w)
             return w
 
-        return _Block(ctx.idx, ctx.layout.size, block)
+        return _Block(ctx.idx, ctx.layout.size, block, draw_into)
 
 
 class UniformNoise(Process):

@@ -186,3 +186,22 @@ def test_next_noise_blocks_composes_many_corruptors_bitwise_their_own_blocks() -
             assert offsets.dtype == block.offsets.dtype and np.array_equal(offsets[i], block.offsets)
             assert block.gain is not None and not unit[i] and np.array_equal(gains[i], block.gain)
     assert len({float(g[0]) for g in gains}) == 4  # each corruptor its own episode draws
+
+
+def test_next_noise_blocks_keep_the_sign_of_zero_noise_bitwise() -> None:
+    # std 0: every draw times 0.0 is 0.0 or -0.0. A pipeline's own refill adds the draws to zeros (0.0 + -0.0 is
+    # 0.0); the composition that draws straight into its array must give the same bits, or a -0.0 action would stay
+    # -0.0 where the single env's is 0.0.
+    def corruptor(i: int) -> SignalCorruptor:
+        c = SignalCorruptor([ActionNoise(Gaussian(std=0.0))], seed=(5, i))
+        c.bind(obs=Layout(3), action=Layout(2, low=-np.ones(2), high=np.ones(2)), timestep=0.01, substeps=1)
+        c.begin_episode()
+        return c
+
+    ours = [corruptor(i) for i in range(3)]
+    twins = [corruptor(i) for i in range(3)]
+    offsets, _, _ = SignalCorruptor.next_noise_blocks(ours, "action", 0)
+    for i, twin in enumerate(twins):
+        block = twin.next_noise_block("action", 0)
+        assert np.array_equal(offsets[i].view(np.uint32), block.offsets.view(np.uint32))
+    assert not np.signbit(offsets).any()
