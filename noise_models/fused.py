@@ -25,8 +25,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from noise_models.parts import BLOCK, Compile, Part
 from noise_models.pipelines import ActionNoise, ObservationNoise
-from noise_models.processes import BLOCK, Compile, Part
 from noise_models.values import Layout, selection_repr
 
 if TYPE_CHECKING:

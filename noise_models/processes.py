@@ -21,14 +21,13 @@ Example:
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any, ClassVar
 
 import numpy as np
 
+from noise_models.parts import BLOCK, Compile, Part, _Add, _Block, _block_scale, _Gain
 from noise_models.values import (
     FrozenValue,
-    Layout,
     Selection,
     check_probability,
     check_selection,
@@ -54,9 +53,6 @@ __all__ = [
     "Stuck",
     "UniformNoise",
 ]
-
-#: Steps of per-step randomness drawn at once (one block costs about as much as a few steps).
-BLOCK = 256
 
 
 class Process(FrozenValue):
@@ -107,118 +103,7 @@ class Process(FrozenValue):
         raise NotImplementedError
 
 
-class Compile:
-    """What a process needs to turn itself into this episode's runtime part."""
-
-    def __init__(
-        self,
-        process: Process,
-        prefix: str,
-        layout: Layout,
-        idx: np.ndarray,
-        rng: np.random.Generator,
-        block_rng: Callable[[int], np.random.Generator],
-        report: dict[str, float],
-        label: str = "",
-    ) -> None:
-        self.label = label
-        self.process = process
-        self.prefix = prefix
-        self.layout = layout
-        self.idx = idx
-        self.k = int(idx.size)
-        self.rng = rng
-        self.block_rng = block_rng
-        self.report = report
-
-    def param(self, field: str, suffix: str) -> np.ndarray:
-        """Draws parameter ``field`` for this episode (one value per selected element) and reports it."""
-        value = getattr(self.process, field)
-        stem = self.prefix + (f"_{suffix}" if suffix else "")
-        if not is_sampler(value) or self.process.shared:
-            one = float(draw(value, self.rng, 1)[0])
-            self.report[stem + (f"[{self.label}]" if self.label else "")] = one
-            return np.full(self.k, one)
-        values = draw(value, self.rng, self.k)
-        for i, v in zip(self.idx.tolist(), values.tolist(), strict=True):
-            self.report[stem + self.layout.label(i)] = v
-        return values
-
-
-class Part:
-    """One process compiled for an episode. ``kind`` is ``gain``, ``add``, ``block`` or ``op``."""
-
-    kind = "op"
-
-    def __init__(self, idx: np.ndarray, size: int) -> None:
-        self.idx = idx
-        # A contiguous selection is a slice: in-place work on a view, no gather/scatter.
-        full = idx.size == size
-        contiguous = idx.size > 0 and int(idx[-1]) - int(idx[0]) + 1 == idx.size
-        self.sel: slice | np.ndarray = slice(int(idx[0]), int(idx[-1]) + 1) if contiguous or full else idx
-
-    def refill(self, block: int) -> None:
-        """Pre-draws the per-step randomness of block number ``block``."""
-
-    def apply(self, w: np.ndarray, r: int) -> None:
-        """Transforms the fresh working array ``w`` in place at step ``r`` of the current block."""
-
-
-class _Gain(Part):
-    kind = "gain"
-
-    def __init__(self, idx: np.ndarray, size: int, gain: np.ndarray) -> None:
-        super().__init__(idx, size)
-        self.gain = gain
-
-
-class _Add(Part):
-    kind = "add"
-
-    def __init__(self, idx: np.ndarray, size: int, offset: np.ndarray) -> None:
-        super().__init__(idx, size)
-        self.offset = offset
-        self._rows: np.ndarray | None = None
-
-    def rows(self) -> np.ndarray:
-        """``offset`` repeated over a block's ``(BLOCK, k)`` rows (made at the first call): a block plus it is one
-        contiguous loop instead of one short broadcast loop per row (the same sums)."""
-        if self._rows is None:
-            self._rows = np.broadcast_to(self.offset, (BLOCK, self.idx.size)).copy()
-        return self._rows
-
-
-class _Block(Part):
-    """Additive per-step randomness: ``block(b)`` returns a (BLOCK, k) array; ``draw_into(b, out)``, where a process
-    has one, writes the same values into a C-contiguous (BLOCK, k) float64 ``out`` instead."""
-
-    kind = "block"
-
-    def __init__(
-        self,
-        idx: np.ndarray,
-        size: int,
-        block: Callable[[int], np.ndarray],
-        draw_into: Callable[[int, np.ndarray], None] | None = None,
-    ) -> None:
-        super().__init__(idx, size)
-        self.block = block
-        self.draw_into = draw_into
-
-
 # -- additive / multiplicative processes (fused into one affine map per step) -------------------
-
-
-def _block_scale(values: np.ndarray, k: int) -> float | np.ndarray:
-    """What a ``(BLOCK, k)`` block of unit draws is multiplied by for per-entry scales ``values``: one float when
-    every entry has the same (a constant or shared parameter: a contiguous multiply by a scalar), else ``values``
-    repeated over the block's rows (a contiguous multiply instead of one short broadcast loop per row). The products
-    are those of ``block * values`` either way."""
-    values = np.asarray(values, dtype=np.float64)
-    bits = values.view(np.uint64)
-    if bool((bits == bits[0]).all()):  # bit for bit (0.0 and -0.0 are not the same scale)
-        return float(values[0])
-    return np.broadcast_to(values, (BLOCK, k)).copy()
 
 
 class Gaussian(Process):
