@@ -57,6 +57,17 @@ _LIMIT_JOINT = int(mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT)
 # Index pairs of a cross product's components: (a x b)[k] = a[k+1] b[k+2] - a[k+2] b[k+1].
 _NEXT, _PREV = np.array([1, 2, 0]), np.array([2, 0, 1])
 _SCALAR_JOINTS = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+#: Control steps :meth:`SafetyMeter.observe_batch` checks at once (each numpy call then covers this many steps of every
+#: world). 8, 16, 32 and 64 cost about the same on the study's 128-world reacher batches.
+_BLOCK = 16
+
+
+def _rows(array: np.ndarray, columns: np.ndarray) -> np.ndarray | None:
+    """``array[:, columns].T``, the ``(columns, N)`` rows of an ``(N, ...)`` batch array, as a view of it where the
+    columns are consecutive (a live view: it shows every step's values), else None (gathered at each step)."""
+    if columns.size and np.array_equal(columns, np.arange(columns[0], columns[0] + columns.size)):
+        return array[:, int(columns[0]) : int(columns[0]) + columns.size].T
+    return None
 
 
 def actuator_limits(model: mujoco.MjModel) -> np.ndarray:
@@ -112,6 +123,7 @@ class SafetyMeter:
         self._scales = tuple((int(k), 1.0 / float(limit[k])) for k in self._act)
         self._geoms = np.zeros(0, np.intp)
         self._object: tuple[int, int] | None = None
+        self._body = self._root = -1  # the end-effector's body and its tree's root (mj_objectVelocity's rows)
         try:
             if limits.contact_geoms:
                 chosen = select(model, "geom", list(limits.contact_geoms), "max_contact_force.geoms")
@@ -124,17 +136,27 @@ class SafetyMeter:
                 self._object = (int(mujoco.mjtObj.mjOBJ_BODY), bid)
         except ValueError as err:
             raise ValueError(f"{limits.source}: {err}") from err
+        if self._object is not None:
+            objtype, objid = self._object
+            self._body = objid if objtype == int(mujoco.mjtObj.mjOBJ_BODY) else int(model.site_bodyid[objid])
+            self._root = int(model.body_rootid[self._body])
         self._force6 = np.zeros(6)
         self._vel6 = np.zeros(6)
         self._net = np.zeros((len(self._geoms), 3))
         self._solved: mujoco.MjData | None = None  # scratch data the contact forces are solved in
         self._n = int(num_envs)
+        self._pending = 0  # steps observe_batch has copied out and not yet folded (see bind_batch)
         self.reset()
 
     def reset(self) -> None:
         """Zeroes every env's accumulators (call at the start of a batch of episodes)."""
         n = self._n  # arrays: observe_batch updates all worlds in one operation, observe one element
         self.hits, self.effort, self.contact, self.speed = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
+        if self._pending:  # steps observed since the last fold belong to the episodes reset here
+            self._pending = 0
+            self._seen[:] = True
+            self._partial = False
+            self._hit[:] = False
 
     def observe(self, i: int, model: mujoco.MjModel, data: mujoco.MjData) -> None:
         """Folds env ``i``'s state after a control step (``model``/``data`` of its physics) into its episode's
@@ -145,105 +167,211 @@ class SafetyMeter:
     def bind_batch(self, batch: Any) -> None:
         """Registers the ``mujoco.batch.Batch`` fields :meth:`observe_batch` reads (before the batch's next call: a
         derived field bound between calls holds zeros until then)."""
+        if self._pending:
+            self._settle()  # steps of a batch bound before are folded against that batch's models
         names = ["qpos", "nefc", "actuator_force", "ncon"]
         if self._object is not None:
             body = self._object[0] == int(mujoco.mjtObj.mjOBJ_BODY)
             names += ["cvel", "subtree_com", "xipos" if body else "site_xpos"]
         self._bound = {name: batch.bind(name) for name in names}
         self._scratch: mujoco.MjData | None = None
-        self._worlds = len(self._bound["qpos"])
+        n = self._worlds = len(self._bound["qpos"])
         # The checks of observe, as arrays over all worlds at once.
         self._adrs = np.array([adr for adr, _, _ in self._ranges], np.intp)
         self._lows = np.array([low for _, low, _ in self._ranges])
         self._highs = np.array([high for _, _, high in self._ranges])
         self._act_idx = np.array([k for k, _ in self._scales], np.intp)
         self._act_scale = np.array([scale for _, scale in self._scales])
+        # Pending steps: what each step's checks read, copied out of the batch (a few row copies per step); the
+        # checks run on _BLOCK steps at once (see observe_batch). Component-major, (components, step, world): each
+        # component of a block is one contiguous (step, world) array.
+        self._pending = 0
+        self._partial = False  # a pending step observed only some worlds (`_seen` says which)
+        self._models: Sequence[mujoco.MjModel] = ()
+        self._seen: np.ndarray = np.ones((_BLOCK, n), bool)
+        self._hit: np.ndarray = np.zeros((_BLOCK, n), bool)  # a joint beyond its range, or its limit constraint active
+        self._force = np.empty((self._act_idx.size, _BLOCK, n))
+        self._beyond = np.empty((2, self._adrs.size, n), bool)  # below / above each range (scratch)
+        self._need = np.empty(n, bool)
+        bound = self._bound
+        self._q_rows = _rows(bound["qpos"], self._adrs)
+        # (pending block, the batch's rows copied into it at each step or None, the batch array and the columns
+        # gathered from it at each step where they are not one run)
+        self._copies: list[tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]] = []
+        if self._act_idx.size:
+            force = bound["actuator_force"]
+            self._copies.append((self._force, _rows(force, self._act_idx), force, self._act_idx))
+        if self._object is not None:
+            self._cvel = np.empty((6, _BLOCK, n))
+            self._com = np.empty((3, _BLOCK, n))
+            self._point = np.empty((3, _BLOCK, n))
+            point = bound["xipos"] if "xipos" in bound else bound["site_xpos"]
+            for block, array, column in (
+                (self._cvel, bound["cvel"], self._body),
+                (self._com, bound["subtree_com"], self._root),
+                (self._point, point, self._object[1]),
+            ):
+                self._copies.append((block, array[:, column].T, array, np.array([column])))  # (3 or 6, N) view
 
     def observe_batch(
         self,
-        worlds: Sequence[int] | np.ndarray,
+        worlds: Sequence[int] | np.ndarray | None,
         models: Sequence[mujoco.MjModel],
         data_of: Callable[[int], mujoco.MjData],
     ) -> None:
         """:meth:`observe` for worlds stepped in one ``mujoco.batch.Batch`` (after :meth:`bind_batch`): the same
-        quantities, bitwise, from the batch's bound ``(N, ...)`` arrays, a few numpy operations per quantity for all
-        ``worlds``. A world's whole ``MjData`` is copied out (``data_of(i)``, ~18 us) only when it has constraint
-        rows to look through for a joint limit or contacts with a declared geom. The end-effector speed is screened
-        for all worlds at once (the same spatial transform as ``mj_objectVelocity``, in numpy) and computed exactly
-        by ``mj_objectVelocity`` (on a scratch ``MjData`` holding the three arrays it reads) only for the worlds
-        whose screened speed comes within a margin of 1e-12 of the terms' size of their peak: a world below that
-        cannot set a new peak, so the peaks are :meth:`observe`'s to the bit."""
+        quantities, bitwise, from the batch's bound ``(N, ...)`` arrays. ``worlds``: the observed worlds (sorted,
+        distinct), or None for all of them.
+
+        Per step, only the rows the checks read are copied out of the batch (joint positions, actuator forces, the
+        end-effector's velocity terms); the checks run on :data:`_BLOCK` steps at once, a few numpy operations per
+        quantity for every world and step of the block, when the block is full or an episode's quantities are read
+        (:meth:`episode`, :meth:`episodes`). Counts and peaks are sums of ones and maxima, so folding a block at
+        once gives what folding its steps one by one gives, to the bit. What needs the step's whole state is done
+        at the step: a world's whole ``MjData`` is copied out (``data_of(i)``, ~18 us) only when it has constraint
+        rows to look through for a joint limit or contacts with a declared geom. The end-effector speed: a block in
+        which a bound of every world's speed (``|lin| + |dif| |ang|`` in 1-norms, above the speed) stays below the
+        world's peak sets no peak; otherwise it is screened for all worlds and steps of the block at once (the same
+        spatial transform as ``mj_objectVelocity``, in numpy) and computed exactly by ``mj_objectVelocity`` (on a
+        scratch ``MjData`` holding the three rows it reads) only where the screened speed comes within a margin of
+        1e-12 of the terms' size of the world's peak, the highest screened first: a step below that cannot set a
+        new peak, so the peaks are :meth:`observe`'s to the bit."""
         bound = self._bound
-        idx = np.asarray(worlds, dtype=np.intp).reshape(-1)
-        if not idx.size:
-            return
-        every = idx.size == self._worlds  # sorted distinct worlds: all of them, in order (views, no copies)
-        sel: Any = slice(None) if every else idx
-
-        def at(mask: np.ndarray) -> np.ndarray:  # the worlds where ``mask`` (over the observed ones) holds
-            return np.flatnonzero(mask) if every else idx[mask]
-
-        if self._adrs.size:
-            q = bound["qpos"][sel][:, self._adrs]
-            hit = ((q < self._lows) | (q > self._highs)).any(axis=1)  # NaN is neither, as in observe's comparisons
+        if worlds is None:
+            idx = None
+            sel: Any = slice(None)
         else:
-            hit = np.zeros(idx.size, bool)
+            idx = np.asarray(worlds, dtype=np.intp).reshape(-1)
+            if not idx.size:
+                return
+            sel = slice(None) if idx.size == self._worlds else idx  # sorted distinct: all of them, in order
+        t = self._pending
+        self._models = models
+        if not isinstance(sel, slice):  # every world's rows are copied; the unobserved ones are masked out
+            self._partial = True
+            self._seen[t] = False
+            self._seen[t, idx] = True
+        hit = self._hit[t]
+        if self._adrs.size:  # every world's row (a few whole-row operations); the unobserved ones are masked out
+            q = self._q_rows if self._q_rows is not None else bound["qpos"][:, self._adrs].T  # (joints, N)
+            below, above = self._beyond
+            np.less(q, self._lows[:, None], out=below)  # NaN is neither, as in observe's comparisons
+            np.greater(q, self._highs[:, None], out=above)
+            if len(q) == 1:
+                np.logical_or(below[0], above[0], out=hit)
+            else:
+                below |= above
+                np.logical_or.reduce(below, axis=0, out=hit)
         if self._any_limited:
-            for k in np.flatnonzero(~hit & (bound["nefc"][sel] != 0)).tolist():
-                data = data_of(int(idx[k]))
-                hit[k] = _LIMIT_JOINT in data.efc_type[: data.nefc].tolist()
-        if hit.any():
-            self.hits[at(hit)] += 1.0
-        if self._act_idx.size:
-            terms = np.abs(bound["actuator_force"][sel][:, self._act_idx]) * self._act_scale
-            ratio = terms[:, 0]
-            for j in range(1, terms.shape[1]):
-                # Python's max keeps the first of equal or unordered (NaN) values: replace only where strictly >.
-                ratio = np.where(terms[:, j] > ratio, terms[:, j], ratio)
-            peak = ratio > self.effort[sel]
-            if peak.any():
-                self.effort[at(peak)] = ratio[peak]
+            # The worlds within every range that have constraint rows (nefc >= 0: a bool below it is a False
+            # above 0): only there can the limit constraint add a hit.
+            need = np.less(hit, bound["nefc"], out=self._need)
+            if not isinstance(sel, slice):
+                need &= self._seen[t]
+            if need.any():
+                for i in need.nonzero()[0].tolist():
+                    data = data_of(i)
+                    if _LIMIT_JOINT in data.efc_type[: data.nefc].tolist():
+                        hit[i] = True
+        for block, rows, array, columns in self._copies:
+            block[:, t] = rows if rows is not None else array[:, columns].T
         if len(self._geoms):
-            for k in np.flatnonzero(bound["ncon"][sel] != 0).tolist():
-                i = int(idx[k])
+            for k in bound["ncon"][sel].nonzero()[0].tolist():
+                i = k if idx is None else int(idx[k])
                 value = self._contact_peak(models[i], data_of(i))
                 if value > self.contact[i]:
                     self.contact[i] = value
-        if self._object is not None:
-            self._speeds(idx, sel, models)
+        self._pending = t + 1
+        if t + 1 == _BLOCK:
+            self._settle()
 
-    def _speeds(self, idx: np.ndarray, sel: Any, models: Sequence[mujoco.MjModel]) -> None:
-        """The end-effector speed of the worlds ``idx`` (``sel`` of the batch) into their peaks (see
-        :meth:`observe_batch`)."""
+    def _settle_batch(self) -> None:
+        if self._pending:  # observe_batch's last steps, not yet folded
+            self._settle()
+
+    def _settle(self) -> None:
+        """Folds the pending steps of :meth:`observe_batch` into the counts and peaks."""
+        steps = self._pending
+        seen = self._seen[:steps] if self._partial else None
+        hit = self._hit[:steps]
+        if seen is not None:
+            hit &= seen
+        self.hits += np.count_nonzero(hit, axis=0)  # whole numbers: the same sum as adding 1.0 step by step
+        if self._act_idx.size:
+            terms = np.abs(self._force[:, :steps])
+            terms *= self._act_scale[:, None, None]
+            ratio = terms[0]
+            for j in range(1, len(terms)):
+                # Python's max keeps the first of equal or unordered (NaN) values: replace only where strictly >.
+                ratio = np.where(terms[j] > ratio, terms[j], ratio)
+            if seen is not None:
+                ratio = np.where(seen, ratio, np.nan)  # NaN never sets a peak
+            # Step by step a ratio replaces the peak when strictly above it (never a NaN): the block's greatest
+            # non-NaN ratio does so at once (ratios are >= +0.0, so no signed zero tells the two apart).
+            best = np.fmax.reduce(ratio, axis=0)
+            np.copyto(self.effort, best, where=best > self.effort)
+        if self._object is not None:
+            self._settle_speeds(steps, seen)
+        self._pending = 0
+        hit[...] = False  # a step writes its row of joint-limit hits where it has ranges to check
+        if self._partial:
+            self._seen[:steps] = True
+            self._partial = False
+
+    def _settle_speeds(self, steps: int, seen: np.ndarray | None) -> None:
+        """The end-effector speeds of the pending steps into their peaks (see :meth:`observe_batch`)."""
         assert self._object is not None
-        bound = self._bound
         objtype, objid = self._object
-        body = objid if objtype == int(mujoco.mjtObj.mjOBJ_BODY) else int(models[0].site_bodyid[objid])
-        root = int(models[0].body_rootid[body])
-        point_all = bound["xipos"] if "xipos" in bound else bound["site_xpos"]
-        cvel = bound["cvel"][sel, body]
-        dif = point_all[sel, objid] - bound["subtree_com"][sel, root]
-        ang, lin = cvel[:, :3], cvel[:, 3:]
+        cvel, com, point = self._cvel[:, :steps], self._com[:, :steps], self._point[:, :steps]
+        ang, lin = cvel[:3], cvel[3:]
+        dif = point - com
+        work = np.abs(lin)
+        scale = np.add.reduce(work)
+        np.abs(ang, out=work)
+        size = np.add.reduce(work)
+        np.abs(dif, out=work)
+        size *= np.add.reduce(work)
+        scale += size  # >= |lin| + |dif| |ang| >= the speed, the exact one within a few ulps of it
+        bound = scale * (1.0 + 2e-12)
+        bound += 1e-300
+        below = bound < self.speed
+        if seen is not None:
+            below |= ~seen
+        if below.all():  # no step of the block comes near a peak (most blocks once an episode's peaks are set)
+            return
         # lin - dif x ang: mj_objectVelocity's transform of the body's spatial velocity to the point.
-        moved = lin - (dif[:, _NEXT] * ang[:, _PREV] - dif[:, _PREV] * ang[:, _NEXT])
-        screened = np.einsum("ij,ij->i", moved, moved)
-        scale = np.abs(lin).sum(axis=1) + np.abs(dif).sum(axis=1) * np.abs(ang).sum(axis=1)  # >= the terms' norms
+        moved = lin - (dif[_NEXT] * ang[_PREV] - dif[_PREV] * ang[_NEXT])
+        moved *= moved
+        reach = np.sqrt(np.add.reduce(moved))
         # MuJoCo's own sums may differ in the last bits (order, fused multiply-adds): far below this margin.
-        reach = np.sqrt(screened) + 1e-12 * scale + 1e-300
-        candidates = np.flatnonzero(~(reach < self.speed[sel]))  # NaN screens as a candidate: the exact path decides
-        velocity = self._vel6
-        for k in candidates.tolist():
-            i = int(idx[k])
-            moving = self._scratch
-            if moving is None:
-                moving = self._scratch = mujoco.MjData(models[i])
-            moving.cvel[...] = bound["cvel"][i]
-            moving.subtree_com[...] = bound["subtree_com"][i]
-            (moving.xipos if "xipos" in bound else moving.site_xpos)[...] = point_all[i]
+        scale *= 1e-12
+        reach += scale
+        reach += 1e-300
+        candidate = ~(reach < self.speed)  # NaN screens as a candidate: the exact path decides
+        if seen is not None:
+            candidate &= seen
+        when, where = candidate.nonzero()
+        if not when.size:
+            return
+        # Highest screened speed first: once a world's peak is set, its lower steps screen out.
+        order = np.argsort(-reach[when, where], kind="stable").tolist()
+        when_l, where_l, models, speed = when.tolist(), where.tolist(), self._models, self.speed
+        body, root, velocity = self._body, self._root, self._vel6
+        moving = self._scratch
+        if moving is None:
+            moving = self._scratch = mujoco.MjData(models[0])
+        xpos = moving.xipos if objtype == int(mujoco.mjtObj.mjOBJ_BODY) else moving.site_xpos
+        for k in order:
+            t, i = when_l[k], where_l[k]
+            if reach[t, i] < speed[i]:
+                continue
+            moving.cvel[body] = cvel[:, t, i]
+            moving.subtree_com[root] = com[:, t, i]
+            xpos[objid] = point[:, t, i]
             mujoco.mj_objectVelocity(models[i], moving, objtype, objid, velocity, 0)
-            speed = math.hypot(velocity[3], velocity[4], velocity[5])
-            if speed > self.speed[i]:
-                self.speed[i] = speed
+            value = math.hypot(velocity[3], velocity[4], velocity[5])
+            if value > speed[i]:
+                speed[i] = value
 
     def _fold(
         self,
@@ -326,6 +454,7 @@ class SafetyMeter:
 
     def episode(self, i: int, *, diverged: bool) -> dict[str, float]:
         """Env ``i``'s quantities for the episode observed since :meth:`reset` (see :data:`QUANTITIES`)."""
+        self._settle_batch()
         return {
             "joint_limit_hits": float(self.hits[i]),
             "effort_ratio": float(self.effort[i]) if len(self._act) else float("nan"),
@@ -336,6 +465,7 @@ class SafetyMeter:
 
     def episodes(self, diverged: np.ndarray) -> dict[str, np.ndarray]:
         """Every env's quantities as ``{quantity: (num_envs,) float64}``."""
+        self._settle_batch()
         nan = np.full(self._n, np.nan)
         return {
             "joint_limit_hits": np.array(self.hits),

@@ -132,6 +132,60 @@ def test_end_effector_speed_is_radius_times_rate() -> None:
     assert body.episode(0, diverged=False)["ee_speed"] == pytest.approx(0.85, rel=1e-9)
 
 
+class _Batch:
+    """A stand-in for ``mujoco.batch.Batch``: ``bind(name)`` gives an ``(N, ...)`` array that ``load`` fills from
+    the worlds' ``MjData``."""
+
+    def __init__(self, datas: list[mujoco.MjData]) -> None:
+        self.datas, self.bound = datas, {}
+
+    def bind(self, name: str) -> np.ndarray:
+        self.bound[name] = np.array([np.asarray(getattr(d, name)) for d in self.datas])
+        return self.bound[name]
+
+    def load(self) -> None:
+        for name, array in self.bound.items():
+            for i, d in enumerate(self.datas):
+                array[i] = getattr(d, name)
+
+
+def test_observe_batch_is_observe_world_by_world(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``observe_batch`` on a stand-in batch against ``observe`` world by world, bitwise: random states within and
+    beyond the joint ranges (a margin makes MuJoCo's limit constraint active inside the range too, so the
+    constraint rows are looked through), random subsets of the worlds observed at each step while the others'
+    states keep changing (they must not count), blocks of 4 steps, a reset and episodes read inside a block."""
+    import sim2real.safety_probe as probe
+
+    monkeypatch.setattr(probe, "_BLOCK", 4)
+    model = mujoco.MjModel.from_xml_string(ARM)
+    model.jnt_margin[:] = 0.1
+    n = 5
+    datas = [mujoco.MjData(model) for _ in range(n)]
+    for limits in (SafetyLimits(ee_site="grip"), SafetyLimits(ee_body="fore")):
+        batched, single, batch = SafetyMeter(model, limits, n), SafetyMeter(model, limits, n), _Batch(datas)
+        batched.bind_batch(batch)
+        rng = np.random.default_rng(0)
+        for step in range(31):
+            if step == 10:  # a new episode: what was observed since the last fold does not count
+                batched.reset()
+                single.reset()
+            worlds = np.flatnonzero(rng.random(n) < 0.6)
+            for i, d in enumerate(datas):
+                unseen = i not in worlds  # beyond both limits, faster, pushing harder: it would show if counted
+                d.qpos[:] = rng.uniform(-0.7, 0.7, model.nq) * (1.5 if unseen else 1.0)
+                d.qvel[:] = rng.normal(0.0, 10.0 if unseen else 3.0, model.nv)
+                d.ctrl[:] = rng.uniform(-1.0, 1.0, model.nu) * (3.0 if unseen else 1.0)
+                mujoco.mj_forward(model, d)
+            batch.load()
+            for i in worlds.tolist():
+                single.observe(i, model, datas[i])
+            batched.observe_batch(None if len(worlds) == n else worlds, [model] * n, lambda i: datas[i])
+        got, want = batched.episodes(np.zeros(n, bool)), single.episodes(np.zeros(n, bool))
+        for quantity in want:
+            assert np.array_equal(got[quantity], want[quantity], equal_nan=True), quantity
+        assert (want["joint_limit_hits"] > 0).all() and (want["ee_speed"] > 0).all()
+
+
 def test_episode_counts_match_stepping_the_env_by_hand(tmp_path: Path) -> None:
     (tmp_path / "arm.xml").write_text(ARM)
     slam = ConstantAction([1.0, 1.0])
@@ -237,6 +291,36 @@ def test_batched_meter_reads_the_batch_like_the_single_env_on_the_study_arm() ->
     measured = runs[0].safety["pd"]["ActuatorGain.scale=1.5"]
     assert measured["joint_limit_hits"].max() > 0 and (measured["ee_speed"] > 0).all()
     assert measured["effort_ratio"].max() == pytest.approx(1.5)
+
+
+def test_batched_meter_folds_blocks_of_steps_as_step_by_step(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``observe_batch`` folds its steps into the peaks and counts a block at a time: with blocks of 3 steps,
+    episodes that end inside a block and worlds observed on only some steps of a block (the ones still running),
+    the end-effector site's speed, the effort ratio and the reacher's wrist-limit hits are bitwise what the single
+    envs give step by step."""
+    import sim2real.safety_probe as probe
+    from sim2real.agents import ReachController, ReacherPD
+
+    monkeypatch.setattr(probe, "_BLOCK", 3)
+    limits = load_limits({"max_ee_speed": {"site": "ee", "m_per_s": 1.0}, "max_effort_ratio": 0.5})
+    conditions = [nominal(), *sweep({"type": "ActuatorGain", "scale": 1.0}, "scale", [1.0, 2.0])]
+    runs = [
+        evaluate({"reach": ReachController(kp=20.0)}, "sim2real/arm-reach", conditions, episodes=6, seed=3,
+                 max_steps=200, safety=limits, engine=engine)
+        for engine in ("auto", "per-env")
+    ]  # fmt: skip
+    lengths = runs[0].lengths["reach"]["sim"]
+    assert len(set((lengths % 3).tolist())) > 1 and lengths.min() < lengths.max()  # ends inside blocks, apart
+    assert runs[0].to_json() == runs[1].to_json()
+    study = load_limits(Path(__file__).parents[1] / "sim2real/data/study/dmc-reacher-easy/safety.yaml")
+    conditions = [nominal(), *sweep({"type": "ActuatorGain", "scale": 1.0}, "scale", [1.0, 1.5])]
+    runs = [
+        evaluate({"pd": ReacherPD()}, "dmc/reacher-easy", conditions, episodes=3, seed=1, max_steps=100,
+                 safety=study, engine=engine)
+        for engine in ("auto", "per-env")
+    ]  # fmt: skip
+    assert runs[0].safety["pd"]["ActuatorGain.scale=1.5"]["joint_limit_hits"].max() > 0
+    assert runs[0].to_json() == runs[1].to_json()
 
 
 # ------------------------------------------------------------------------------------------------ the command line
