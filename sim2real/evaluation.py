@@ -240,13 +240,13 @@ def _lockstep_episodes(
             run.start(first=p == 0)
         t = 0
         while job.max_steps is None or t < job.max_steps:
-            going = [run for run in runs if not run.done.all()]
+            going = [run for run in runs if not run.finished]
             if not going:
                 break
             if merge:  # rows of a finished condition are computed and not used, as a finished world's are
                 actions = policy(np.concatenate([run.obs for run in runs]))
                 for k, run in enumerate(runs):
-                    if not run.done.all():
+                    if not run.finished:
                         run.step(actions[k * n : (k + 1) * n])
             else:
                 for run in going:
@@ -271,6 +271,8 @@ class _Run:
         self.safety: dict[str, dict[str, np.ndarray]] = {}
         self.steps = 0
         self.done = np.zeros(n, dtype=bool)
+        self.everyone = True  # no world's episode has ended: every world is stepped (and measured)
+        self.finished = False  # every world's episode has ended
 
     def start(self, first: bool) -> None:
         n = self.worlds.num_envs
@@ -282,19 +284,34 @@ class _Run:
         self.done = np.zeros(n, dtype=bool)
         self.success = np.zeros(n, dtype=bool)
         self.diverged = np.zeros(n, dtype=bool)
+        self.everyone, self.finished = True, False
         if self.meter is not None:
             self.meter.reset()
 
     def step(self, actions: np.ndarray) -> None:
-        worlds, active = self.worlds, ~self.done
-        self.obs, reward, terminated, truncated, bad = worlds.step(actions, mask=active)
-        if self.meter is not None:
-            self.diverged |= bad
-            self.meter.observe_batch(np.flatnonzero(active), worlds.models, worlds.physics.data)
-        self.total += reward  # 0.0 where a world is done, as the per-env loop leaves those sums untouched
-        self.length += active
-        self.success = np.where(active, terminated, self.success)  # a task's is_success is its termination
-        self.done |= terminated | truncated
+        worlds = self.worlds
+        if self.everyone:  # no mask to build, copy or look through: the engine's and the meter's all-worlds paths
+            self.obs, reward, terminated, truncated, bad = worlds.step(actions)
+            if self.meter is not None:
+                self.diverged |= bad
+                self.meter.observe_batch(None, worlds.models, worlds.physics.data)
+            self.total += reward
+            self.length += 1
+            self.success = terminated.copy()  # a task's is_success is its termination
+        else:
+            active = ~self.done
+            self.obs, reward, terminated, truncated, bad = worlds.step(actions, mask=active)
+            if self.meter is not None:
+                self.diverged |= bad
+                self.meter.observe_batch(np.flatnonzero(active), worlds.models, worlds.physics.data)
+            self.total += reward  # 0.0 where a world is done, as the per-env loop leaves those sums untouched
+            self.length += active
+            self.success = np.where(active, terminated, self.success)
+        ended = terminated | truncated
+        if ended.any():
+            self.done |= ended
+            self.everyone = False
+            self.finished = bool(self.done.all())
 
     def finish(self, name: str) -> None:
         self.steps += int(self.length.sum())
