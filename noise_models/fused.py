@@ -32,7 +32,7 @@ from noise_models.values import Layout, selection_repr
 if TYPE_CHECKING:
     from noise_models.corruptor import SignalCorruptor
 
-__all__ = ["NoiseBlock", "Pipeline", "hot_pipe", "next_blocks"]
+__all__ = ["NoiseBlock", "Pipeline", "compose", "hot_pipe", "next_blocks"]
 
 
 # -- compiled runtime --------------------------------------------------------------------------
@@ -61,16 +61,12 @@ class _Affine:
         self._buf_rows: list[np.ndarray] = []
 
     def refill(self, block: int, rows: bool = True) -> None:
-        F = np.zeros((BLOCK, self.size))
+        F = np.empty((BLOCK, self.size))
+        compose(self.parts, block, F)
         G = np.ones(self.size)
         for p in self.parts:
             if p.kind == "gain":
-                F[:, p.sel] *= p.gain  # type: ignore[attr-defined]
                 G[p.sel] *= p.gain  # type: ignore[attr-defined]
-            elif p.kind == "add":
-                F[:, p.sel] += p.rows()  # type: ignore[attr-defined]
-            else:
-                F[:, p.sel] += p.block(block)  # type: ignore[attr-defined]
         if rows:
             buf = self._buf
             if buf is None:
@@ -274,31 +270,34 @@ def next_blocks(
         out = (np.empty((n, BLOCK, first.size), first.dtype), np.empty((n, first.size), first.dtype), np.empty(n, bool))
     offsets, gains, unit = out
     F = np.empty((BLOCK, first.size))
-    whole = slice(0, first.size)
-    head = first.parts[0]
-    # A first process that draws every entry and can draw into an array: its draws go straight into F, then + 0.0
-    # (what the zeros they are added to would give: -0.0 becomes 0.0), instead of zeros, an array of draws and a sum.
-    direct = head.kind == "block" and isinstance(head.sel, slice) and head.sel == whole
     for i, (stage, pipe) in enumerate(zip(stages, pipes, strict=True)):
-        parts = stage.parts
-        draw_into = parts[0].draw_into if direct else None  # type: ignore[attr-defined]
-        if draw_into is not None:
-            draw_into(pipe.block, F)
-            F += 0.0
-            parts = parts[1:]
-        else:
-            F.fill(0.0)
-        for part in parts:
-            if part.kind == "gain":
-                F[:, part.sel] *= part.gain  # type: ignore[attr-defined]
-            elif part.kind == "add":
-                F[:, part.sel] += part.rows()  # type: ignore[attr-defined]
-            else:
-                F[:, part.sel] += part.block(pipe.block)  # type: ignore[attr-defined]
+        compose(stage.parts, pipe.block, F)
         offsets[i] = F  # astype's cast
     np.copyto(gains, G)
     np.all(G == 1.0, axis=1, out=unit)
     return out
+
+
+def compose(parts: Sequence[Part], block: int, F: np.ndarray) -> None:
+    """Writes block ``block`` of one affine stage's offsets into the float64 ``(BLOCK, size)`` array ``F``: zeros,
+    then each part's ``*=`` (gain) or ``+=`` (offset rows, per-step draws) in order. A first process that draws every
+    entry and can draw into an array (``draw_into``) draws straight into ``F``, then ``+ 0.0`` (what the zeros it is
+    added to would give: -0.0 becomes 0.0), instead of zeros, an array of draws and a sum: the same values."""
+    head = parts[0]
+    draw_into = getattr(head, "draw_into", None) if head.kind == "block" else None
+    if draw_into is not None and isinstance(head.sel, slice) and head.sel == slice(0, F.shape[1]):
+        draw_into(block, F)
+        F += 0.0
+        parts = parts[1:]
+    else:
+        F.fill(0.0)
+    for part in parts:
+        if part.kind == "gain":
+            F[:, part.sel] *= part.gain  # type: ignore[attr-defined]
+        elif part.kind == "add":
+            F[:, part.sel] += part.rows()  # type: ignore[attr-defined]
+        else:
+            F[:, part.sel] += part.block(block)  # type: ignore[attr-defined]
 
 
 def hot_pipe(pipe: Pipeline) -> Callable[[np.ndarray], np.ndarray]:
