@@ -8,6 +8,10 @@ rotates and flips every repeat, timed in CPU time (``time.process_time``; the bo
   before issue 15 (CorruptSignals around RandomizePhysics).
 * ``fused``: ``wrap(make(task), *physics, *signals, seed=0)``, one RandomizeAndCorrupt layer (bitwise the same
   outputs as the two layers, tests/test_fused.py).
+* ``lean``: :class:`LeanFloor` around ``make(task)``, a minimal Python wrapper doing the fused layer's per-step
+  arithmetic (action noise, clip, action delay, observation noise and delay, a fresh report of as many params) and
+  nothing else: the floor any Python wrapper meets on this work (its draws are not the stack's; physics DR not
+  included, which costs ~1% on either task). ``fused/lean`` >= 1 means the fused layer is at that floor.
 * manipulator only, the env as it was before its fast path: ``dmc raw`` is the adapter around dm-control's own
   ``suite.load`` (observation and reward through the named indexer), ``dmc two layers`` the two-layer stack around
   it. ``before`` = dmc two layers / dmc raw is the figure of the issue (0.91-0.93).
@@ -35,6 +39,7 @@ import statistics
 import time
 from typing import Any
 
+import gymnasium as gym
 import mujoco
 import numpy as np
 
@@ -53,15 +58,64 @@ def _dm_control_env(name: str) -> Any:
     return DmEnvToGym(suite.load(domain, task))
 
 
+class LeanFloor(gym.Wrapper):  # type: ignore[type-arg]
+    """The cost floor of any Python wrapper doing the fused layer's per-step work, without its generality: the
+    action plus a row of a preallocated Gaussian block, clipped to the bounds, delayed ``action_lag`` control steps
+    on the action side; the observation plus a row of its block (noise and bias folded), delayed ``obs_lag`` steps
+    through a ring of references; a fresh report (a template copy and a copy of ``n_params`` floats) every step.
+    Nothing is checked, nothing is general, the draws are not the stack's: a reference for what the arithmetic and
+    the fresh per-step dicts cost, not a feature (``lean`` arm)."""
+
+    def __init__(self, env: Any, n_params: int, action_lag: int, obs_lag: int) -> None:
+        super().__init__(env)
+        self.n_params, self.action_lag, self.obs_lag = n_params, action_lag, obs_lag
+
+    def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
+        obs, info = self.env.reset(**kwargs)
+        rng = np.random.default_rng(0)
+        space = self.env.action_space
+        size = obs.shape[0]
+        self._obs_rows = (rng.normal(0, 0.01, (256, size)) + rng.uniform(-0.02, 0.02, size)).astype(np.float32)
+        self._act_rows = rng.normal(0, 0.05, (256, *space.shape)).astype(np.float32)
+        self._low, self._high = space.low, space.high
+        self._row = self._k = 0
+        self._act_ring = [np.zeros(space.shape, np.float32)] * (self.action_lag + 1)
+        self._obs_ring = [obs] * (self.obs_lag + 1)
+        self._params = {f"p{j}": 0.1 * j for j in range(self.n_params)}
+        self._template = {"params": None, "events": (), "episode": 0, "diverged": False, "reapplied": ()}
+        return obs, info
+
+    def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
+        r = self._row = (self._row + 1) % 256
+        noisy = action + self._act_rows[r]
+        np.clip(noisy, self._low, self._high, noisy)
+        k = self._k = self._k + 1
+        ring, size = self._act_ring, self.action_lag + 1
+        ring[k % size] = noisy
+        obs, reward, terminated, truncated, info = self.env.step(ring[(k - self.action_lag) % size])
+        oring, osize = self._obs_ring, self.obs_lag + 1
+        oring[k % osize] = obs + self._obs_rows[r]
+        report = self._template.copy()
+        report["params"] = self._params.copy()
+        info["sim2real"] = report
+        return oring[(k - self.obs_lag) % osize], reward, terminated, truncated, info
+
+
 def arms_for(name: str) -> dict[str, Any]:
     """The arms of one task (see the module docstring)."""
     from bench_overhead import make_signal_models, make_stack_physics, task_id
 
     tid = task_id(name)
+    fused = s2r.wrap(s2r.make(tid), *make_stack_physics(), *make_signal_models(), seed=0)
+    _, info = fused.reset(seed=0)
+    params = info["sim2real"]["params"]
     arms: dict[str, Any] = {
         "raw": s2r.make(tid),
         "two layers": s2r.wrap(s2r.wrap(s2r.make(tid), *make_stack_physics(), seed=0), *make_signal_models(), seed=0),
-        "fused": s2r.wrap(s2r.make(tid), *make_stack_physics(), *make_signal_models(), seed=0),
+        "fused": fused,
+        "lean": LeanFloor(
+            s2r.make(tid), len(params), int(params["action_latency_steps"]), int(params["obs_latency_steps"])
+        ),
     }
     if name.startswith("manipulator-"):
         arms["dmc raw"] = _dm_control_env(name)
@@ -186,6 +240,8 @@ def _summary(rates: dict[str, list[float]]) -> dict[str, Any]:
     result["two/raw"] = _ratio(rates, "two layers", "raw")
     result["fused/raw"] = _ratio(rates, "fused", "raw")
     result["fused/two"] = _ratio(rates, "fused", "two layers")
+    result["lean/raw"] = _ratio(rates, "lean", "raw")
+    result["fused/lean"] = _ratio(rates, "fused", "lean")
     if "dmc raw" in rates:
         result["before"] = _ratio(rates, "dmc two layers", "dmc raw")
         result["fast raw/dmc raw"] = _ratio(rates, "raw", "dmc raw")
@@ -209,6 +265,11 @@ def report(results: dict[str, dict[str, Any]]) -> None:
         goal = P1_GOALS.get(name, 0.97)
         print(f"{name:<26}{_fmt(r['two/raw']):>24}{_fmt(r['fused/raw']):>24}{_fmt(r['fused/two']):>24}{goal:>6.2f}")
         verdicts.append(f"{name} fused/raw={r['fused/raw'][0]:.3f} two/raw={r['two/raw'][0]:.3f}")
+        print(
+            f"{'  floor: a lean Python wrapper doing the same arithmetic (LeanFloor)':<26}\n"
+            f"    lean/raw {_fmt(r['lean/raw'])}; fused/lean {_fmt(r['fused/lean'])}"
+        )
+        verdicts.append(f"{name} lean/raw={r['lean/raw'][0]:.3f}")
         if "before" in r:
             print(
                 f"{'  (manipulator, dm-control named-indexer task)':<26}\n"
