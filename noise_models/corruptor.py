@@ -425,6 +425,13 @@ class SignalCorruptor:
         """Whether :meth:`observe` uses ``now`` (latency or sample-and-hold); if not, callers may pass 0."""
         return ObservationLatency in self.timing or SampleAndHold in self.timing
 
+    @property
+    def episode_reads_time(self) -> bool:
+        """Whether :meth:`observe` reads ``now`` this episode: only sample-and-hold and a latency that is not one
+        fixed lag do (a fixed lag delivers from a ring by control step); if not, callers may pass 0. Valid after
+        :meth:`begin_episode`."""
+        return self.observation_needs_time and (SampleAndHold in self.timing or self.observation_lag is None)
+
     # -- observations -------------------------------------------------------------------------
     def _corrupt(self, obs: np.ndarray) -> np.ndarray:
         for pipe in self._obs_pipes:

@@ -117,6 +117,11 @@ GYM_DIGESTS_BY_MACHINE: dict[str, dict[str, tuple[str, int]]] = {
         "gym generated jitter": ("24e031f3a1a02db6", 800),
         "gym two-layer reacher": ("39a62707759b6021", 1200),
         "gym signals-only generated": ("dd526f9953a722eb", 800),
+        # Recorded with the code before CorruptSignals took the corruptor's episode paths (95c5dc5), this box under
+        # OPENBLAS_CORETYPE=Haswell NPY_DISABLE_CPU_FEATURES="AVX512_ICL X86_V4" (see above).
+        "gym signals-only reacher noise+latency": ("ce9610f2f5bf2311", 1800),
+        "gym signals-only generated mid-step latency+hold": ("08985e4982e7722d", 800),
+        "gym signals-only generated jitter": ("8ea9e988ec61e869", 800),
     },
     "7e6b347421e7": {
         "gym reacher noise+latency": ("d5ed51865e41b2ef", 1800),
@@ -126,11 +131,15 @@ GYM_DIGESTS_BY_MACHINE: dict[str, dict[str, tuple[str, int]]] = {
         "gym generated jitter": ("e668cee3b9804062", 800),
         "gym two-layer reacher": ("39a62707759b6021", 1200),
         "gym signals-only generated": ("793c759e77bc1339", 800),
+        # Recorded with the code before CorruptSignals took the corruptor's episode paths (95c5dc5).
+        "gym signals-only reacher noise+latency": ("ce9610f2f5bf2311", 1800),
+        "gym signals-only generated mid-step latency+hold": ("6cdd9211467b188f", 800),
+        "gym signals-only generated jitter": ("4933f739a86e1aca", 800),
     },
 }
 GYM_DIGESTS = GYM_DIGESTS_BY_MACHINE["8b4754761b6e"]
 #: The cases that go through no CPU-dependent call: pinned on every machine.
-MACHINE_FREE = ("gym reacher noise+latency", "gym two-layer reacher")
+MACHINE_FREE = ("gym reacher noise+latency", "gym two-layer reacher", "gym signals-only reacher noise+latency")
 
 
 def _gym_case(case: str) -> tuple[str, int]:
@@ -144,6 +153,12 @@ def _gym_case(case: str) -> tuple[str, int]:
     if case == "gym two-layer reacher":
         env = s2r.wrap(s2r.wrap(s2r.make("dmc/reacher-easy"), *PHYSICS, seed=7), *stack, seed=7)
         return _gym_digest(env, 600, [3, None])
+    if case == "gym signals-only reacher noise+latency":
+        return _gym_digest(s2r.wrap(s2r.make("dmc/reacher-easy"), *stack, seed=7), 600, [3, None, 11])
+    if case.startswith("gym signals-only generated "):
+        return _gym_digest(
+            s2r.wrap(_arm(), *_stack(case[len("gym signals-only generated ") :]), seed=7), 400, [3, None]
+        )
     assert case == "gym signals-only generated"
     return _gym_digest(s2r.wrap(_arm(), *stack, seed=7), 400, [3, None])
 

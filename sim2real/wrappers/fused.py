@@ -33,7 +33,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from noise_models import SampleAndHold, SignalModel
+from noise_models import SignalModel
 from noise_models.timing import elapsed_steps
 from randomizers import Effect, PhysicsRandomizer
 from randomizers.seeding import SeedLike
@@ -83,7 +83,6 @@ class RandomizeAndCorrupt(CorruptSignals):
         self._merged_from: tuple[Any, Any] = (None, None)
         self._template: dict[str, Any] | None = None  # the step report but its params, built once per episode
         super().__init__(env, models, seed)
-        self._needs_now = self._obs_time
         # Steps whose report is the episode's template plus the params (no inner report, per-step substeps or
         # events): the common case, and the hot path.
         self._templated = not (self._jitter or self._step_effects)
@@ -172,8 +171,7 @@ class RandomizeAndCorrupt(CorruptSignals):
             self._read_warnings and self._handle.diverged()
         )
         self.clock.begin_episode()
-        # The corruptor reads the step's time only for sample-and-hold or a latency without one fixed lag.
-        self._needs_now = self._obs_time and (SampleAndHold in c.timing or c.observation_lag is None)
+        self._needs_now = c.episode_reads_time
         if self._has_obs:
             obs = self._obs_out(c.first_observation(self._obs_in(obs)), obs)
         self._full_report(info)

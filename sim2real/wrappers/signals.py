@@ -396,7 +396,8 @@ class CorruptSignals(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.clock = SignalClock(env, self.corruptor, obs_layout, act_layout, obs_dtype, act_dtype)
         self._has_obs = self.corruptor.has_observation
         self._has_action = self.corruptor.has_action
-        self._obs_time = self.corruptor.observation_needs_time
+        # Whether this episode's observations read the step's time (decided at reset; until then, whether they may).
+        self._needs_now = self.corruptor.observation_needs_time
         self._jitter = self.corruptor.needs_physics_hook and ControlJitter in self.corruptor.timing
         self._extra_report = self._jitter or self.clock.action_path is not None
         self._closed = False
@@ -431,7 +432,7 @@ class CorruptSignals(gym.Wrapper, gym.utils.RecordConstructorArgs):
         report = info.get("sim2real")
         if report is None:
             c = self.corruptor
-            info["sim2real"] = report = {"params": dict(c.current_params), "episode": c.episode, "diverged": False}
+            info["sim2real"] = report = {"params": c.current_params.copy(), "episode": c.episode, "diverged": False}
         else:  # the inner wrapper built fresh dicts for this call: extend them in place
             report["params"].update(self.corruptor.current_params)
         if self._jitter:
@@ -445,6 +446,7 @@ class CorruptSignals(gym.Wrapper, gym.utils.RecordConstructorArgs):
         c.begin_episode(seed)
         obs, info = self.env.reset(seed=seed, options=options)
         self.clock.begin_episode()
+        self._needs_now = c.episode_reads_time
         if self._has_obs:
             obs = self._obs_out(c.first_observation(self._obs_in(obs)), obs)
         self._report(info)
@@ -459,7 +461,8 @@ class CorruptSignals(gym.Wrapper, gym.utils.RecordConstructorArgs):
             if action.shape != self._act_shape:  # one tuple compare: numpy's broadcasting errors name nothing
                 raise ValueError(wrong_action_shape(action.shape, self._act_shape))
             codec = self._act_codec
-            action = c.act(action) if codec is None else c.act(action.reshape(-1)).reshape(codec)
+            # The shape is checked: the corruptor's episode path directly (act() would check it again).
+            action = c.hot_act(action) if codec is None else c.hot_act(action.reshape(-1)).reshape(codec)
         clock._control += 1
         clock._passed = 0
         clock._in_step = True
@@ -467,13 +470,13 @@ class CorruptSignals(gym.Wrapper, gym.utils.RecordConstructorArgs):
         clock._in_step = False
         if self._has_obs:
             now = 0
-            if self._obs_time:
+            if self._needs_now:
                 handle = clock.handle
                 now = clock._control if handle is None else elapsed_steps(clock._t0, handle.data.time, clock.physics_dt)
             if self._obs_codec is None:
-                obs = c.observe(obs, now)
+                obs = c.hot_observe(obs, now)
             else:
-                obs = self._obs_out(c.observe(self._obs_in(obs), now), obs)
+                obs = self._obs_out(c.hot_observe(self._obs_in(obs), now), obs)
         report = info.get("sim2real")
         if report is None or self._extra_report:
             self._report(info)

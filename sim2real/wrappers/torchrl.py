@@ -24,7 +24,6 @@ from tensordict import TensorDictBase
 from torchrl.data import Binary, Composite, Unbounded
 from torchrl.envs.transforms import Transform
 
-from noise_models import SampleAndHold
 from randomizers import Effect, PhysicsRandomizer
 from randomizers.seeding import SeedLike
 from sim2real.physics import PhysicsHandle
@@ -332,11 +331,7 @@ class CorruptSignalsTransform(Transform):
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
         clock = self._bound()
         clock.begin_episode()
-        # The corruptor reads the step's time only for sample-and-hold or a latency without one fixed lag.
-        c = self.corruptor
-        self.__dict__["_needs_now"] = c.observation_needs_time and (
-            SampleAndHold in c.timing or c.observation_lag is None
-        )
+        self.__dict__["_needs_now"] = self.corruptor.episode_reads_time
         if self.corruptor.has_observation:
             self._write(tensordict_reset, self.corruptor.first_observation(self._flat(tensordict_reset)))
         tensordict_reset.set(SIGNAL_PARAMS_KEY, self._params_tensor(tensordict_reset.batch_size))
