@@ -536,6 +536,7 @@ class CorruptSignalsDmEnv(DmEnvWrapper):
         self._reset_next_step = True
         self._has_obs = self.corruptor.has_observation
         self._has_action = self.corruptor.has_action
+        self._needs_now = self.corruptor.observation_needs_time  # this episode's, from its first observation on
         self._closed = False
 
     @property
@@ -558,7 +559,11 @@ class CorruptSignalsDmEnv(DmEnvWrapper):
         obs = timestep.observation
         flat = self._codec.flat({"observation": obs} if self._single else obs)
         c = self.corruptor
-        vec = c.first_observation(flat) if first else c.observe(flat, self.clock.now())
+        if first:
+            self._needs_now = c.episode_reads_time
+            vec = c.first_observation(flat)
+        else:
+            vec = c.hot_observe(flat, self.clock.now() if self._needs_now else 0)
         out = self._codec.unflat(vec, OrderedDict())
         return timestep._replace(observation=out["observation"] if self._single else out)
 
