@@ -45,6 +45,7 @@ import fnmatch
 import itertools
 import math
 import os
+import re
 import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -223,6 +224,59 @@ def _check_degrees(qpos: np.ndarray, names: list[str], explicit: set[str], model
             )
 
 
+def _owners(model: mujoco.MjModel, key: str) -> list[list[str]]:
+    """Per column of ``key`` in the model's order, the names a driver may call it by: the joint owning a ``qpos``/
+    ``qvel`` entry; an actuator and the joint it drives for ``ctrl``. Empty where nothing has a name."""
+    obj = mujoco.mjtObj
+    if key == "ctrl":
+        out = []
+        for a in range(model.nu):
+            names = [mujoco.mj_id2name(model, obj.mjOBJ_ACTUATOR, a) or ""]
+            if model.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT:
+                names.append(mujoco.mj_id2name(model, obj.mjOBJ_JOINT, int(model.actuator_trnid[a, 0])) or "")
+            out.append([n for n in names if n])
+        return out
+    address, width = (model.jnt_qposadr, model.nq) if key == "qpos" else (model.jnt_dofadr, model.nv)
+    owner = np.searchsorted(np.asarray(address), np.arange(width), side="right") - 1
+    names = [mujoco.mj_id2name(model, obj.mjOBJ_JOINT, j) or "" for j in range(model.njnt)]
+    return [[names[j]] if names[j] else [] for j in owner]
+
+
+def _named(column: str, candidates: set[str]) -> str | None:
+    """The longest of ``candidates`` that ``column`` holds as a whole word (``_``, ``-``, spaces and the ends
+    delimit it), case-insensitively; None when there is none."""
+    hits = [
+        name
+        for name in candidates
+        if re.search(rf"(?<![A-Za-z0-9]){re.escape(name)}(?![A-Za-z0-9])", column, flags=re.IGNORECASE)
+    ]
+    return max(hits, key=len) if hits else None
+
+
+def _check_order(key: str, columns: list[str], model: mujoco.MjModel, where: str) -> None:
+    """Refuses columns that name the model's joints (or actuators) in another order than the model's: a pattern
+    takes columns in the file's order and a list in the given one, so a driver that writes its joints in its own
+    order would otherwise feed one joint's angles to another, silently. Columns that do not each name a different
+    element are left as they are (nothing to check them against)."""
+    owners = _owners(model, key)
+    if len(columns) != len(owners) or not all(owners) or len({tuple(o) for o in owners}) != len(owners):
+        return
+    lookup = {name: i for i, names in enumerate(owners) for name in names}
+    named = [_named(column, set(lookup)) for column in columns]
+    if any(n is None for n in named):
+        return
+    slots = [lookup[n] for n in named if n is not None]
+    if sorted(slots) != list(range(len(owners))) or slots == sorted(slots):
+        return
+    ordered = [columns[slots.index(i)] for i in range(len(owners))]
+    kind = "actuators" if key == "ctrl" else "joints"
+    raise LogError(
+        f"`columns['{key}']` must list the CSV columns in the model's order of {kind} "
+        f"({', '.join(repr(o[0]) for o in owners)}). Received them in the order {columns} (a pattern takes the "
+        f"file's order) from CSV file {where}; map them explicitly: {key}: [{', '.join(ordered)}]."
+    )
+
+
 def _segments(
     time: np.ndarray, episode: np.ndarray | None, dt: float, column: str, where: str
 ) -> tuple[list[tuple[int, int]], list[dict[str, float]]]:
@@ -235,9 +289,16 @@ def _segments(
     back = np.flatnonzero((steps <= 0) & same)
     if back.size:
         i = int(back[0]) + 1
+        start = int(edges[0] if episode is None else np.flatnonzero(episode == episode[i])[0])
+        hint = (
+            " The clock restarts there: if the file holds several episodes, map the column that numbers them as "
+            "columns['episode']."
+            if episode is None and time[i] <= time[start] + dt
+            else ""
+        )
         raise LogError(
             f"{where} row {i + 2}, time column {column!r} must increase within a segment. Received "
-            f"{time[i]!r} s after {time[i - 1]!r} s."
+            f"{float(time[i]):.9g} s after {float(time[i - 1]):.9g} s.{hint}"
         )
     inner = steps[same]
     spacing = float(np.median(inner)) if inner.size else dt
@@ -388,6 +449,8 @@ def load_csv(
             f"Received {episode[bad]!r}."
         )
     if model is not None:
+        for key in ("qpos", "qvel", "ctrl"):
+            _check_order(key, [header[i] for i in index[key]], model, where)
         names = [header[i] for i in index["qpos"]]
         explicit = {header[i] for i in unit_of if mapped[i] == "qpos"}
         _check_degrees(arrays["qpos"], names, explicit, model, f"CSV file {where}")
