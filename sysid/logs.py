@@ -326,6 +326,25 @@ after time[1]=0.02.
     return log
 
 
+def _layout(model: mujoco.MjModel, key: str) -> str:
+    """What a ``qpos``/``qvel`` row of ``model`` holds, when some joint is not one column (a free body beside the
+    arm, a ball joint): the width a driver that logs only the arm's hinges falls short by."""
+    joint = mujoco.mjtJoint
+    kinds = {int(joint.mjJNT_FREE): ("free", 7, 6), int(joint.mjJNT_BALL): ("ball", 4, 3)}
+    parts = []
+    for j in range(model.njnt):
+        if int(model.jnt_type[j]) in kinds:
+            kind, nq, nv = kinds[int(model.jnt_type[j])]
+            name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or f"#{j}"
+            parts.append(f"{kind} joint {name!r} ({nq if key == 'qpos' else nv})")
+    if key not in ("qpos", "qvel") or not parts:
+        return ""
+    return (
+        f" (it holds every joint, {', '.join(parts)} included: a log must carry those bodies' state too, or be "
+        "fitted on a copy of the MJCF without them)"
+    )
+
+
 def _check_model(log: TrajectoryLog, model: mujoco.MjModel) -> None:
     widths = {"qpos": ("nq", model.nq), "qvel": ("nv", model.nv), "ctrl": ("nu", model.nu)}
     widths["sensordata"] = ("nsensordata", model.nsensordata)
@@ -334,8 +353,8 @@ def _check_model(log: TrajectoryLog, model: mujoco.MjModel) -> None:
         array = getattr(log, key)
         if array is not None and array.shape[1] != expected:
             raise LogError(
-                f"`{key}` must have {name}={expected} columns to match the model. Received {array.shape[1]} columns "
-                f"(shape {array.shape})."
+                f"`{key}` must have {name}={expected} columns to match the model{_layout(model, key)}. Received "
+                f"{array.shape[1]} columns (shape {array.shape})."
             )
     timestep = float(model.opt.timestep)
     if abs(log.timestep - timestep) > 1e-9 * timestep:
