@@ -12,6 +12,7 @@ import argparse
 
 import sim2real
 from sim2real.cli._common import add_source_arguments, int_at_least
+from sim2real.cli.sysid_commands import EXIT_FIT_NOT_OK
 
 __all__ = ["ARM_REACH", "build_parser"]
 
@@ -152,8 +153,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="fit parameters (and latency) of a task's model to a trajectory log",
         description=(
             "Fit the addressed parameters of TASK's model (or --model ROBOT.xml, --env MODULE:FACTORY) to LOG (.npz "
-            "from `sim2real record`, or a driver's CSV read through --columns MAP.yaml) and write the estimates, standard errors, 95%% intervals, Cramér-Rao bounds, noise levels, "
-            "fit percentages and identifiability warnings as JSON. Exit 3 when the fitted model cannot reproduce the log (the "
+            "from `sim2real record`, or a driver's CSV read through --columns MAP.yaml) and write the estimates, standard errors, 95% intervals, Cramér-Rao bounds, noise levels, "
+            f"fit percentages and identifiability warnings as JSON. Exit {EXIT_FIT_NOT_OK} when the fitted model cannot reproduce the log (the "
             "JSON is still written; the reasons are printed)."
         ),
     )
@@ -174,8 +175,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--export",
         metavar="EFFECTS.yaml",
         help=(
-            "also write the fit-then-randomise effects (FitResult.to_randomizers: each estimate +- 2 standard errors) "
-            "for `train --config` / `demo --config`; a fit that is not ok is not exported (exit 3) unless --force"
+            "also write the fit-then-randomise effects (FitResult.to_randomizers: each estimate +- the larger of 2 "
+            "standard errors and 10%% of it, the fitted latencies in seconds and the sensor noise) "
+            f"for `train --config` / `demo --config`; a fit that is not ok is not exported (exit {EXIT_FIT_NOT_OK}) unless --force"
         ),
     )
     fit.add_argument("--force", action="store_true", help="export a fit even when it is not ok")
