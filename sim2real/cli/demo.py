@@ -96,17 +96,20 @@ def _run_episode(env: Any, policy: Policy, seed: int) -> _Episode:
     return _Episode(total, length, success, diverged, params)
 
 
-def _load_demo_effects(config: str | None) -> list[Effect]:
+def _load_demo_effects(config: str | None, *, signals: bool = False) -> list[Any]:
+    """The effects of ``--config`` (with ``signals``, its noise and latency models too: a fit's ``--export``
+    holds both, and a demo that dropped them would show a randomised sim without the latency it calls for)."""
     if config is None:
         return default_effects()
     try:
-        # A Path makes load_effects read the file whatever its suffix (a str could be taken for YAML text).
-        return list(sim2real.load_effects(Path(config)))
+        # A Path makes the loader read the file whatever its suffix (a str could be taken for YAML text).
+        loaded = sim2real.load_config(Path(config)) if signals else sim2real.load_effects(Path(config))
+        return list(loaded)
     except (OSError, ValueError) as err:
         raise UsageError(f"--config: {err}") from err
 
 
-def _make_envs(task: str, effects: Sequence[Effect], seed: int) -> tuple[Any, Any]:
+def _make_envs(task: str, effects: Sequence[Any], seed: int) -> tuple[Any, Any]:
     try:
         nominal = sim2real.make(task)
     except ValueError as err:
@@ -152,13 +155,14 @@ def _print_params(episodes: list[_Episode], nominal: dict[str, float], seed: int
 def cmd_demo(args: argparse.Namespace, out: TextIO) -> int:
     from tqdm import tqdm
 
-    effects = _load_demo_effects(args.config)
-    nominal, randomised = _make_envs(args.task, effects, args.seed)
+    source = source_of(args)
+    effects = _load_demo_effects(args.config, signals=True)
+    nominal, randomised = _make_envs(source.id, effects, args.seed)
     policy: Policy
-    if args.task == ARM_REACH:
+    if source.id == ARM_REACH:
         policy_name, policy = ARM_REACH_POLICY, _arm_reach_policy
     else:
-        policy_name = f"zero action (no scripted controller for {args.task}; only {ARM_REACH} has one)"
+        policy_name = f"zero action (no scripted controller for {source.label}; only {ARM_REACH} has one)"
         policy = _zero_policy(nominal)
 
     # Read before close(): the wrapper knows the nominal value of every address it perturbs.
@@ -181,13 +185,13 @@ def cmd_demo(args: argparse.Namespace, out: TextIO) -> int:
         randomised.close()
 
     print(
-        f"sim2real demo: {args.task}, {n} episode(s) per condition, reset seeds {args.seed}..{args.seed + n - 1}",
+        f"sim2real demo: {source.label}, {n} episode(s) per condition, reset seeds {args.seed}..{args.seed + n - 1}",
         file=out,
     )
     print(f"policy: {policy_name}", file=out)
-    source = args.config if args.config is not None else "defaults"
+    origin = args.config if args.config is not None else "defaults"
     print(
-        f"randomised condition: sim2real.wrap(make({args.task!r}), *effects, seed={args.seed}), effects from {source}:",
+        f"randomised condition: sim2real.wrap(make({source.id!r}), *effects, seed={args.seed}), effects from {origin}:",
         file=out,
     )
     for effect in effects:

@@ -45,10 +45,10 @@ def build_parser() -> argparse.ArgumentParser:
             "Run a controller on the nominal task and on the same task with randomised physics "
             "(same reset seeds, so the same targets), and print mean return, its std, success rate "
             "and the parameters sampled in the first episodes. sim2real/arm-reach uses a scripted "
-            "reaching controller; other tasks use the zero action."
+            "reaching controller; other tasks, --model ROBOT.xml and --env MODULE:FACTORY use the zero action."
         ),
     )
-    demo.add_argument("--task", default=ARM_REACH, help="task id (see `sim2real tasks`; default: %(default)s)")
+    add_source_arguments(demo, default_task=ARM_REACH)
     demo.add_argument(
         "--episodes", type=int_at_least(1), default=20, help="episodes per condition (default: %(default)s)"
     )
@@ -62,7 +62,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--config",
         metavar="EFFECTS.yaml",
         help=(
-            "YAML file of effects (see randomizers.load_effects); default: Mass x U(0.5, 2), "
+            "YAML file of effects and signal models (see randomizers.load_config, e.g. `sysid fit --export`); "
+            "default: Mass x U(0.5, 2), "
             "Damping x LogU(0.5, 4), ActuatorGain x U(0.3, 1), Friction x U(0.5, 1.5)"
         ),
     )

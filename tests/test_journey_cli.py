@@ -1,0 +1,108 @@
+"""The own-robot journey through the commands a user reaches for next: ``demo`` and ``visualize`` on an MJCF file,
+with the config ``sysid fit --export`` writes (effects *and* signal models), and configs with a mistyped key.
+
+The arm is written here (2 limited hinges, position servos, gravity); every run is a few short episodes.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+from pathlib import Path
+
+import pytest
+
+import sim2real as s2r
+from randomizers import load_config, load_effects
+from sim2real.cli import main
+from sim2real.output_paths import OutputPathError
+
+ARM = """<mujoco model="two_link">
+  <option timestep="0.004"/>
+  <worldbody>
+    <light pos="0 0 2"/>
+    <body name="upper" pos="0 0 0.5">
+      <joint name="shoulder" axis="0 1 0" range="-1.5 1.5" damping="0.5"/>
+      <geom type="capsule" fromto="0 0 0 0.2 0 0" size="0.03" mass="1"/>
+      <body name="fore" pos="0.2 0 0">
+        <joint name="elbow" axis="0 1 0" range="-2 2" damping="0.2"/>
+        <geom type="capsule" fromto="0 0 0 0.15 0 0" size="0.02" mass="0.5"/>
+      </body>
+    </body>
+  </worldbody>
+  <actuator>
+    <position name="servo_shoulder" joint="shoulder" kp="30" ctrlrange="-1.5 1.5"/>
+    <position name="servo_elbow" joint="elbow" kp="10" ctrlrange="-2 2"/>
+  </actuator>
+  <keyframe><key name="home" qpos="0.3 -0.5"/></keyframe>
+</mujoco>
+"""
+EXPORTED = """effects:
+- type: Damping
+  set: {type: Uniform, low: 0.45, high: 0.55}
+  joints: shoulder
+signals:
+- type: ObservationNoise
+  processes:
+  - {type: Gaussian, std: 0.001}
+- {type: ActionLatency, seconds: 0.032}
+"""
+
+
+def _run(argv: list[str]) -> tuple[int, str, str]:
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(argv)
+    return code, out.getvalue(), err.getvalue()
+
+
+@pytest.fixture
+def arm(tmp_path: Path) -> Path:
+    path = tmp_path / "my arm.xml"
+    path.write_text(ARM)
+    return path
+
+
+def test_demo_takes_a_model_file_and_applies_the_exported_signals(tmp_path: Path, arm: Path) -> None:
+    config = tmp_path / "exported.yaml"
+    config.write_text(EXPORTED)
+    code, out, err = _run(["demo", "--model", str(arm), "--config", str(config), "--episodes", "1", "--quiet"])
+    assert (code, err) == (0, "")
+    assert out.startswith("sim2real demo: my arm.xml, 1 episode(s) per condition")
+    assert "zero action (no scripted controller for my arm.xml" in out
+    for model in ("Damping(set=Uniform(low=0.45, high=0.55), joints='shoulder')", "ActionLatency(seconds=0.032)"):
+        assert f"  {model}\n" in out
+    assert "ObservationNoise(Gaussian(std=0.001))" in out
+
+
+def test_demo_refuses_two_sources_and_a_config_key_it_would_ignore(tmp_path: Path, arm: Path) -> None:
+    code, _, err = _run(["demo", "--task", "sim2real/arm-reach", "--model", str(arm), "--episodes", "1"])
+    assert code == 2 and err.endswith("sim2real demo: error: argument --model: not allowed with argument --task\n")
+    typo = tmp_path / "typo.yaml"
+    typo.write_text("effects: []\nsignal: [{type: ObservationLatency, steps: 2}]\n")
+    code, out, err = _run(["demo", "--model", str(arm), "--config", str(typo), "--episodes", "1", "--quiet"])
+    assert (code, out) == (2, "")
+    assert err == (
+        f"sim2real demo: error: --config: {typo}: the top-level keys must be among ['effects', 'signals']. Received "
+        "unknown ['signal']. ('signal': did you mean 'signals'?)\n"
+    )
+
+
+def test_config_loaders_refuse_unknown_top_level_keys() -> None:
+    with pytest.raises(ValueError, match=r"Received unknown \['signal'\]\. \('signal': did you mean 'signals'\?\)"):
+        load_config("effects: [{type: Damping, scale: 2.0}]\nsignal: []\n")
+    with pytest.raises(ValueError, match=r"Received unknown \['efects', 'notes'\]\. \('efects': did you mean"):
+        load_effects({"effects": [], "efects": [], "notes": "x"})
+    # signals are load_config's: load_effects reads the effects of a config that also holds them
+    assert [type(m).__name__ for m in load_config(EXPORTED)] == ["Damping", "ObservationNoise", "ActionLatency"]
+    assert [type(m).__name__ for m in load_effects(EXPORTED)] == ["Damping"]
+
+
+def test_visualize_creates_a_missing_folder_and_the_api_checks_out_before_rendering(tmp_path: Path, arm: Path) -> None:
+    out = tmp_path / "sheets ü" / "new" / "sheet.png"
+    code, stdout, err = _run(["visualize", "--model", str(arm), "--n", "2", "--size", "16", "--out", str(out)])
+    assert (code, err) == (0, "")
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and stdout.startswith(f"wrote {out} (2 frames of my arm.xml")
+    source_id = "model:" + str(arm)
+    with pytest.raises(OutputPathError, match=r"`out` must be in a folder that exists or can be created; .* is a file"):
+        s2r.contact_sheet(source_id, n=1, size=(8, 8), out=arm / "sheet.png")
