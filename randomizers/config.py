@@ -24,6 +24,7 @@ Example:
 
 from __future__ import annotations
 
+import difflib
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -100,6 +101,22 @@ def _read(source: str | os.PathLike[str] | Mapping[str, Any]) -> tuple[Any, str]
     return config, where
 
 
+#: The top-level keys of a randomisation config: physics effects, and the signal models :func:`load_config` reads.
+CONFIG_KEYS = ("effects", "signals")
+
+
+def _check_top_keys(config: Mapping[str, Any], where: str) -> None:
+    """A key that is neither ``effects`` nor ``signals`` (a typo such as ``signal:``) would be ignored, and the
+    models under it silently never applied; refuse it."""
+    unknown = [str(k) for k in config if k not in CONFIG_KEYS]
+    if unknown:
+        close = {k: difflib.get_close_matches(k, CONFIG_KEYS, n=1) for k in unknown}
+        hints = "".join(f" ({k!r}: did you mean {c[0]!r}?)" for k, c in close.items() if c)
+        raise ValueError(
+            f"{where}: the top-level keys must be among {list(CONFIG_KEYS)}. Received unknown {unknown}.{hints}"
+        )
+
+
 def load_effects(source: str | os.PathLike[str] | Mapping[str, Any]) -> list[Effect]:
     """Builds effects from a YAML file path, a YAML string or an already-parsed mapping.
 
@@ -109,6 +126,7 @@ def load_effects(source: str | os.PathLike[str] | Mapping[str, Any]) -> list[Eff
     config, where = _read(source)
     if not isinstance(config, Mapping) or "effects" not in config:
         raise ValueError(f"{where}: the top level must be a mapping with an `effects` list. Received {config!r}.")
+    _check_top_keys(config, where)
     items = config["effects"]
     if not isinstance(items, Sequence) or isinstance(items, str):
         raise ValueError(f"{where}: `effects` must be a list. Received {items!r}.")
@@ -280,6 +298,7 @@ def load_config(source: str | os.PathLike[str] | Mapping[str, Any]) -> list[Any]
         raise ValueError(
             f"{where}: the top level must be a mapping with an `effects` and/or a `signals` list. Received {config!r}."
         )
+    _check_top_keys(config, where)
     effects = load_effects(source) if "effects" in config else []
     return [*effects, *_load_signals(config, where)]
 
