@@ -15,6 +15,7 @@ import numpy as np
 
 from randomizers import Effect, load_effects
 from randomizers.files import atomic_write
+from sim2real.output_paths import check_file
 from sim2real.pixels import check_size
 from sim2real.tasks import make
 from sim2real.wrapping import wrap
@@ -74,7 +75,8 @@ def contact_sheet(
         size: ``(height, width)`` of each frame.
         camera: camera name or id (default the model's first camera).
         columns: grid columns (default ``ceil(sqrt(n))``).
-        out: PNG path, written atomically (temporary file, then rename); None writes nothing.
+        out: PNG path, written atomically (temporary file, then rename; missing folders are created), checked
+            before any rendering (:func:`sim2real.output_paths.check_file`); None writes nothing.
         title: sheet title (default: task, effect count and seed).
 
     Example:
@@ -94,6 +96,8 @@ def contact_sheet(
     if columns is not None and (isinstance(columns, bool) or not isinstance(columns, int) or columns < 1):
         raise ValueError(f"`columns` must be None or an int >= 1. Received {columns!r}.")
     size = check_size(size)
+    if out is not None:
+        check_file(out, "`out`")  # before any rendering: a path that cannot be written costs nothing
     chosen = _effects(effects)
     env = wrap(make(task, pixels=True, size=size, camera=camera), *chosen, seed=seed)
     frames, params = [], []
@@ -121,5 +125,5 @@ def contact_sheet(
     path = None
     if out is not None:
         path = Path(out)
-        atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"), make_parents=False)
+        atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))  # missing folders are created
     return ContactSheet(np.stack(frames), tuple(params), image, path)

@@ -492,7 +492,10 @@ def test_contact_sheet_and_cli_write_atomically(tmp_path: Path) -> None:
     assert sheet.frames.tobytes() == again.frames.tobytes() and sheet.path is None
     assert len({f.tobytes() for f in sheet.frames}) == 3
     assert main(["visualize", "no/such-task", "--n", "1", "--out", str(out)]) == 2
-    assert main(["visualize", TASK, "--n", "1", "--out", str(tmp_path / "missing" / "x.png")]) == 2
+    # A missing folder is created, as for every other command's output (it was checked before any rendering).
+    assert main(["visualize", TASK, "--n", "1", "--size", "8", "--out", str(tmp_path / "new ü" / "x.png")]) == 0
+    assert (tmp_path / "new ü" / "x.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert main(["visualize", TASK, "--n", "1", "--out", str(config / "x.png")]) == 2  # a file on the way
 
 
 def test_uploaders_are_dropped_with_their_envs() -> None:
