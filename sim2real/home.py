@@ -21,7 +21,7 @@ Example:
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import mujoco
@@ -188,9 +188,11 @@ def _simulate(
     latency: int,
     gravity: GravityCompensation | None,
     stop_early: bool = False,
+    tick: Callable[[], None] | None = None,
 ) -> tuple[np.ndarray, str | None]:
     """Runs the episodes; returns the commands sent and the first joint that left its range (or None). With
-    ``stop_early`` a trial ends at the first joint out of range (its commands are then incomplete)."""
+    ``stop_early`` a trial ends at the first joint out of range (its commands are then incomplete). ``tick`` is
+    called after each episode (a progress bar)."""
     adr, low, high, names = _limited_joints(model)
     data = mujoco.MjData(model)
     episodes, steps, nu = deviation.shape
@@ -211,6 +213,8 @@ def _simulate(
                 outside = names[int(bad[0])]
                 if stop_early:
                     return ctrl, outside
+        if tick is not None:
+            tick()
     return ctrl, outside
 
 
@@ -226,6 +230,7 @@ def plan_excitation(
     seed: int,
     gravity_comp: bool = False,
     latency: int = 0,
+    tick: Callable[[], None] | None = None,
 ) -> ExcitationPlan:
     """The commands of ``episodes`` excitation episodes around ``home`` that keep every limited joint in range.
 
@@ -245,6 +250,7 @@ def plan_excitation(
         seed: the excitation's seed.
         gravity_comp: add the gravity-holding torque of the current pose to the torque motors' commands.
         latency: action latency in control steps.
+        tick: called after each simulated episode (trials included), e.g. to move a progress bar.
 
     Raises:
         ValueError: bad amplitude, a model without usable actuator limits, ``gravity_comp`` on a servo-only model.
@@ -279,25 +285,25 @@ def plan_excitation(
             f"the home pose lies outside the range of joint(s) {', '.join(off_range)}; if the MJCF's ranges are meant "
             'in radians, add <compiler angle="radian"/> (MuJoCo reads them in degrees by default).'
         )
-    _, still = _simulate(model, home, 0.0 * full, center, bounds, substeps, latency, gravity, True)
+    _, still = _simulate(model, home, 0.0 * full, center, bounds, substeps, latency, gravity, True, tick=tick)
     if still is not None:
         hint = "" if gravity_comp or servo.all() else "; try --gravity-comp"
         notes.append(
             f"joint {still!r} leaves its range even without excitation (the arm is not at rest at the home pose"
             f"{hint}); the amplitude was not reduced."
         )
-        ctrl, _ = _simulate(model, home, amplitude * full, center, bounds, substeps, latency, gravity)
+        ctrl, _ = _simulate(model, home, amplitude * full, center, bounds, substeps, latency, gravity, tick=tick)
         return ExcitationPlan(ctrl, home.copy(), float(amplitude), float(amplitude), tuple(notes))
     used = float(amplitude)
     for _ in range(_HALVINGS + 1):
-        ctrl, outside = _simulate(model, home, used * full, center, bounds, substeps, latency, gravity, True)
+        ctrl, outside = _simulate(model, home, used * full, center, bounds, substeps, latency, gravity, True, tick=tick)
         if outside is None:
             break
         first = outside
         used /= 2
     else:
         used *= 2
-        ctrl, _ = _simulate(model, home, used * full, center, bounds, substeps, latency, gravity)
+        ctrl, _ = _simulate(model, home, used * full, center, bounds, substeps, latency, gravity, tick=tick)
         notes.append(f"joint {first!r} reaches its limit even at amplitude {used:g}; the log touches the limit.")
         return ExcitationPlan(ctrl, home.copy(), used, float(amplitude), tuple(notes))
     if used < amplitude:

@@ -76,6 +76,7 @@ def record(
     amplitude: float = 0.5,
     home: str | Sequence[float] | None = None,
     gravity_comp: bool = False,
+    progress: bool | None = None,
 ) -> Any:
     """Records an excitation log of ``task`` (exact physics through ``mujoco.rollout``).
 
@@ -104,6 +105,8 @@ def record(
             (:func:`sim2real.home.plan_excitation`); ``meta["excitation"]["notes"]`` says when.
         gravity_comp: add the torque that holds the arm against gravity at its current pose to the torque
             motors' commands (needs a fixed home pose); the logged ``ctrl`` is what was sent.
+        progress: a progress bar on stderr (episodes simulated for the joint-limit check, then the recording);
+            None shows it when stderr is a terminal.
 
     Returns:
         A :class:`sysid.TrajectoryLog` whose ``meta`` holds the task, the true parameter values of every
@@ -174,6 +177,7 @@ def record(
         randomizer.restore_nominal()
     dt = float(model.opt.timestep) * substeps
     excitation_meta: dict[str, Any] = {"policy": policy, "amplitude": float(amplitude), "gravity_comp": gravity_comp}
+    bar = _bar(progress)
     try:
         if chosen == "current":
             excitation = sysid.make_excitation(policy, control_limits(model), amplitude=amplitude, seed=seed)
@@ -183,7 +187,7 @@ def record(
             pose = resolve_home(chosen, model)
             plan = plan_excitation(
                 model, pose, policy=policy, amplitude=amplitude, steps=steps, episodes=episodes, substeps=substeps,
-                seed=seed, gravity_comp=gravity_comp, latency=latency,
+                seed=seed, gravity_comp=gravity_comp, latency=latency, tick=lambda: bar.update(1),
             )
             ctrl = plan.ctrl
             starts = [(plan.home, np.zeros(model.nv))] * episodes
@@ -192,8 +196,10 @@ def record(
                 notes=list(plan.notes),
             )
     except ValueError:
+        bar.close()
         _close(env)
         raise
+    bar.set_postfix_str(f"recording {episodes} episode(s)")
     log = sysid.record_log(
         model,
         ctrl,
@@ -207,8 +213,20 @@ def record(
         task=source.id,
         true_params=true_params,
     )
+    bar.update(episodes)
+    bar.close()
     _close(env)
     return replace(log, meta={**log.meta, "excitation": excitation_meta})
+
+
+def _bar(progress: bool | None) -> Any:
+    """The progress bar of :func:`record` (tqdm on stderr; disabled unless asked for or stderr is a terminal)."""
+    import sys
+
+    from tqdm import tqdm
+
+    show = sys.stderr.isatty() if progress is None else bool(progress)
+    return tqdm(desc="record", unit="episode", file=sys.stderr, disable=not show, leave=False)
 
 
 def _close(env: Any) -> None:

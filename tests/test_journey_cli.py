@@ -106,3 +106,20 @@ def test_visualize_creates_a_missing_folder_and_the_api_checks_out_before_render
     source_id = "model:" + str(arm)
     with pytest.raises(OutputPathError, match=r"`out` must be in a folder that exists or can be created; .* is a file"):
         s2r.contact_sheet(source_id, n=1, size=(8, 8), out=arm / "sheet.png")
+
+
+def test_record_shows_a_progress_bar_when_asked_and_none_when_quiet(
+    tmp_path: Path, arm: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from sim2real.recording import record
+    from sim2real.sources import resolve_source
+
+    source = resolve_source(model=arm)
+    shown = record(source, episodes=2, steps=20, progress=True)
+    err = capsys.readouterr().err
+    assert "record: " in err and "recording 2 episode(s)" in err
+    assert record(source, episodes=2, steps=20).qpos.tobytes() == shown.qpos.tobytes()  # same log either way
+    assert capsys.readouterr().err == ""  # None: only on a terminal (pytest's capture is not one)
+    code, out, err = _run(["record", "--model", str(arm), "--episodes", "1", "--steps", "20", "--quiet",
+                           "--out", str(tmp_path / "log.npz")])  # fmt: skip
+    assert (code, err) == (0, "") and out.startswith(f"wrote {tmp_path / 'log.npz'}: 20 rows")

@@ -138,6 +138,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="torque-driven arms: add the torque that holds the arm against gravity at its current pose",
     )
     record.add_argument("--out", required=True, help="output .npz path")
+    record.add_argument("--quiet", action="store_true", help="no progress bar (shown on a terminal)")
 
     train = sub.add_parser(
         "train",

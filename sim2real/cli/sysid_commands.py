@@ -57,6 +57,7 @@ def cmd_record(args: argparse.Namespace, out: TextIO) -> int:
             amplitude=args.amplitude,
             home=home,
             gravity_comp=args.gravity_comp,
+            progress=False if args.quiet else None,
         )
     except (TypeError, ValueError) as err:  # SourceError is a ValueError
         raise UsageError(str(err)) from err
