@@ -20,6 +20,13 @@ header of the installed wheel). The scalars it writes (``ngravcomp``, ``npolygon
 compensation, meshes, surface velocities and adhesion, which no effect writes, so a run rewrites
 them unchanged. MuJoCo 3.17's ``mj_setConst`` does not touch ``model.stat``.
 
+``mj_setConst`` needs an ``MjData`` to compute in (it sets the state to ``qpos0``, then ``qpos_spring``, and
+computes everything it reads from them). Making one costs ~0.3 ms of Python binding, more than the model copy of
+a batched world, so the scratch is shared, per thread, by every :class:`SetConst` whose model has the same sizes
+and starts a fresh ``MjData`` the same way (same sleep policy and flags; models with mocap bodies or plugins,
+whose fresh data depends on their values, keep their own); ``tests/test_setconst.py`` checks bitwise equality
+with a scratch of the model's own.
+
 Example:
     >>> import mujoco
     >>> model = mujoco.MjModel.from_xml_string(
@@ -39,6 +46,7 @@ Example:
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Iterable
 
 import mujoco
@@ -137,6 +145,38 @@ DERIVED_FROM: dict[str, tuple[str, ...]] = {
 DERIVED_FROM["body_iquat"] = DERIVED_FROM["body_ipos"]
 
 
+# Per thread: scratch key -> MjData (mj_setConst runs without the GIL, so threads must not share a scratch).
+_LOCAL = threading.local()
+_MAX_SCRATCH = 8  # distinct model layouts kept per thread; more clears the cache (a scratch is remade on demand)
+_SIZE_NAMES: list[str] = []  # the integer size fields of MjModel (nq, nv, ..., narena, nbuffer)
+
+
+def _scratch_key(model: mujoco.MjModel) -> tuple[object, ...] | None:
+    """What a fresh ``MjData`` of ``model`` depends on, as far as ``mj_setConst`` reads it: the sizes (the layout),
+    the flags and sleep policy its reset reads. None for a model whose fresh data depends on more of its values
+    (mocap bodies start at ``body_pos``, plugins initialise their own state): those keep a scratch of their own."""
+    if model.nmocap or model.nplugin:
+        return None
+    if not _SIZE_NAMES:
+        _SIZE_NAMES.extend(n for n in dir(mujoco.MjModel) if n.startswith("n") and isinstance(getattr(model, n), int))
+    sizes = tuple([getattr(model, n) for n in _SIZE_NAMES])
+    opt = model.opt
+    return sizes, opt.enableflags, opt.disableflags, model.tree_sleep_policy.tobytes()
+
+
+def _shared_scratch(model: mujoco.MjModel, key: tuple[object, ...]) -> mujoco.MjData:
+    """This thread's scratch ``MjData`` for models with ``key`` (made for ``model`` on first use)."""
+    cache: dict[tuple[object, ...], mujoco.MjData] | None = getattr(_LOCAL, "scratch", None)
+    if cache is None:
+        cache = _LOCAL.scratch = {}
+    data = cache.get(key)
+    if data is None:
+        if len(cache) >= _MAX_SCRATCH:
+            cache.clear()
+        data = cache[key] = mujoco.MjData(model)
+    return data
+
+
 class SetConst:
     """Runs ``mj_setConst`` on one model after effects wrote ``inputs``, keeping what they do not own.
 
@@ -159,14 +199,22 @@ class SetConst:
         self.kept: tuple[str, ...] = tuple(f for f in present if f not in derived)
         self._nominal = {f: getattr(model, f).copy() for f in self.derived}
         self._saved = {f: np.empty_like(getattr(model, f)) for f in self.kept}
-        self._scratch = mujoco.MjData(model)
+        self._key = _scratch_key(model)
+        # Made now, as a fresh MjData of the model as it is at bind (its mocap bodies at their nominal poses).
+        self._scratch = mujoco.MjData(model) if self._key is None else None
 
     def run(self) -> None:
         """``mj_setConst`` on a scratch ``MjData``; the kept outputs hold what they held before."""
-        model, saved = self.model, self._saved
+        model, saved, key = self.model, self._saved, self._key
+        scratch = self._scratch if key is None else _shared_scratch(model, key)
         for f, buf in saved.items():
             np.copyto(buf, getattr(model, f))
-        mujoco.mj_setConst(model, self._scratch)
+        try:
+            mujoco.mj_setConst(model, scratch)
+        except Exception:
+            if key is not None:  # a failed run may leave the scratch's stack marked: the next run starts afresh
+                _LOCAL.scratch.pop(key, None)
+            raise
         for f, buf in saved.items():
             np.copyto(getattr(model, f), buf)
 

@@ -4,7 +4,9 @@ Also the zero-mass validation of :class:`randomizers.Mass` (zero mass is singula
 
 from __future__ import annotations
 
+import copy
 import re
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -14,7 +16,7 @@ import numpy as np
 import pytest
 
 import sim2real as s2r
-from randomizers import Armature, Interval, Mass, PhysicsRandomizer, Uniform
+from randomizers import Armature, Interval, Mass, PhysicsRandomizer, Uniform, setconst
 from randomizers.setconst import DERIVED_FROM, OUTPUTS
 
 # A two-link arm whose hand is welded to a mocap target; the weld's relative pose is computed by
@@ -217,3 +219,60 @@ def test_massless_bodies_and_zero_armature_stay_allowed() -> None:
     model = mujoco.MjModel.from_xml_string(ARM_XML)
     Mass(add=Uniform(0.0, 0.1)).bind(model)  # the mocap target has no mass: 0 + 0 is its nominal
     Armature(scale=0.0).bind(model)  # armature 0 is MuJoCo's default, not singular
+
+
+# -- the scratch MjData shared by models of one layout ---------------------------------------------------
+
+# ARM_XML without its mocap target and weld: a model whose scratch is shared (tendon, camera, light kept).
+FREE_ARM_XML = ARM_XML.replace('<body name="target" mocap="true" pos="0.3 0 0.2"/>', "").replace(
+    '<equality><weld name="grip" body1="target" body2="hand"/></equality>', ""
+)
+
+
+def _copies(k: int) -> list[mujoco.MjModel]:
+    reacher = s2r.find_physics(s2r.make("dmc/reacher-easy", textures=False)).model  # type: ignore[union-attr]
+    arm = mujoco.MjModel.from_xml_string(FREE_ARM_XML)
+    reach = s2r.find_physics(s2r.make("sim2real/arm-reach")).model  # type: ignore[union-attr]
+    return [copy.deepcopy(m) for m in (reacher, arm, reach) for _ in range(k)]
+
+
+def _runs(models: list[mujoco.MjModel]) -> list[dict[str, np.ndarray]]:
+    """Each model's outputs after SetConst runs on drawn masses and armatures, the models interleaved."""
+    rng = np.random.default_rng(7)
+    consts = [setconst.SetConst(m, {"body_mass", "dof_armature"}) for m in models]
+    nominal = [(m.body_mass.copy(), m.dof_armature.copy()) for m in models]
+    out = []
+    for _ in range(2):
+        for m, sc, (mass, armature) in zip(models, consts, nominal, strict=True):
+            m.body_mass[:] = mass * rng.uniform(0.5, 2.0, mass.shape)
+            m.dof_armature[:] = armature + rng.uniform(0.0, 0.1, armature.shape)
+            sc.run()
+            out.append(_outputs(m))
+    for sc in consts:
+        sc.restore()
+    return out
+
+
+def test_a_shared_scratch_gives_bitwise_what_a_scratch_of_its_own_gives(monkeypatch: pytest.MonkeyPatch) -> None:
+    shared = _runs(_copies(3))
+    monkeypatch.setattr(setconst, "_scratch_key", lambda model: None)  # every SetConst makes its own, as before
+    own = _runs(_copies(3))
+    assert len(shared) == len(own) == 18
+    for got, want in zip(shared, own, strict=True):
+        _assert_bitwise(got, want)
+
+
+def test_the_scratch_is_shared_by_one_layout_per_thread_and_never_with_mocap() -> None:
+    a, b, _ = _copies(1)
+    a2 = copy.deepcopy(a)
+    key = setconst._scratch_key(a)
+    assert key is not None and key == setconst._scratch_key(a2) != setconst._scratch_key(b)
+    assert setconst._shared_scratch(a, key) is setconst._shared_scratch(a2, key)
+    others: list[Any] = []
+    worker = threading.Thread(target=lambda: others.append(setconst._shared_scratch(a, key)))
+    worker.start()
+    worker.join()
+    assert others[0] is not setconst._shared_scratch(a, key)  # mj_setConst runs without the GIL
+    welded = mujoco.MjModel.from_xml_string(ARM_XML)  # a mocap body starts at its body_pos: its own scratch
+    assert setconst._scratch_key(welded) is None
+    assert isinstance(setconst.SetConst(welded, {"body_mass"})._scratch, mujoco.MjData)
