@@ -28,7 +28,7 @@ import sys
 from sim2real.cli._common import UsageError
 from sim2real.cli.demo import ARM_REACH_POLICY, cmd_demo, cmd_tasks, cmd_visualize, default_effects
 from sim2real.cli.evaluate import cmd_evaluate, cmd_study
-from sim2real.cli.parser import build_parser
+from sim2real.cli.parser import build_parser, join_negative_values
 from sim2real.cli.sysid_commands import cmd_record, cmd_sysid
 
 __all__ = ["ARM_REACH_POLICY", "default_effects", "main"]
@@ -53,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
         return cli_train(argv[1:])
     parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args = parser.parse_args(join_negative_values(argv))
     except SystemExit as exit_:  # --help, --version and argparse's own usage errors
         return exit_.code if isinstance(exit_.code, int) else (0 if exit_.code is None else 2)
     if args.command is None:

@@ -14,7 +14,32 @@ import sim2real
 from sim2real.cli._common import add_source_arguments, int_at_least
 from sim2real.cli.sysid_commands import EXIT_FIT_NOT_OK
 
-__all__ = ["ARM_REACH", "build_parser"]
+__all__ = ["ARM_REACH", "build_parser", "join_negative_values"]
+
+#: Options whose value may start with a minus sign (a home pose of negative joint angles).
+NEGATIVE_VALUES = ("--home",)
+
+
+def join_negative_values(argv: list[str]) -> list[str]:
+    """``--home -0.4,1.2`` as ``--home=-0.4,1.2``: argparse takes a value that starts with ``-`` and is not a plain
+    number for an option, so an arm's home pose of negative angles could only be given with ``=``.
+
+    Example:
+        >>> join_negative_values(["record", "--home", "-0.4,1.2", "--out", "a.npz"])
+        ['record', '--home=-0.4,1.2', '--out', 'a.npz']
+    """
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        value = argv[i + 1] if i + 1 < len(argv) else ""
+        if argv[i] in NEGATIVE_VALUES and value[:1] == "-" and value[1:2] in tuple("0123456789."):
+            out.append(f"{argv[i]}={value}")
+            i += 2
+            continue
+        out.append(argv[i])
+        i += 1
+    return out
+
 
 #: The task with a scripted controller; every other task gets the zero action.
 ARM_REACH = "sim2real/arm-reach"
