@@ -287,11 +287,23 @@ def plan_excitation(
         )
     _, still = _simulate(model, home, 0.0 * full, center, bounds, substeps, latency, gravity, True, tick=tick)
     if still is not None:
-        hint = "" if gravity_comp or servo.all() else "; try --gravity-comp"
-        notes.append(
-            f"joint {still!r} leaves its range even without excitation (the arm is not at rest at the home pose"
-            f"{hint}); the amplitude was not reduced."
-        )
+        _, low, high, _ = _limited_joints(model)
+        k = names.index(still)
+        j, q = int(_limited_joint_ids(model)[k]), float(home[adr[k]])
+        if not model.jnt_range[j, 0] <= q <= model.jnt_range[j, 1]:
+            notes.append(f"joint {still!r} starts outside its range; the amplitude was not reduced.")
+        elif not low[k] <= q <= high[k]:  # it starts there: no excitation can keep it clear
+            notes.append(
+                f"joint {still!r} starts within {_MARGIN:.0%} of an end of its range (home {q:.4g}, range "
+                f"[{model.jnt_range[j, 0]:.4g}, {model.jnt_range[j, 1]:.4g}]), so the check that keeps joints clear "
+                "of their limits cannot pass; the amplitude was not reduced."
+            )
+        else:
+            hint = "" if gravity_comp or servo.all() else "; try --gravity-comp"
+            notes.append(
+                f"joint {still!r} leaves its range even without excitation (the arm is not at rest at the home pose"
+                f"{hint}); the amplitude was not reduced."
+            )
         ctrl, _ = _simulate(model, home, amplitude * full, center, bounds, substeps, latency, gravity, tick=tick)
         return ExcitationPlan(ctrl, home.copy(), float(amplitude), float(amplitude), tuple(notes))
     used = float(amplitude)

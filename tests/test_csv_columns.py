@@ -22,6 +22,7 @@ from sysid import LogError, load_csv
 
 ARM = """
 <mujoco model="csv_arm">
+  <compiler angle="radian"/>
   <option timestep="0.005"/>
   <worldbody>
     <body name="base">

@@ -18,6 +18,7 @@ from sim2real.cli import main
 from sim2real.output_paths import OutputPathError
 
 ARM = """<mujoco model="two_link">
+  <compiler angle="radian"/>
   <option timestep="0.004"/>
   <worldbody>
     <light pos="0 0 2"/>
@@ -123,3 +124,27 @@ def test_record_shows_a_progress_bar_when_asked_and_none_when_quiet(
     code, out, err = _run(["record", "--model", str(arm), "--episodes", "1", "--steps", "20", "--quiet",
                            "--out", str(tmp_path / "log.npz")])  # fmt: skip
     assert (code, err) == (0, "") and out.startswith(f"wrote {tmp_path / 'log.npz'}: 20 rows")
+
+
+def test_record_takes_a_home_pose_of_negative_angles_and_says_when_it_starts_at_a_limit(
+    tmp_path: Path, arm: Path
+) -> None:
+    import numpy as np
+
+    import sysid
+
+    out = tmp_path / "log.npz"
+    code, stdout, err = _run(["record", "--model", str(arm), "--home", "-0.3,-0.5", "--episodes", "1", "--steps", "10",
+                              "--quiet", "--out", str(out)])  # fmt: skip
+    assert (code, err) == (0, "")
+    assert sysid.load_log(out).meta["excitation"]["home"] == [-0.3, -0.5]
+    np.testing.assert_allclose(sysid.load_log(out).qpos[0], [-0.3, -0.5])
+    # 1.49 is inside shoulder's range [-1.5, 1.5] but within 1% of its end: no excitation can keep it clear
+    code, stdout, err = _run(["record", "--model", str(arm), "--home", "1.49,0", "--episodes", "1", "--steps", "10",
+                              "--quiet", "--out", str(out)])  # fmt: skip
+    assert (code, err) == (0, "")
+    assert (
+        "note: joint 'shoulder' starts within 1% of an end of its range (home 1.49, range [-1.5, 1.5]), so the check "
+        "that keeps joints clear of their limits cannot pass; the amplitude was not reduced.\n"
+    ) in stdout
+    assert "not at rest" not in stdout
