@@ -122,7 +122,9 @@ class StreamFactory:
             assert isinstance(entropy, int)
             root = (entropy % (2**63),)
         self.root: tuple[int, ...] = root
-        self._root_key = _root_key(root)
+        # Hashed on first use: a factory made only to fix its root, or replaced by a reset seed before any
+        # stream is started, never needs it (a SeedSequence is most of a factory's cost).
+        self._root_key: np.ndarray | None = None
         self._states: dict[str, dict[str, Any]] = {}
 
     def generator(self, name: str) -> np.random.Generator:
@@ -135,6 +137,8 @@ class StreamFactory:
     def _state(self, name: str) -> dict[str, Any]:
         state = self._states.get(name)
         if state is None:
+            if self._root_key is None:
+                self._root_key = _root_key(self.root)
             # Python ints, not uint64 arrays: numpy's state setter reads each entry, and a Python int is read
             # several times faster than a numpy scalar is made and read (start runs once per block of draws).
             state = self._states[name] = {

@@ -119,8 +119,9 @@ class DmEnvToGym(gym.Env):
             self.observation_space = spaces.Dict(
                 {k: spaces.Box(-np.inf, np.inf, shape=tuple(obs_spec[k].shape), dtype=np.float32) for k in self._keys}
             )
-        self.action_space = _box(env.action_spec())
-        self._action_dtype = env.action_spec().dtype
+        action_spec = env.action_spec()  # a suite env builds it from the model's ranges on every call
+        self.action_space = _box(action_spec)
+        self._action_dtype = action_spec.dtype
         self._physics_error = _physics_error()
         self._last_obs: Any = None
         self._reset_diverged = False

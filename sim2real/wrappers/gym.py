@@ -14,11 +14,13 @@ Example:
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from typing import Any
 
 import gymnasium as gym
 import mujoco
+import numpy as np
 
 from randomizers import Effect, PhysicsRandomizer
 from randomizers.seeding import SeedLike
@@ -62,6 +64,35 @@ def require_physics(env: Any, effects: Sequence[Effect]) -> PhysicsHandle:
     return handle
 
 
+_SCALARS = (str, bytes, int, float, complex, type(None), np.number, np.bool_)
+
+
+def _immutable(value: Any) -> bool:
+    """Whether ``value`` is an immutable value all the way down: scalars, strings, tuples and frozensets of such,
+    frozen dataclasses (distributions, ``Interval``) and frozen effects holding only such. A deep copy of it would
+    be an equal object that nobody can change, so recording it need not copy it.
+
+    Example:
+        >>> from randomizers import Mass, Uniform
+        >>> _immutable((Mass(scale=Uniform(0.8, 1.2), bodies=["arm", "hand"]), (0, 3)))
+        True
+        >>> _immutable([0, 3]), _immutable(np.zeros(2))
+        (False, False)
+    """
+    if isinstance(value, _SCALARS):
+        return True
+    if type(value) in (tuple, frozenset):
+        return all(_immutable(v) for v in value)
+    if isinstance(value, Effect):
+        frozen = bool(getattr(value, "_frozen", False))
+    else:
+        frozen = dataclasses.is_dataclass(value) and not isinstance(value, type) and value.__dataclass_params__.frozen  # type: ignore[attr-defined]
+    state = getattr(value, "__dict__", None)
+    if not frozen or state is None or hasattr(type(value), "__slots__"):
+        return False
+    return all(_immutable(v) for v in state.values())
+
+
 def merge_report(info: dict[str, Any], report: dict[str, Any]) -> None:
     """Puts ``report`` under ``info["sim2real"]``, merging with a report an inner wrapper left there."""
     inner = info.get("sim2real")
@@ -102,8 +133,13 @@ class RandomizePhysics(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """
 
     def __init__(self, env: gym.Env, effects: Sequence[Effect], seed: SeedLike = None) -> None:
-        # Recorded so a spec'd env can be recreated (``env.spec.make()``, gymnasium's checker); effects are values.
-        gym.utils.RecordConstructorArgs.__init__(self, effects=tuple(effects), seed=seed)
+        # Recorded so a spec'd env can be recreated (``env.spec.make()``, gymnasium's checker). Effects are immutable
+        # values: gymnasium's deep copy of them (most of a batched world's wrap) is skipped when nothing in them or
+        # in the seed could change.
+        effects = tuple(effects)
+        gym.utils.RecordConstructorArgs.__init__(
+            self, effects=effects, seed=seed, _disable_deepcopy=_immutable(effects) and _immutable(seed)
+        )
         super().__init__(env)
         self.randomizer = PhysicsRandomizer(effects, seed)
         self._handle = require_physics(env, self.randomizer.effects)
