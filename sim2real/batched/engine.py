@@ -235,7 +235,12 @@ class BatchedEnv:
         self._out = np.zeros((n, self.kernel.obs_dim), np.float32)  # what the policy sees
         self._steps = np.zeros(n, np.int64)
         self._reset_diverged = np.zeros(n, bool)
+        self._stuck = False  # whether some world's reset diverged (its next step ends the episode unstepped)
         self._diverged = np.zeros(n, bool)
+        self._every = np.ones(n, bool)  # read-only: "every world" for the signal models and ADR on a lockstep step
+        self._every.flags.writeable = False
+        self._none = np.zeros(n, bool)
+        self._none.flags.writeable = False
         self._action_dim = int(np.prod(self.envs[0].action_space.shape))
         self.params: dict[str, np.ndarray] = {}
         self._world_params: list[dict[str, float]] = [{} for _ in range(n)]
@@ -297,6 +302,7 @@ class BatchedEnv:
             self._steps[i] = 0
             if self._adr is not None:
                 self._adr.start(i)
+        self._stuck = bool(self._reset_diverged.any())
         self.physics.load(idx)  # the reset worlds' state (and their models' draws) into MuJoCo's batch
         self.kernel.bind(self.models, self.envs)
         keys = sorted({k for p in self._world_params for k in p})
@@ -320,6 +326,50 @@ class BatchedEnv:
         shape = np.shape(actions)
         if shape != (self.num_envs, self._action_dim):
             raise ValueError(f"`actions` must have shape ({self.num_envs}, {self._action_dim}). Received {shape}.")
+        if mask is None and not self._stuck:
+            return self._step_every(actions)
+        return self._step_masked(actions, mask)
+
+    def _step_every(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`step` of every world when no reset left one diverged: the masked step's arithmetic with every mask
+        all True, so without it (no mask built, copied or combined; the same values). A step on which a world's
+        physics raised a warning is finished by the masked step's code."""
+        signals = self._signals
+        if signals is not None:
+            actions = signals.act(actions, self._every, True)
+        actions = np.asarray(actions, dtype=np.float64)
+        physics, kernel, watched = self.physics, self.kernel, self._watched
+        warnings = physics.warnings
+        before = warnings[:, watched].sum(axis=1)
+        qpos, qvel, gathered = physics.qpos, physics.qvel, physics.gathered
+        controls = kernel.controls(actions, qpos, gathered)
+        if self._delayed:
+            self._step_delayed(None, controls)
+        else:
+            physics.step(None, controls)
+        raised = warnings[:, watched].sum(axis=1) > before
+        if self._end_diverged and raised.any():
+            every = np.ones(self.num_envs, bool)
+            return self._finish(every, every.copy(), np.zeros(self.num_envs, bool), True, raised)
+        # Kernels return fresh arrays: the observation is handed out as it is, and the reward and termination of a
+        # step where every world was paid are the kernel's own (np.where over an all-True mask copies them).
+        fresh, reward, terminated = kernel.outputs(qpos, qvel, gathered)
+        np.copyto(self._obs, fresh)
+        self._steps += 1
+        truncated = self._steps >= self.step_limit
+        if self._adr is not None:
+            self._adr.observe(reward, terminated, terminated | truncated, self._every, self._none)
+        if signals is not None:
+            self._out = signals.observe(self._obs, self._every, self._out, True)
+            fresh = self._out.copy()
+        else:
+            np.copyto(self._out, fresh)
+        return fresh, reward, terminated, truncated, np.zeros(self.num_envs, bool)
+
+    def _step_masked(
+        self, actions: np.ndarray, mask: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`step` in general: some worlds masked out, or a diverged reset to end."""
         n = self.num_envs
         active = np.ones(n, bool) if mask is None else np.asarray(mask, dtype=bool).copy()
         everyone = mask is None or bool(active.all())
@@ -333,20 +383,28 @@ class BatchedEnv:
         physics = self.physics
         warnings = physics.warnings
         before = warnings[:, self._watched].sum(axis=1)
-        qpos, qvel, gathered, kernel = physics.qpos, physics.qvel, physics.gathered, self.kernel
+        qpos, gathered, kernel = physics.qpos, physics.gathered, self.kernel
         controls = kernel.controls(actions, qpos, gathered)
         ids = None if active.all() else np.flatnonzero(active).astype(np.int32)
         if self._delayed:
             self._step_delayed(ids, controls)
         else:
             physics.step(ids, controls)
+        raised = warnings[:, self._watched].sum(axis=1) > before
+        return self._finish(active, signalled, stuck, everyone, raised)
+
+    def _finish(
+        self, active: np.ndarray, signalled: np.ndarray, stuck: np.ndarray, everyone: bool, raised: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The rest of a step after the physics: ends, rewards, observations (``active``: the worlds stepped;
+        ``signalled``: those whose env took the step; ``stuck``: those whose step only ends a diverged reset)."""
+        n, kernel, physics, signals = self.num_envs, self.kernel, self.physics, self._signals
         # A warning during the step: MuJoCo reset the world (bad positions, velocities or accelerations) or
         # ran out of room. dm-control raises PhysicsError there and the adapter ends the episode with reward 0; a
         # gymnasium env's own step returns what it computes, and RandomizePhysics ends the episode. Both keep the
         # last observation.
-        raised = warnings[:, self._watched].sum(axis=1) > before
         diverged = active & raised if self._end_diverged else np.zeros(n, bool)
-        fresh, reward, terminated = kernel.outputs(qpos, qvel, gathered)
+        fresh, reward, terminated = kernel.outputs(physics.qpos, physics.qvel, physics.gathered)
         keep = active & ~diverged
         self._obs[keep] = fresh[keep]
         paid = keep if kernel.diverged_reward == "zero" else active
@@ -356,6 +414,7 @@ class BatchedEnv:
         truncated = (keep & (self._steps >= self.step_limit)) | diverged | stuck
         self._diverged |= diverged
         self._reset_diverged &= ~stuck
+        self._stuck = bool(self._reset_diverged.any())
         if self._adr is not None:  # after every world's step, in world order (then the collector's resets)
             self._adr.observe(reward, terminated, terminated | truncated, signalled, stuck)
         if signals is not None:
