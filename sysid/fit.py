@@ -124,6 +124,14 @@ def _latency_ranges(latency: Any, has_sensors: bool) -> dict[str, list[int]]:
     return ranges
 
 
+def _jitter_steps(log: TrajectoryLog) -> float:
+    """How far (in control steps) a CSV log's samples were from the control grid they were interpolated onto."""
+    csv = log.meta.get("csv")
+    if not isinstance(csv, Mapping) or not csv.get("resampled"):
+        return 0.0
+    return float(csv.get("max_jitter_s", 0.0)) / log.control_timestep
+
+
 def _split(
     log: TrajectoryLog, validation: float
 ) -> tuple[list[tuple[int, int, int, int]], list[tuple[int, int, int, int]]]:
@@ -566,6 +574,7 @@ def fit(
         summary.informative,
         contact_count,
         profiles,
+        _jitter_steps(log),
     )
     all_rows = np.unique(np.concatenate(rows))
     index = {int(r_): k for k, r_ in enumerate(all_rows)}

@@ -305,8 +305,13 @@ def assess(
     informative_channels: tuple[str, ...] = (),
     contact_rows: int = 0,
     profiles: tuple[ProfileCheck, ...] = (),
+    jitter: float = 0.0,
 ) -> FitQuality:
     """Runs every check and returns the :class:`FitQuality` with a reason per failure.
+
+    ``jitter`` is the largest offset, in control steps, of a CSV log's samples from the control grid they were
+    interpolated onto (``log.meta["csv"]["max_jitter_s"]`` over the control timestep): the interpolation error is
+    coloured too, so a whiteness failure then names it among the causes.
 
     Example:
         >>> q = assess({"qpos[a]": 20.0, "qpos[b]": 30.0}, {"qpos[a]": 1e-9, "qpos[b]": 1e-6}, ("dof_damping[a]",),
@@ -340,6 +345,12 @@ def assess(
             f"residuals far from white in {len(coloured)} of {len(pvals)} channels (worst {coloured[0]}: Ljung–Box "
             f"p={pvals[coloured[0]]:.2g} < {NOT_WHITE_P:g}/{len(pvals)}): unmodelled dynamics, a wrong latency or "
             "a wrong model"
+            + (
+                f", or the resampling of the CSV's jittery clock (samples up to {jitter:.0%} of a control step off the "
+                "grid, interpolated onto it)"
+                if jitter > 0
+                else ""
+            )
         )
     if at_bounds:
         reasons.append(f"estimates at their search bounds: {', '.join(at_bounds)} (widen `bounds` or check the model)")

@@ -175,3 +175,23 @@ def test_sysid_fit_help_states_the_exit_code_the_command_returns() -> None:
     assert f"Exit {EXIT_FIT_NOT_OK} when the fitted model cannot reproduce the log" in text
     assert f"(exit {EXIT_FIT_NOT_OK}) unless --force" in text
     assert "%%" not in text and "95% intervals" in text
+
+
+def test_a_whiteness_failure_on_a_resampled_csv_names_the_resampling_among_its_causes(tmp_path: Path) -> None:
+    from sysid.fit import _jitter_steps
+    from sysid.quality import assess
+
+    path = tmp_path / "jittery.csv"
+    rows = ["t,yaw,shoulder,elbow,dyaw,dshoulder,delbow,u0,u1,u2"]
+    rows += [f"{0.02 * k + (0.004 if k % 3 == 1 else 0.0)},0,0,0,0,0,0,0,0,0" for k in range(8)]
+    path.write_text("\n".join(rows) + "\n")
+    columns = {"time": "t", "qpos": ["yaw", "shoulder", "elbow"], "qvel": "d*", "ctrl": "u*"}
+    log = load_csv(path, columns, meta=META, model=_model())
+    assert log.meta["csv"]["resampled"] and _jitter_steps(log) == pytest.approx(0.2)
+    coloured = ({"qvel[a]": 40.0}, {"qvel[a]": 1e-6}, (), 10.0, True, 1.0, {"d": 1.0}, 0, 1)
+    (reason,) = [r for r in assess(*coloured, jitter=_jitter_steps(log)).reasons if "far from white" in r]
+    assert reason.endswith(
+        "a wrong model, or the resampling of the CSV's jittery clock (samples up to 20% of a control step off the "
+        "grid, interpolated onto it)"
+    )
+    assert [r for r in assess(*coloured).reasons if r.endswith("a wrong latency or a wrong model")]
