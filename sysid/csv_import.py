@@ -130,6 +130,11 @@ def _resolve_columns(spec: str | Sequence[str], header: list[str], key: str, whe
         if not hits:
             close = difflib.get_close_matches(pattern, header, n=3, cutoff=0.5)
             hint = f" Close matches: {', '.join(repr(c) for c in close)}." if close else ""
+            other = [d for d in (";", "\t", "|") if len(header) == 1 and d in header[0]]
+            if other:
+                hint += (
+                    f" The header looks separated by {other[0]!r}: give delimiter={other[0]!r} (in a column map too)."
+                )
             raise LogError(
                 f"`columns['{key}']` names column {pattern!r}, which {where} does not have.{hint} "
                 f"Received columns: {', '.join(repr(h) for h in header)}."
@@ -175,7 +180,7 @@ def _table(header: list[str], used: list[int], where: str, path: str | os.PathLi
             table = np.full((block.shape[0], len(header)), np.nan)
             table[:, used] = block
             return table
-    with open(path, newline="") as handle:
+    with open(path, newline="", encoding="utf-8-sig") as handle:
         rows = list(csv.reader(handle, delimiter=delimiter))[1:]
     if len(rows) < 2:
         raise LogError(
@@ -410,7 +415,7 @@ def load_csv(
         value = meta.get(key)
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
             raise LogError(f"`meta['{key}']` must be a positive number of seconds. Received {value!r}.")
-    with open(path, newline="") as handle:
+    with open(path, newline="", encoding="utf-8-sig") as handle:  # utf-8-sig: a BOM is not part of the first name
         header = [h.strip() for h in next(csv.reader(handle, delimiter=delimiter), [])]
     index = {key: _resolve_columns(spec, header, key, f"CSV file {where}") for key, spec in columns.items()}
     mapped = {i: key for key, idx in index.items() for i in idx}
