@@ -102,8 +102,11 @@ class ReacherKernel(Kernel):
         xpos = gathered["geom_xpos"]
         d = xpos[:, self._target, :2] - xpos[:, self._finger, :2]
         obs = np.concatenate([qpos, d, qvel], axis=1, dtype=np.float32)
-        dist = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])
-        reward = np.where((dist >= 0.0) & (dist <= self._radii), 1.0, 0.0)  # rewards.tolerance, margin 0
+        squares = d * d
+        dist = np.sqrt(squares[:, 0] + squares[:, 1])
+        # rewards.tolerance with bounds (0, radii) and margin 0: 1.0 where 0 <= dist <= radii, else 0.0. A square
+        # root is never below 0 (and a NaN fails either test), so the upper bound alone decides.
+        reward = (dist <= self._radii).astype(np.float64)
         return obs, reward, np.zeros(len(obs), bool)
 
 
