@@ -149,9 +149,11 @@ DERIVED_FROM["body_iquat"] = DERIVED_FROM["body_ipos"]
 _LOCAL = threading.local()
 _MAX_SCRATCH = 8  # distinct model layouts kept per thread; more clears the cache (a scratch is remade on demand)
 _SIZE_NAMES: list[str] = []  # the integer size fields of MjModel (nq, nv, ..., narena, nbuffer)
+_Key = tuple[tuple[int, ...], int, int, bytes]  # sizes, enable and disable flags, tree sleep policies
+_PRESENT: dict[tuple[int, ...], tuple[str, ...]] = {}  # sizes -> the OUTPUTS a model with them has (non-empty)
 
 
-def _scratch_key(model: mujoco.MjModel) -> tuple[object, ...] | None:
+def _scratch_key(model: mujoco.MjModel) -> _Key | None:
     """What a fresh ``MjData`` of ``model`` depends on, as far as ``mj_setConst`` reads it: the sizes (the layout),
     the flags and sleep policy its reset reads. None for a model whose fresh data depends on more of its values
     (mocap bodies start at ``body_pos``, plugins initialise their own state): those keep a scratch of their own."""
@@ -164,9 +166,9 @@ def _scratch_key(model: mujoco.MjModel) -> tuple[object, ...] | None:
     return sizes, opt.enableflags, opt.disableflags, model.tree_sleep_policy.tobytes()
 
 
-def _shared_scratch(model: mujoco.MjModel, key: tuple[object, ...]) -> mujoco.MjData:
+def _shared_scratch(model: mujoco.MjModel, key: _Key) -> mujoco.MjData:
     """This thread's scratch ``MjData`` for models with ``key`` (made for ``model`` on first use)."""
-    cache: dict[tuple[object, ...], mujoco.MjData] | None = getattr(_LOCAL, "scratch", None)
+    cache: dict[_Key, mujoco.MjData] | None = getattr(_LOCAL, "scratch", None)
     if cache is None:
         cache = _LOCAL.scratch = {}
     data = cache.get(key)
@@ -191,32 +193,37 @@ class SetConst:
 
     def __init__(self, model: mujoco.MjModel, inputs: Iterable[str]) -> None:
         inputs = set(inputs)
-        present = [f for f in OUTPUTS if np.size(getattr(model, f, ())) > 0]
+        self._key = _scratch_key(model)
+        present = None if self._key is None else _PRESENT.get(self._key[0])
+        if present is None:
+            present = tuple(f for f in OUTPUTS if np.size(getattr(model, f, ())) > 0)
+            if self._key is not None:  # which outputs a model has follows from its sizes
+                _PRESENT[self._key[0]] = present
         known = not inputs - DERIVED_FROM.keys()
         derived = {f for i in inputs for f in DERIVED_FROM[i]} if known else set(OUTPUTS)
         self.model = model
         self.derived: tuple[str, ...] = tuple(f for f in present if f in derived)
         self.kept: tuple[str, ...] = tuple(f for f in present if f not in derived)
         self._nominal = {f: getattr(model, f).copy() for f in self.derived}
-        self._saved = {f: np.empty_like(getattr(model, f)) for f in self.kept}
-        self._key = _scratch_key(model)
+        # (the model's array, a buffer for it) per kept output: a model's arrays never move, so the views stay live
+        self._kept = tuple((array, np.empty_like(array)) for array in (getattr(model, f) for f in self.kept))
         # Made now, as a fresh MjData of the model as it is at bind (its mocap bodies at their nominal poses).
         self._scratch = mujoco.MjData(model) if self._key is None else None
 
     def run(self) -> None:
         """``mj_setConst`` on a scratch ``MjData``; the kept outputs hold what they held before."""
-        model, saved, key = self.model, self._saved, self._key
+        model, kept, key = self.model, self._kept, self._key
         scratch = self._scratch if key is None else _shared_scratch(model, key)
-        for f, buf in saved.items():
-            np.copyto(buf, getattr(model, f))
+        for array, buf in kept:
+            np.copyto(buf, array)
         try:
             mujoco.mj_setConst(model, scratch)
         except Exception:
             if key is not None:  # a failed run may leave the scratch's stack marked: the next run starts afresh
                 _LOCAL.scratch.pop(key, None)
             raise
-        for f, buf in saved.items():
-            np.copyto(getattr(model, f), buf)
+        for array, buf in kept:
+            np.copyto(array, buf)
 
     def restore(self) -> None:
         """Writes the nominal snapshot of every derived output back (bitwise)."""
