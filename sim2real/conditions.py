@@ -261,9 +261,9 @@ def measured(source: str | os.PathLike[str] | Mapping[str, Sequence[float]], nam
         if not path.is_file():
             raise FileNotFoundError(f"`source` file {where!r} does not exist.")
         returns = {}
-        with path.open(newline="") as handle:
+        with path.open(newline="", encoding="utf-8-sig") as handle:  # a BOM (Excel) is not part of `policy`
             reader = csv.DictReader(handle)
-            columns = reader.fieldnames or []
+            reader.fieldnames = columns = [c.strip() for c in reader.fieldnames or []]
             if "policy" not in columns or "return" not in columns:
                 raise ValueError(f"{where}: the CSV must have columns `policy` and `return`. Received {columns}.")
             for line, row in enumerate(reader, start=2):

@@ -200,6 +200,21 @@ def _wrap_errors(key: str, fn: Any, *args: Any, **kwargs: Any) -> Any:
         raise SpecError(f"{key}: {text}") from err
 
 
+def _check_measured_names(condition: Condition, policies: Mapping[str, Any], key: str) -> None:
+    """Measured returns filed under a name `policies` does not define ('Hold' for 'hold') would be dropped, and
+    the report would compare the target on the other policies only; refuse them, with the close names."""
+    import difflib
+
+    unknown = sorted(set(condition.returns or {}) - set(policies))
+    if unknown:
+        close = {n: difflib.get_close_matches(n, list(policies), n=1, cutoff=0.5) for n in unknown}
+        hints = "".join(f" ({n!r}: did you mean {c[0]!r}?)" for n, c in close.items() if c)
+        raise SpecError(
+            f"{key}: every policy of the measured returns must be one of `policies` {sorted(policies)}. "
+            f"Received unknown {unknown}.{hints}"
+        )
+
+
 def load_spec(source: str | os.PathLike[str] | Mapping[str, Any]) -> EvaluationSpec:
     """Parses an evaluation spec from a YAML file path, YAML text or a mapping.
 
@@ -251,7 +266,9 @@ def load_spec(source: str | os.PathLike[str] | Mapping[str, Any]) -> EvaluationS
         value = config["real"]
         if isinstance(value, Mapping) and "csv" in value:
             path = Path(str(value["csv"]))
-            conditions.append(_wrap_errors(f"{key}.csv", measured, path if path.is_absolute() else base / path))
+            condition = _wrap_errors(f"{key}.csv", measured, path if path.is_absolute() else base / path)
+            _check_measured_names(condition, policies, f"{key}.csv")
+            conditions.append(condition)
         elif isinstance(value, Mapping) and set(value) <= {"config", "params", "hidden"}:
             effects = _effects_source(value["config"], base, f"{key}.config") if "config" in value else ()
             params = value.get("params")

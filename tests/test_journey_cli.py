@@ -148,3 +148,23 @@ def test_record_takes_a_home_pose_of_negative_angles_and_says_when_it_starts_at_
         "that keeps joints clear of their limits cannot pass; the amplitude was not reduced.\n"
     ) in stdout
     assert "not at rest" not in stdout
+
+
+def test_measured_returns_under_an_unknown_policy_name_are_refused_and_a_bom_is_read(tmp_path: Path, arm: Path) -> None:
+    from sim2real.spec import SpecError, load_spec
+
+    spec = tmp_path / "spec.yaml"
+    spec.write_text(
+        f"model: {arm.name}\nepisodes: 1\nmax_steps: 5\npolicies: {{hold: {{constant: [0.3, -0.5]}}, "
+        "limp: {constant: [0.0, 0.0]}}\nreal: {csv: real.csv}\n"
+    )
+    (tmp_path / "real.csv").write_text("policy,return\nHold,-0.2\nlimp,-1.0\n")
+    with pytest.raises(SpecError) as caught:
+        load_spec(spec)
+    assert str(caught.value) == (
+        f"{spec}: real.csv: every policy of the measured returns must be one of `policies` ['hold', 'limp']. "
+        "Received unknown ['Hold']. ('Hold': did you mean 'hold'?)"
+    )
+    (tmp_path / "real.csv").write_text("policy, return\nhold,-0.2\nlimp,-1.0\n", encoding="utf-8-sig")
+    (real,) = [c for c in load_spec(spec).conditions if c.name == "real"]
+    assert real.returns == {"hold": (-0.2,), "limp": (-1.0,)}
