@@ -561,6 +561,11 @@ def record_log(
         low = 1 if name == "n_substeps" else 0
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
             raise ValueError(f"`{name}` must be an int >= {low}. Received {value!r}.")
+    if obs_latency and not model.nsensordata:  # the log would claim a lag that nothing shows
+        raise ValueError(
+            "`obs_latency` delays the model's sensordata (qpos and qvel are the true state), and this model has no "
+            f"sensors. Received {obs_latency!r}; give 0, or add <sensor> elements to the MJCF."
+        )
     episodes, steps, _ = controls.shape
     sigmas = {key: _noise_for(noise_std, key) for key in ("qpos", "qvel", "sensordata")}
     if any(s > 0 for s in sigmas.values()) and not isinstance(rng, np.random.Generator):

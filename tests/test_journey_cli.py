@@ -168,3 +168,14 @@ def test_measured_returns_under_an_unknown_policy_name_are_refused_and_a_bom_is_
     (tmp_path / "real.csv").write_text("policy, return\nhold,-0.2\nlimp,-1.0\n", encoding="utf-8-sig")
     (real,) = [c for c in load_spec(spec).conditions if c.name == "real"]
     assert real.returns == {"hold": (-0.2,), "limp": (-1.0,)}
+
+
+def test_record_refuses_a_sensor_latency_on_a_model_without_sensors(tmp_path: Path, arm: Path) -> None:
+    out = tmp_path / "log.npz"
+    code, stdout, err = _run(["record", "--model", str(arm), "--obs-latency", "2", "--episodes", "1", "--steps", "10",
+                              "--quiet", "--out", str(out)])  # fmt: skip
+    assert (code, stdout) == (2, "") and not out.exists()
+    assert err == (
+        "sim2real record: error: `obs_latency` delays the model's sensordata (qpos and qvel are the true state), and "
+        "this model has no sensors. Received 2; give 0, or add <sensor> elements to the MJCF.\n"
+    )
