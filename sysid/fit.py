@@ -90,15 +90,16 @@ def _latency_ranges(latency: Any, has_sensors: bool) -> dict[str, list[int]]:
     ranges = {"action": [0], "obs": [0]}
     if latency is None or latency is False:
         return ranges
-    if latency is True:
-        lo, hi = DEFAULT_LATENCY_RANGE
+    if latency is True or (isinstance(latency, (int, np.integer)) and not isinstance(latency, bool) and latency >= 1):
+        lo, hi = DEFAULT_LATENCY_RANGE if latency is True else (0, int(latency))
         ranges["action"] = list(range(lo, hi + 1))
         if has_sensors:
             ranges["obs"] = list(range(lo, hi + 1))
         return ranges
     if not isinstance(latency, Mapping) or not set(latency) <= {"action", "obs"}:
         raise ValueError(
-            "`latency` must be True, False/None, or a mapping with keys 'action' and/or 'obs' to an int (fixed "
+            "`latency` must be True, False/None, an int N >= 1 (True searching 0..N control steps), or a mapping "
+            "with keys 'action' and/or 'obs' to an int (fixed "
             f"delay) or an inclusive (low, high) range of control steps. Received {latency!r}."
         )
     for key, value in latency.items():
@@ -170,7 +171,7 @@ def fit(
     *,
     bounds: Mapping[str, Sequence[float]] | Sequence[Sequence[float]] | None = None,
     initial: Mapping[str, float] | Sequence[float] | None = None,
-    latency: bool | Mapping[str, int | tuple[int, int]] | None = None,
+    latency: bool | int | Mapping[str, int | tuple[int, int]] | None = None,
     substep_latency: bool = True,
     signals: Sequence[str] | None = None,
     horizon: int | Literal["auto"] | None = "auto",
@@ -198,7 +199,9 @@ def fit(
             ``[nominal/10, nominal*10]``.
         initial: starting values ``{address: value}`` or (P,) (default: the model's values).
         latency: None/False (no delays), True (action delay 0–5 control steps, and sensor delay 0–5 when
-            sensors are fitted), or ``{"action": k or (lo, hi), "obs": k or (lo, hi)}``.
+            sensors are fitted), an int ``N`` (the same, searching 0–N), or ``{"action": k or (lo, hi), "obs": k or
+            (lo, hi)}``. A delay estimated at the top of its searched range gets a warning: the true one may be
+            longer.
         substep_latency: refine the action delay to physics-step resolution when a control step has several.
         signals: measured signals in the residual, from ``"qpos"``, ``"qvel"``, ``"sensordata"`` (default all
             present in the log).
@@ -497,6 +500,16 @@ def fit(
     summary = estimate_statistics(final, st.theta, r, jac, lower, upper, fitted, unknowns)
     cost, s2, stderr, ci95 = summary.cost, summary.s2, summary.stderr, summary.ci95
     warns = list(summary.warnings)
+    for side, chosen, searched in (("action", st.delay / n_sub, ranges["action"]), ("obs", st.obs, ranges["obs"])):
+        if len(searched) > 1 and chosen >= max(searched):  # the cost may still fall beyond the range searched
+            seconds = convert_time(
+                max(searched), "control_steps", "seconds", timestep=model.opt.timestep, substeps=n_sub
+            )
+            warns.append(
+                f"the {side} latency is the largest searched ({max(searched)} control steps, {seconds:.4g} s): the true "
+                f"delay may be longer; search further with latency={2 * max(searched)} (sysid fit --latency-max "
+                f"{2 * max(searched)})."
+            )
     if max_iter > 0 and not converged:
         warns.append(f"the local stage stopped after {iterations} iterations without meeting its tolerances.")
     profiles: tuple[ProfileCheck, ...] = ()

@@ -179,3 +179,21 @@ def test_record_refuses_a_sensor_latency_on_a_model_without_sensors(tmp_path: Pa
         "sim2real record: error: `obs_latency` delays the model's sensordata (qpos and qvel are the true state), and "
         "this model has no sensors. Received 2; give 0, or add <sensor> elements to the MJCF.\n"
     )
+
+
+def test_a_latency_at_the_top_of_its_searched_range_is_flagged_and_latency_max_widens_it(
+    tmp_path: Path, arm: Path
+) -> None:
+    log, fit = tmp_path / "log.npz", tmp_path / "fit.json"
+    code, _, err = _run(["record", "--model", str(arm), "--latency", "3", "--obs-noise", "1e-3", "--episodes", "1",
+                         "--steps", "80", "--quiet", "--out", str(log)])  # fmt: skip
+    assert (code, err) == (0, "")
+    argv = ["sysid", "fit", str(log), "--model", str(arm), "--params", "dof_damping[elbow]", "--quiet",
+            "--out", str(fit)]  # fmt: skip
+    _, out, _ = _run([*argv, "--latency-max", "2"])
+    assert (
+        "warning: the action latency is the largest searched (2 control steps, 0.04 s): the true delay may be longer; "
+        "search further with latency=4 (sysid fit --latency-max 4)." in out
+    )
+    code, out, err = _run([*argv, "--latency-max", "4"])
+    assert code == 0 and "latency (s): action=0.06" in out and "largest searched" not in out

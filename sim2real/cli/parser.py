@@ -195,7 +195,17 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument(
         "--params", required=True, help="comma-separated addresses, e.g. 'dof_damping[*],geom_friction[*][0]'"
     )
-    fit.add_argument("--latency", action="store_true", help="also estimate the action latency")
+    fit.add_argument(
+        "--latency",
+        action="store_true",
+        help="also estimate the action latency (and the sensor latency when the log has sensors): 0-5 control steps",
+    )
+    fit.add_argument(
+        "--latency-max",
+        type=int_at_least(1),
+        metavar="N",
+        help="estimate the latencies over 0-N control steps (implies --latency; the fit warns when its estimate is N)",
+    )
     fit.add_argument("--out", default="result.json", help="JSON output (default: %(default)s)")
     fit.add_argument("--report", help="also write an HTML page with the summary and the fit figure")
     fit.add_argument(

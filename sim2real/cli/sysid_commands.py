@@ -118,6 +118,14 @@ def _load(path: str, columns: str | None, model: Any, substeps: int | None) -> A
     return sysid.load_log(path, model=model)
 
 
+def _latency(args: argparse.Namespace) -> int | bool | None:
+    """``sysid.fit``'s ``latency``: the searched range's top from ``--latency-max``, else the default with
+    ``--latency``."""
+    if args.latency_max is not None:
+        return int(args.latency_max)
+    return True if args.latency else None
+
+
 def _fit_report_html(result: Any, task: str, log_path: str) -> str:
     import base64
     import html
@@ -150,9 +158,7 @@ def cmd_sysid(args: argparse.Namespace, out: TextIO) -> int:
     try:
         log = _load(args.log, args.columns, handle.model, handle.substeps)
         params = [p.strip() for p in args.params.split(",") if p.strip()]
-        result = sysid.fit(
-            log, handle.model, params, latency=True if args.latency else None, seed=args.seed, progress=not args.quiet
-        )
+        result = sysid.fit(log, handle.model, params, latency=_latency(args), seed=args.seed, progress=not args.quiet)
     except FileNotFoundError as err:
         raise UsageError(f"cannot read {err}") from err
     except (TypeError, ValueError) as err:  # LogError is a ValueError
