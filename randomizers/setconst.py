@@ -205,25 +205,26 @@ class SetConst:
         self.derived: tuple[str, ...] = tuple(f for f in present if f in derived)
         self.kept: tuple[str, ...] = tuple(f for f in present if f not in derived)
         self._nominal = {f: getattr(model, f).copy() for f in self.derived}
-        # (the model's array, a buffer for it) per kept output: a model's arrays never move, so the views stay live
-        self._kept = tuple((array, np.empty_like(array)) for array in (getattr(model, f) for f in self.kept))
+        # Buffers by name, the arrays read off the model on every run: views kept here would not follow the model
+        # through a pickle or a deep copy of the randomiser.
+        self._saved = {f: np.empty_like(getattr(model, f)) for f in self.kept}
         # Made now, as a fresh MjData of the model as it is at bind (its mocap bodies at their nominal poses).
         self._scratch = mujoco.MjData(model) if self._key is None else None
 
     def run(self) -> None:
         """``mj_setConst`` on a scratch ``MjData``; the kept outputs hold what they held before."""
-        model, kept, key = self.model, self._kept, self._key
+        model, saved, key = self.model, self._saved, self._key
         scratch = self._scratch if key is None else _shared_scratch(model, key)
-        for array, buf in kept:
-            np.copyto(buf, array)
+        for f, buf in saved.items():
+            np.copyto(buf, getattr(model, f))
         try:
             mujoco.mj_setConst(model, scratch)
         except Exception:
             if key is not None:  # a failed run may leave the scratch's stack marked: the next run starts afresh
                 _LOCAL.scratch.pop(key, None)
             raise
-        for array, buf in kept:
-            np.copyto(array, buf)
+        for f, buf in saved.items():
+            np.copyto(getattr(model, f), buf)
 
     def restore(self) -> None:
         """Writes the nominal snapshot of every derived output back (bitwise)."""

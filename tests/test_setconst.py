@@ -5,6 +5,7 @@ Also the zero-mass validation of :class:`randomizers.Mass` (zero mass is singula
 from __future__ import annotations
 
 import copy
+import pickle
 import re
 import threading
 from pathlib import Path
@@ -276,3 +277,21 @@ def test_the_scratch_is_shared_by_one_layout_per_thread_and_never_with_mocap() -
     welded = mujoco.MjModel.from_xml_string(ARM_XML)  # a mocap body starts at its body_pos: its own scratch
     assert setconst._scratch_key(welded) is None
     assert isinstance(setconst.SetConst(welded, {"body_mass"})._scratch, mujoco.MjData)
+
+
+@pytest.mark.parametrize("xml", [ARM_XML, FREE_ARM_XML], ids=["own-scratch", "shared-scratch"])
+def test_a_copied_randomizer_keeps_what_its_own_model_holds(xml: str) -> None:
+    # A pickled or deep-copied randomiser runs mj_setConst on its own copy of the model, and the outputs it keeps
+    # are those of that copy (here a run-time edit of the camera pose, which mj_setConst would recompute).
+    model = mujoco.MjModel.from_xml_string(xml)
+    r = PhysicsRandomizer([Mass(scale=Uniform(0.5, 2.0))], seed=0)
+    r.bind(model, mujoco.MjData(model))
+    for twin in (pickle.loads(pickle.dumps(r)), copy.deepcopy(r)):
+        own = twin.model
+        assert own is not None and own is not model
+        own.cam_pos0[0] += 0.25
+        edited = own.cam_pos0.copy()
+        twin.begin_episode()
+        twin.apply()
+        assert own.cam_pos0.tobytes() == edited.tobytes()
+        twin.restore_nominal()
