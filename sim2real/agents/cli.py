@@ -25,12 +25,12 @@ __all__ = ["build_parser", "cli_train"]
 
 def build_parser(prog: str = "sim2real train") -> argparse.ArgumentParser:
     """The argument parser of ``sim2real train``."""
-    parser = argparse.ArgumentParser(
+    from sim2real.cli._common import OneLineParser, add_source_arguments
+
+    parser = OneLineParser(
         prog=prog,
         description="Train a PPO or SAC policy with TorchRL (optionally under randomisation) and save a checkpoint.",
     )
-    from sim2real.cli._common import add_source_arguments
-
     add_source_arguments(parser, task_help="task id, e.g. sim2real/arm-reach (see `sim2real tasks`)")
     parser.add_argument("--algo", choices=("ppo", "sac"), default="ppo", help="algorithm (default ppo)")
     parser.add_argument("--frames", type=int, default=None, help="environment steps (overrides the agent config)")

@@ -17,11 +17,43 @@ from __future__ import annotations
 import argparse
 import os
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NoReturn
 
 from sim2real.sources import Source, SourceError, resolve_source
 
-__all__ = ["UsageError", "add_source_arguments", "check_outputs", "int_at_least", "source_of", "writing"]
+__all__ = [
+    "OneLineParser",
+    "UsageError",
+    "add_source_arguments",
+    "check_outputs",
+    "int_at_least",
+    "source_of",
+    "writing",
+]
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line on stderr and exit 2, like every other failure of a
+    ``sim2real`` command (argparse prints the whole usage block first); ``--help`` still prints it.
+
+    Example:
+        >>> import contextlib, io
+        >>> parser = OneLineParser(prog="sim2real record")
+        >>> _ = parser.add_argument("--steps", type=int)
+        >>> err = io.StringIO()
+        >>> with contextlib.redirect_stderr(err):
+        ...     try:
+        ...         parser.parse_args(["--steps", "x"])
+        ...     except SystemExit as exit_:
+        ...         print(exit_.code)
+        2
+        >>> err.getvalue()
+        "sim2real record: error: argument --steps: invalid int value: 'x'. See `sim2real record --help`.\\n"
+    """
+
+    def error(self, message: str) -> NoReturn:
+        text = message if message.endswith(".") else f"{message}."
+        self.exit(2, f"{self.prog}: error: {text} See `{self.prog} --help`.\n")
 
 
 class UsageError(Exception):

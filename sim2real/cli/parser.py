@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 
 import sim2real
-from sim2real.cli._common import add_source_arguments, int_at_least
+from sim2real.cli._common import OneLineParser, add_source_arguments, int_at_least
 from sim2real.cli.sysid_commands import EXIT_FIT_NOT_OK
 
 __all__ = ["ARM_REACH", "build_parser", "join_negative_values"]
@@ -46,7 +46,7 @@ ARM_REACH = "sim2real/arm-reach"
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="sim2real",
         description=(
             "sim2real: make robot policies survive the jump from MuJoCo simulation to the real world "
