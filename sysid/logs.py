@@ -66,6 +66,7 @@ __all__ = [
     "LogError",
     "TrajectoryLog",
     "channel_names",
+    "check_log_path",
     "load_log",
     "log_format",
     "record_log",
@@ -363,6 +364,21 @@ def _check_model(log: TrajectoryLog, model: mujoco.MjModel) -> None:
         )
 
 
+def check_log_path(path: str | os.PathLike[str], argument: str = "`path`") -> Path:
+    """The path :func:`save_log` writes, checked (a ``.npz`` name); callers check it before recording.
+
+    Example:
+        >>> check_log_path("run.dat", "--out")
+        Traceback (most recent call last):
+        ...
+        ValueError: --out must end in '.npz' (a trajectory log). Received 'run.dat'.
+    """
+    target = Path(path)
+    if target.suffix != ".npz":
+        raise ValueError(f"{argument} must end in '.npz' (a trajectory log). Received {str(path)!r}.")
+    return target
+
+
 def save_log(log: TrajectoryLog, path: str | os.PathLike[str]) -> None:
     """Writes ``log`` as an uncompressed ``.npz`` atomically (temporary file in the same folder, then rename).
 
@@ -372,9 +388,7 @@ def save_log(log: TrajectoryLog, path: str | os.PathLike[str]) -> None:
     """
     if not isinstance(log, TrajectoryLog):
         raise TypeError(f"`log` must be a TrajectoryLog. Received {type(log).__name__}.")
-    target = Path(path)
-    if target.suffix != ".npz":
-        raise ValueError(f"`path` must end in '.npz'. Received {str(path)!r}.")
+    target = check_log_path(path)
     arrays = log.to_arrays()
 
     def write(tmp: str) -> None:

@@ -200,3 +200,19 @@ def test_a_latency_at_the_top_of_its_searched_range_is_flagged_and_latency_max_w
     )
     code, out, err = _run([*argv, "--latency-max", "4"])
     assert code == 0 and "latency (s): action=0.06" in out and "largest searched" not in out
+
+
+def test_record_refuses_an_out_that_is_not_a_npz_before_recording(tmp_path: Path, arm: Path, monkeypatch) -> None:
+    import sim2real.recording
+
+    def fail(*args: object, **kwargs: object) -> None:
+        raise AssertionError("recorded before the output path was checked")
+
+    monkeypatch.setattr(sim2real.recording, "record", fail)
+    code, out, err = _run(["record", "--model", str(arm), "--out", str(tmp_path / "log.dat")])
+    assert (code, out) == (2, "")
+    assert (
+        err
+        == f"sim2real record: error: --out must end in '.npz' (a trajectory log). Received {str(tmp_path / 'log.dat')!r}.\n"
+    )
+    assert list(tmp_path.iterdir()) == [arm]

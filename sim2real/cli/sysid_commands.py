@@ -41,6 +41,10 @@ def cmd_record(args: argparse.Namespace, out: TextIO) -> int:
     from sim2real.recording import record
 
     check_outputs({"--out": args.out})
+    try:
+        sysid.check_log_path(args.out, "--out")  # before the recording, not after it
+    except ValueError as err:
+        raise UsageError(str(err)) from err
     source = source_of(args)
     try:
         home = parse_home(args.home)
