@@ -91,7 +91,8 @@ def _read(source: str | os.PathLike[str] | Mapping[str, Any]) -> tuple[Any, str]
         if isinstance(source, os.PathLike) or ("\n" not in text and text.endswith((".yaml", ".yml"))):
             path = Path(source)
             if not path.is_file():
-                raise FileNotFoundError(f"`config` file {str(path)!r} does not exist.")
+                state = "is a folder, not a file" if path.is_dir() else "does not exist"
+                raise FileNotFoundError(f"`config` file {str(path)!r} {state}.")
             where = str(path)
             text = path.read_text()
         try:

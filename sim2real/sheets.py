@@ -98,6 +98,8 @@ def contact_sheet(
     size = check_size(size)
     if out is not None:
         check_file(out, "`out`")  # before any rendering: a path that cannot be written costs nothing
+        if Path(out).suffix.lower() != ".png":  # the sheet is PNG bytes: a 'sheet.jpg' would hold a PNG
+            raise ValueError(f"`out` must end in '.png' (the sheet is a PNG image). Received {str(out)!r}.")
     chosen = _effects(effects)
     env = wrap(make(task, pixels=True, size=size, camera=camera), *chosen, seed=seed)
     frames, params = [], []

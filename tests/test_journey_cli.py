@@ -216,3 +216,16 @@ def test_record_refuses_an_out_that_is_not_a_npz_before_recording(tmp_path: Path
         == f"sim2real record: error: --out must end in '.npz' (a trajectory log). Received {str(tmp_path / 'log.dat')!r}.\n"
     )
     assert list(tmp_path.iterdir()) == [arm]
+
+
+def test_visualize_refuses_a_non_png_name_and_a_config_folder_is_named_as_such(tmp_path: Path, arm: Path) -> None:
+    code, out, err = _run(
+        ["visualize", "--model", str(arm), "--n", "1", "--size", "8", "--out", str(tmp_path / "s.jpg")]
+    )
+    assert (code, out) == (2, "") and not (tmp_path / "s.jpg").exists()
+    assert (
+        err
+        == f"sim2real visualize: error: `out` must end in '.png' (the sheet is a PNG image). Received {str(tmp_path / 's.jpg')!r}.\n"
+    )
+    with pytest.raises(FileNotFoundError, match=r"`config` file .* is a folder, not a file\."):
+        load_config(tmp_path)
