@@ -418,7 +418,19 @@ def load_csv(
     with open(path, newline="", encoding="utf-8-sig") as handle:  # utf-8-sig: a BOM is not part of the first name
         header = [h.strip() for h in next(csv.reader(handle, delimiter=delimiter), [])]
     index = {key: _resolve_columns(spec, header, key, f"CSV file {where}") for key, spec in columns.items()}
-    mapped = {i: key for key, idx in index.items() for i in idx}
+    mapped: dict[int, str] = {}
+    for key, idx in index.items():
+        for i in idx:
+            if mapped.get(i, key) == key:
+                mapped[i] = key
+            elif "sensordata" in (key, mapped[i]):  # a joint sensor logs what qpos/qvel log: one column feeds both
+                mapped[i] = mapped[i] if key == "sensordata" else key
+            else:  # a pattern that also catches another key's columns ('j_*' for qpos takes the velocities too)
+                raise LogError(
+                    f"`columns` maps CSV column {header[i]!r} to both {mapped[i]!r} and {key!r}; a column feeds one "
+                    f"key (only sensordata may share one; narrow the pattern, e.g. '*_deg'). Received "
+                    f"columns={dict(columns)!r}."
+                )
     table = _table(header, sorted(mapped), where, path, delimiter)
     unit_of = _per_column(units, "units", header, mapped, f"CSV file {where}")
     factors = np.ones(len(header))

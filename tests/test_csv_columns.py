@@ -195,3 +195,14 @@ def test_a_whiteness_failure_on_a_resampled_csv_names_the_resampling_among_its_c
         "grid, interpolated onto it)"
     )
     assert [r for r in assess(*coloured).reasons if r.endswith("a wrong latency or a wrong model")]
+
+
+def test_a_pattern_that_also_takes_another_keys_columns_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "driver.csv"
+    _write(path)
+    columns = {"time": "stamp_ms", "qpos": "*_d*", "qvel": [f"{j}_dps" for j in JOINTS],
+               "ctrl": [f"cmd_{j}" for j in JOINTS]}  # fmt: skip
+    with pytest.raises(
+        LogError, match=r"maps CSV column 'yaw_dps' to both 'qpos' and 'qvel'; a column feeds one key"
+    ):
+        load_csv(path, columns, meta=META, model=_model(), units=UNITS)
