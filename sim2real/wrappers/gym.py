@@ -134,7 +134,7 @@ class RandomizePhysics(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def __init__(self, env: gym.Env, effects: Sequence[Effect], seed: SeedLike = None) -> None:
         # Recorded so a spec'd env can be recreated (``env.spec.make()``, gymnasium's checker). Effects are immutable
-        # values: gymnasium's deep copy of them (most of a batched world's wrap) is skipped when nothing in them or
+        # values: gymnasium's deep copy of them (~35 us of a batched world's wrap) is skipped when nothing in them or
         # in the seed could change.
         effects = tuple(effects)
         gym.utils.RecordConstructorArgs.__init__(
