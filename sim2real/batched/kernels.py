@@ -71,7 +71,8 @@ class Kernel:
         return actions
 
     def outputs(self, qpos: np.ndarray, qvel: np.ndarray, gathered: dict[str, np.ndarray]) -> Outputs:
-        """``(obs, reward, terminated)``: ``(N, obs_dim)`` float32, ``(N,)`` float64, ``(N,)`` bool."""
+        """``(obs, reward, terminated)``: ``(N, obs_dim)`` float32, ``(N,)`` float64, ``(N,)`` bool, fresh arrays (a
+        lockstep step hands them to the caller as they are)."""
         raise NotImplementedError
 
 
