@@ -24,7 +24,7 @@ from collections.abc import Sequence
 
 import mujoco
 
-__all__ = ["FRICTION_AXES", "GRAVITY_AXES", "Address", "element_names", "select"]
+__all__ = ["FRICTION_AXES", "GRAVITY_AXES", "Address", "element_names", "joint_dofs", "select"]
 
 #: The components of ``geom_friction``, by column: ``geom_friction[g][i]`` is ``FRICTION_AXES[i]``.
 FRICTION_AXES: tuple[str, ...] = ("sliding", "torsional", "rolling")
@@ -168,3 +168,20 @@ def select(
         for i in hits:
             chosen[i] = names[i]
     return sorted(chosen.items())
+
+
+def joint_dofs(model: mujoco.MjModel, joint: int) -> int:
+    """The degrees of freedom of joint ``joint``: 6 for a free joint, 3 for a ball joint, else 1.
+
+    ``model.jnt_type`` holds numpy ints, which do not match mujoco's enum members as dict keys, so the type is
+    compared as an int (a dict keyed by the enum once gave a free joint one dof, and an effect on ``dof_damping``
+    reached only the first of its six).
+
+    Example:
+        >>> m = mujoco.MjModel.from_xml_string('<mujoco><worldbody><body><freejoint/><geom size=".1"/></body>'
+        ...                                    '<body><joint type="ball"/><geom size=".1"/></body></worldbody></mujoco>')
+        >>> [joint_dofs(m, j) for j in range(m.njnt)]
+        [6, 3]
+    """
+    kind = int(model.jnt_type[joint])
+    return 6 if kind == int(mujoco.mjtJoint.mjJNT_FREE) else 3 if kind == int(mujoco.mjtJoint.mjJNT_BALL) else 1

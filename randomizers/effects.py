@@ -34,7 +34,7 @@ from typing import Any, ClassVar, Literal, NamedTuple
 import mujoco
 import numpy as np
 
-from randomizers.addressing import FRICTION_AXES, GRAVITY_AXES, Address, select
+from randomizers.addressing import FRICTION_AXES, GRAVITY_AXES, Address, joint_dofs, select
 from randomizers.bindings import Binding, _GainBinding, _MassBinding, _SetConstBinding
 from randomizers.distributions import Distribution, as_distribution
 
@@ -407,10 +407,9 @@ class _DofEffect(ArrayEffect):
 
     def _targets(self, model: mujoco.MjModel) -> tuple[list[int], list[int] | None, list[Address]]:
         chosen = select(model, self.kind, self.patterns, self.selector)
-        ndof = {mujoco.mjtJoint.mjJNT_FREE: 6, mujoco.mjtJoint.mjJNT_BALL: 3}
         rows, addresses = [], []
         for jid, jname in chosen:
-            count = ndof.get(model.jnt_type[jid], 1)
+            count = joint_dofs(model, jid)
             start = int(model.jnt_dofadr[jid])
             for k in range(count):
                 rows.append(start + k)

@@ -36,7 +36,7 @@ from typing import Any, Literal
 import mujoco
 import numpy as np
 
-from randomizers.addressing import GRAVITY_AXES, Address, element_names, select
+from randomizers.addressing import GRAVITY_AXES, Address, element_names, joint_dofs, select
 from randomizers.com import BodyComOffset
 from randomizers.distributions import Distribution
 from randomizers.effects import (
@@ -77,7 +77,6 @@ _RAW_KINDS = {
     "actuator_": "actuator",
     "site_": "site",
 }
-_DOF_COUNT = {mujoco.mjtJoint.mjJNT_FREE: 6, mujoco.mjtJoint.mjJNT_BALL: 3}
 
 
 #: The registry of effects that own a model field: a new physics effect is its class plus one line here (YAML
@@ -214,7 +213,7 @@ def _raw_binding(model: mujoco.MjModel, address: Address) -> _RawBinding:
     names: list[Address] = []
     for eid, name in select(model, kind, address.element, "params"):
         if address.field.startswith("dof_"):
-            count = _DOF_COUNT.get(model.jnt_type[eid], 1)
+            count = joint_dofs(model, eid)
             rows.extend(int(model.jnt_dofadr[eid]) + k for k in range(count))
             names.extend(Address(address.field, name, k if count > 1 else None) for k in range(count))
         else:

@@ -58,6 +58,7 @@ import mujoco.rollout
 import numpy as np
 
 from noise_models.timing import convert_time
+from randomizers.addressing import joint_dofs
 from randomizers.files import atomic_write
 
 __all__ = [
@@ -330,14 +331,13 @@ after time[1]=0.02.
 def _layout(model: mujoco.MjModel, key: str) -> str:
     """What a ``qpos``/``qvel`` row of ``model`` holds, when some joint is not one column (a free body beside the
     arm, a ball joint): the width a driver that logs only the arm's hinges falls short by."""
-    joint = mujoco.mjtJoint
-    kinds = {int(joint.mjJNT_FREE): ("free", 7, 6), int(joint.mjJNT_BALL): ("ball", 4, 3)}
     parts = []
     for j in range(model.njnt):
-        if int(model.jnt_type[j]) in kinds:
-            kind, nq, nv = kinds[int(model.jnt_type[j])]
+        dofs = joint_dofs(model, j)
+        if dofs > 1:
             name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or f"#{j}"
-            parts.append(f"{kind} joint {name!r} ({nq if key == 'qpos' else nv})")
+            kind = "free" if dofs == 6 else "ball"
+            parts.append(f"{kind} joint {name!r} ({dofs + 1 if key == 'qpos' else dofs})")
     if key not in ("qpos", "qvel") or not parts:
         return ""
     return (
@@ -494,12 +494,10 @@ def channel_names(model: mujoco.MjModel) -> dict[str, list[str]]:
     """
     qpos: list[str] = []
     qvel: list[str] = []
-    nq_of = {mujoco.mjtJoint.mjJNT_FREE: 7, mujoco.mjtJoint.mjJNT_BALL: 4}
-    nv_of = {mujoco.mjtJoint.mjJNT_FREE: 6, mujoco.mjtJoint.mjJNT_BALL: 3}
     for j in range(model.njnt):
         name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or f"#{j}"
-        kq = nq_of.get(model.jnt_type[j], 1)
-        kv = nv_of.get(model.jnt_type[j], 1)
+        kv = joint_dofs(model, j)  # a free joint once got one name for its 7 qpos columns (see joint_dofs)
+        kq = kv + 1 if kv > 1 else 1  # free and ball joints add a quaternion's fourth number
         qpos += [f"qpos[{name}]"] if kq == 1 else [f"qpos[{name}][{k}]" for k in range(kq)]
         qvel += [f"qvel[{name}]"] if kv == 1 else [f"qvel[{name}][{k}]" for k in range(kv)]
     ctrl = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, i) or f"#{i}" for i in range(model.nu)]

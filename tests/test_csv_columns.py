@@ -202,7 +202,5 @@ def test_a_pattern_that_also_takes_another_keys_columns_is_refused(tmp_path: Pat
     _write(path)
     columns = {"time": "stamp_ms", "qpos": "*_d*", "qvel": [f"{j}_dps" for j in JOINTS],
                "ctrl": [f"cmd_{j}" for j in JOINTS]}  # fmt: skip
-    with pytest.raises(
-        LogError, match=r"maps CSV column 'yaw_dps' to both 'qpos' and 'qvel'; a column feeds one key"
-    ):
+    with pytest.raises(LogError, match=r"maps CSV column 'yaw_dps' to both 'qpos' and 'qvel'; a column feeds one key"):
         load_csv(path, columns, meta=META, model=_model(), units=UNITS)
