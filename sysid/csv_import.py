@@ -72,7 +72,17 @@ UNITS: dict[str, tuple[str, float]] = {
     "m/s": ("velocity", 1.0),
     "mm/s": ("velocity", 1e-3),
 }
-_KIND_OF_KEY = {"time": ("time",), "qpos": ("position",), "qvel": ("velocity",)}
+#: The unit kinds each key's columns take: a servo's command or a sensor is a position or a velocity (in degrees, say),
+#: never a time; an episode index takes none.
+_KIND_OF_KEY = {
+    "time": ("time",),
+    "qpos": ("position",),
+    "qvel": ("velocity",),
+    "ctrl": ("position", "velocity"),
+    "sensordata": ("position", "velocity"),
+    "act": ("position", "velocity"),
+    "episode": (),
+}
 _KEYS = ("time", "qpos", "qvel", "ctrl", "sensordata", "episode", "act")
 _STATE_KEYS = ("qpos", "qvel", "sensordata", "act")
 _GAP = 1.5  # a spacing over this many control steps is a gap (dropped rows)
@@ -439,8 +449,8 @@ def load_csv(
             raise LogError(f"`units` of column {header[i]!r} must be one of {list(UNITS)}. Received {unit!r}.")
         kind, factor = UNITS[unit]
         allowed = _KIND_OF_KEY.get(mapped[i])
-        if mapped[i] == "episode" or (allowed is not None and kind not in allowed):
-            fits = [u for u, (k, _) in UNITS.items() if allowed is not None and k in allowed]
+        if allowed is not None and kind not in allowed:
+            fits = [u for u, (k, _) in UNITS.items() if k in allowed]
             raise LogError(
                 f"`units` of column {header[i]!r} (mapped to {mapped[i]}) must be one of {fits or 'none'}. "
                 f"Received {unit!r} (a {kind} unit)."

@@ -204,3 +204,14 @@ def test_a_pattern_that_also_takes_another_keys_columns_is_refused(tmp_path: Pat
                "ctrl": [f"cmd_{j}" for j in JOINTS]}  # fmt: skip
     with pytest.raises(LogError, match=r"maps CSV column 'yaw_dps' to both 'qpos' and 'qvel'; a column feeds one key"):
         load_csv(path, columns, meta=META, model=_model(), units=UNITS)
+
+
+def test_a_time_unit_on_commands_is_refused_and_degrees_on_servo_commands_convert(tmp_path: Path) -> None:
+    path = tmp_path / "driver.csv"
+    _write(path)
+    columns = {"time": "stamp_ms", "qpos": [f"{j}_deg" for j in JOINTS], "qvel": [f"{j}_dps" for j in JOINTS],
+               "ctrl": [f"cmd_{j}" for j in JOINTS]}  # fmt: skip
+    with pytest.raises(LogError, match=r"`units` of column 'cmd_yaw' \(mapped to ctrl\) must be one of \['rad', 'deg'"):
+        load_csv(path, columns, meta=META, model=_model(), units={**UNITS, "cmd_*": "ms"})
+    log = load_csv(path, columns, meta=META, model=_model(), units={**UNITS, "cmd_*": "deg"})
+    np.testing.assert_allclose(log.ctrl[0], np.radians([0.0, 0.01, 0.02]))
