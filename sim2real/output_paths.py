@@ -39,6 +39,7 @@ __all__ = [
     "check_distinct",
     "check_file",
     "check_folder",
+    "check_not_inputs",
     "free_folder",
     "publish_folder",
     "staging_folder",
@@ -154,6 +155,35 @@ def check_distinct(outputs: Mapping[str, str | os.PathLike[str]]) -> None:
         if key in seen:
             raise OutputPathError(f"{argument} must differ from {seen[key]}. Received {_text(path)!r} for both.")
         seen[key] = argument
+
+
+def check_not_inputs(
+    outputs: Mapping[str, str | os.PathLike[str]], inputs: Mapping[str, str | os.PathLike[str] | None]
+) -> None:
+    """Checks that no output of a command is one of its input files (argument -> path), which the command would
+    overwrite: ``sysid fit log.npz --out log.npz`` replaced the log with the fit's JSON, ``--export robot.xml`` the
+    MJCF.
+
+    Example:
+        >>> check_not_inputs({"--out": "a/../log.npz"}, {"`log`": "log.npz", "--model": None})
+        Traceback (most recent call last):
+        ...
+        sim2real.output_paths.OutputPathError: --out must not be the input `log`, which it would overwrite. Received 'a/../log.npz' for both.
+    """
+
+    def entry(path: str | os.PathLike[str]) -> str:
+        # The directory entry the atomic rename replaces: its folder resolved (another spelling, a linked folder),
+        # not its last component (renaming onto a symlink or a hard link replaces that entry, not the target).
+        text = os.path.abspath(_text(path))
+        return os.path.join(os.path.realpath(os.path.dirname(text)), os.path.basename(text))
+
+    for argument, path in outputs.items():
+        for source, given in inputs.items():
+            if given is not None and entry(path) == entry(given):
+                raise OutputPathError(
+                    f"{argument} must not be the input {source}, which it would overwrite. Received {_text(path)!r} for "
+                    "both."
+                )
 
 
 def free_folder(path: str | os.PathLike[str]) -> Path:

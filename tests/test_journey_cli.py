@@ -229,3 +229,27 @@ def test_visualize_refuses_a_non_png_name_and_a_config_folder_is_named_as_such(t
     )
     with pytest.raises(FileNotFoundError, match=r"`config` file .* is a folder, not a file\."):
         load_config(tmp_path)
+
+
+def test_no_output_may_overwrite_an_input_file(tmp_path: Path, arm: Path) -> None:
+    log = tmp_path / "log.npz"
+    assert (
+        _run(["record", "--model", str(arm), "--episodes", "1", "--steps", "10", "--quiet", "--out", str(log)])[0] == 0
+    )
+    before = {p: p.read_bytes() for p in (arm, log)}
+    fit = ["sysid", "fit", str(log), "--model", str(arm), "--params", "dof_damping[elbow]", "--quiet"]
+    spelled = str(tmp_path / "sub" / ".." / arm.name)  # another spelling of the MJCF
+    cases = [
+        ([*fit, "--out", str(log)], "sysid", "--out", "the input `log`", str(log)),
+        ([*fit, "--out", str(tmp_path / "r.json"), "--export", spelled], "sysid", "--export", "the input --model", spelled),
+        (["train", "--model", str(arm), "--no-log", "--quiet", "--out", str(arm)], "train", "--out", "the input --model", str(arm)),
+    ]  # fmt: skip
+    for argv, command, option, source, path in cases:
+        code, out, err = _run(argv)
+        assert (code, out) == (2, ""), argv
+        assert (
+            err
+            == f"sim2real {command}: error: {option} must not be {source}, which it would overwrite. Received {path!r} for both.\n"
+        )
+    assert {p: p.read_bytes() for p in (arm, log)} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["log.npz", "my arm.xml"]

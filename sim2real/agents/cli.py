@@ -66,10 +66,17 @@ def _fail(parser: argparse.ArgumentParser, message: str) -> int:
 def _check_paths(args: argparse.Namespace) -> str | None:
     """The checkpoint file and the logger folder, checked before training (see :mod:`sim2real.output_paths`);
     returns the error message, or None."""
-    from sim2real.output_paths import OutputPathError, check_file, check_folder
+    from sim2real.output_paths import OutputPathError, check_file, check_folder, check_not_inputs
 
     try:
         check_file(args.out, "--out")
+        inputs = {
+            "--model": args.model,
+            "--config": args.config,
+            "--adr": args.adr,
+            "--agent-config": args.agent_config,
+        }
+        check_not_inputs({"--out": args.out}, inputs)
         if not args.no_log:  # the logger's root, ./sim2real_runs by default
             check_folder(args.log_dir if args.log_dir is not None else "sim2real_runs", "--log-dir")
     except OutputPathError as err:

@@ -60,16 +60,22 @@ class UsageError(Exception):
     """Bad input found after parsing; ``main`` prints it and returns 2."""
 
 
-def check_outputs(files: dict[str, str | None], folder: tuple[str, str, bool] | None = None) -> None:
+def check_outputs(
+    files: dict[str, str | None],
+    folder: tuple[str, str, bool] | None = None,
+    inputs: dict[str, str | None] | None = None,
+) -> None:
     """Checks every output of a command (``{"--out": path, "--report": path}``, files; ``folder`` is
-    ``(argument, path, new)``) before any work, so a bad path fails at once and creates nothing."""
-    from sim2real.output_paths import OutputPathError, check_distinct, check_file, check_folder
+    ``(argument, path, new)``) before any work, so a bad path fails at once and creates nothing; no output file
+    may be one of the command's ``inputs`` (``{"--model": path, ...}``), which it would overwrite."""
+    from sim2real.output_paths import OutputPathError, check_distinct, check_file, check_folder, check_not_inputs
 
     given = {argument: path for argument, path in files.items() if path is not None}
     try:
         for argument, path in given.items():
             check_file(path, argument)
         check_distinct(given)
+        check_not_inputs(given, inputs or {})
         if folder is not None:
             check_folder(folder[1], folder[0], new=folder[2])
     except OutputPathError as err:

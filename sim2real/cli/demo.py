@@ -214,7 +214,7 @@ def cmd_demo(args: argparse.Namespace, out: TextIO) -> int:
 
 
 def cmd_visualize(args: argparse.Namespace, out: TextIO) -> int:
-    check_outputs({"--out": args.out})
+    check_outputs({"--out": args.out}, inputs={"--model": args.model, "--config": args.config})
     effects = _load_demo_effects(args.config) if args.config is not None else []
     camera: int | str | None = args.camera
     if isinstance(camera, str) and camera.lstrip("-").isdigit():

@@ -40,7 +40,7 @@ def cmd_record(args: argparse.Namespace, out: TextIO) -> int:
     from sim2real.home import parse_home
     from sim2real.recording import record
 
-    check_outputs({"--out": args.out})
+    check_outputs({"--out": args.out}, inputs={"--model": args.model})
     try:
         sysid.check_log_path(args.out, "--out")  # before the recording, not after it
     except ValueError as err:
@@ -154,7 +154,10 @@ def cmd_sysid(args: argparse.Namespace, out: TextIO) -> int:
         raise UsageError("choose a sysid command: `sim2real sysid fit LOG --task TASK --params ...`")
     if args.task is None and args.model is None and args.env is None:
         raise UsageError("give the model to fit: --task TASK, --model ROBOT.xml or --env MODULE:FACTORY.")
-    check_outputs({"--out": args.out, "--report": args.report, "--export": args.export})
+    check_outputs(
+        {"--out": args.out, "--report": args.report, "--export": args.export},
+        inputs={"`log`": args.log, "--model": args.model, "--columns": args.columns},
+    )
     source = source_of(args)
     if not Path(args.log).is_file():
         raise UsageError(f"cannot read the log: `log` {args.log!r} does not exist.")
