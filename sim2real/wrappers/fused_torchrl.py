@@ -29,7 +29,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from tensordict import TensorDictBase
+from tensordict import NestedKey, TensorDictBase
 from torchrl.data import Composite
 
 from randomizers import Effect
@@ -76,7 +76,7 @@ class RandomizeAndCorruptTransform(CorruptSignalsTransform):
         effects: Sequence[Effect],
         models: Sequence[Any],
         seed: SeedLike = None,
-        observation_keys: Sequence[str] | None = None,
+        observation_keys: Sequence[NestedKey] | None = None,
     ) -> None:
         physics = _PhysicsPart(effects, seed, self)  # built first, as RandomizePhysicsTransform comes first
         super().__init__(models, seed, observation_keys)

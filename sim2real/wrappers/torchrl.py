@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from typing import Any
 
 import torch
-from tensordict import TensorDictBase
+from tensordict import NestedKey, TensorDictBase, unravel_key
 from torchrl.data import Binary, Composite, Unbounded
 from torchrl.envs.transforms import Transform
 
@@ -185,7 +185,9 @@ class CorruptSignalsTransform(Transform):
         models: ObservationNoise, ActionNoise, ObservationLatency, ActionLatency, SampleAndHold, ControlJitter.
         seed: root seed of the models' streams.
         observation_keys: the entries treated as the observation (default: every floating-point
-            entry of the observation spec except ``sim2real_*``), concatenated in this order.
+            entry of the observation spec except ``sim2real_*``, nested ones included), concatenated in this
+            order. A nested entry is a tuple key, ``("robot", "qpos")``, and goes by ``"robot.qpos"`` in
+            ``select=`` and in the reported names.
 
     Example:
         >>> from torchrl.envs import DMControlEnv, TransformedEnv
@@ -201,7 +203,7 @@ class CorruptSignalsTransform(Transform):
     """
 
     def __init__(
-        self, models: Sequence[Any], seed: SeedLike = None, observation_keys: Sequence[str] | None = None
+        self, models: Sequence[Any], seed: SeedLike = None, observation_keys: Sequence[NestedKey] | None = None
     ) -> None:
         from noise_models import SignalCorruptor
 
@@ -229,26 +231,27 @@ class CorruptSignalsTransform(Transform):
             if parent is None:
                 raise RuntimeError("CorruptSignalsTransform must be appended to a TransformedEnv before use.")
             obs_spec = parent.full_observation_spec
+            known = [unravel_key(k) for k in obs_spec.keys(True, True)]
             if self._observation_keys is None:
+                # Entries of nested Composite specs (``("robot", "qpos")``) are observations too.
                 keys = [
-                    k
-                    for k in obs_spec.keys(True, True)
-                    if isinstance(k, str) and not k.startswith("sim2real_") and obs_spec[k].dtype.is_floating_point
+                    k for k in known if not _key_name(k).startswith("sim2real_") and obs_spec[k].dtype.is_floating_point
                 ]
             else:
-                keys = list(self._observation_keys)
-                missing = [k for k in keys if k not in obs_spec.keys(True, True)]
+                keys = [unravel_key(k) for k in self._observation_keys]
+                missing = [k for k in keys if k not in known]
                 if missing:
                     raise ValueError(
                         f"`observation_keys` names {missing}, which the env does not observe. Known keys: "
-                        f"{sorted(str(k) for k in obs_spec.keys(True, True))}."
+                        f"{sorted(str(k) for k in known)}."
                     )
             self._keys = keys
             shapes = [(k, tuple(obs_spec[k].shape[len(parent.batch_size) :])) for k in keys]
-            slices, start, lows, highs = [], 0, [], []
+            slices, named, start, lows, highs = [], [], 0, [], []
             for k, shape in shapes:
                 n = int(np.prod(shape))
                 slices.append((k, slice(start, start + n), shape))
+                named.append((_key_name(k), slice(start, start + n), shape))
                 start += n
                 low, high = _spec_bounds(obs_spec[k], n)
                 lows.append(low)
@@ -257,7 +260,7 @@ class CorruptSignalsTransform(Transform):
             finite = bool(np.isfinite(low_all).any() or np.isfinite(high_all).any())
             obs_layout = Layout(
                 start,
-                keys=tuple(slices),
+                keys=tuple(named),
                 low=low_all if finite else None,
                 high=high_all if finite else None,
                 dict_signal=len(keys) > 1,
@@ -365,6 +368,17 @@ class CorruptSignalsTransform(Transform):
             self._clock.close()
             self._clock = None
         super().close() if hasattr(super(), "close") else None
+
+
+def _key_name(key: NestedKey) -> str:
+    """The name a (possibly nested) observation entry goes by in selections and reports: ``"robot.qpos"`` for
+    ``("robot", "qpos")``.
+
+    Example:
+        >>> _key_name(("robot", "qpos")), _key_name("observation")
+        ('robot.qpos', 'observation')
+    """
+    return key if isinstance(key, str) else ".".join(key)
 
 
 def _spec_bounds(spec: Any, n: int) -> tuple[Any, Any]:
