@@ -203,6 +203,18 @@ class SignalCorruptor:
             raise TypeError("observation models need a Box or Dict observation space of numbers.")
         if (self.action_noise or ActionLatency in self.timing) and action is None:
             raise TypeError("action models need a Box action space.")
+        # An empty signal (an env without actuators, a Box of shape (0,)) has nothing to corrupt or delay: refused
+        # rather than reported as applied (noise on it failed at the first reset with an IndexError).
+        for kinds, layout, what in (
+            ((ObservationNoise, ObservationLatency, SampleAndHold), obs, "observation"),
+            ((ActionNoise, ActionLatency), action, "action"),
+        ):
+            names = sorted({type(m).__name__ for m in self.models if isinstance(m, kinds)})
+            if names and layout is not None and layout.size == 0:
+                raise ValueError(
+                    f"{' and '.join(names)} need a non-empty {what}: this env's {what} has no entries, so nothing "
+                    f"would be corrupted or delayed. Received an {what} of size 0."
+                )
         if ControlJitter in self.timing and not physics:
             raise ValueError(
                 "ControlJitter changes the number of physics substeps, so it needs an env with MuJoCo inside."
