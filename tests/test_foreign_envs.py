@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import sim2real as s2r
-from noise_models import ActionLatency, ActionNoise, Bias, Gaussian, ObservationNoise
+from noise_models import ActionLatency, ActionNoise, Bias, Gaussian, ObservationLatency, ObservationNoise
 
 ARM_XML = """
 <mujoco>
@@ -213,3 +213,145 @@ def test_an_env_without_actuators_still_takes_physics_effects_and_observation_mo
     assert info["sim2real"]["params"]["body_mass[ball]"] == 2.0
     check_env(env, skip_render_check=True)
     env.close()
+
+
+# -- TorchRL's own action repeat (GymWrapper(..., frame_skip=k)) -------------------------------------------------
+
+
+def _user_mujoco_env(xml_path: str, frame_skip: int, mocap: bool = False) -> Any:
+    """A user's ``MujocoEnv`` subclass with its own XML and ``frame_skip``; with ``mocap`` its action moves a mocap
+    target (the model has no actuators)."""
+    from gymnasium.envs.mujoco import MujocoEnv
+
+    class UserArm(MujocoEnv):
+        metadata = {  # noqa: RUF012 - gymnasium's own envs declare it so
+            "render_modes": ["human", "rgb_array", "depth_array", "rgbd_tuple"],
+            "render_fps": 25 if mocap else 50,  # 1 / dt, which MujocoEnv checks
+        }
+
+        def __init__(self) -> None:
+            obs = gym.spaces.Box(-np.inf, np.inf, (6 if mocap else 4,), np.float64)
+            MujocoEnv.__init__(self, xml_path, frame_skip, observation_space=obs)
+            if mocap:
+                self.action_space = gym.spaces.Box(-1.0, 1.0, (3,), np.float32)
+
+        def _get_obs(self) -> np.ndarray:
+            if mocap:
+                return np.concatenate([self.data.body("hand").xpos, self.data.qvel[:3]])
+            return np.concatenate([self.data.qpos, self.data.qvel])
+
+        def step(self, action: Any) -> Any:
+            if mocap:
+                self.data.mocap_pos[0] = 0.05 * np.asarray(action, dtype=np.float64)
+                action = np.zeros(0)
+            self.do_simulation(action, self.frame_skip)
+            return self._get_obs(), 0.0, False, False, {}
+
+        def reset_model(self) -> np.ndarray:
+            self.set_state(self.init_qpos, self.init_qvel)
+            return self._get_obs()
+
+    return UserArm()
+
+
+MOCAP_XML = """
+<mujoco>
+  <option timestep="0.002"/>
+  <worldbody>
+    <body name="target" mocap="true"/>
+    <body name="hand"><freejoint/><geom type="box" size="0.02 0.02 0.02" mass="0.5"/></body>
+  </worldbody>
+  <equality><weld body1="target" body2="hand" solref="0.02 1"/></equality>
+</mujoco>
+"""
+
+
+def _torchrl_path(env: Any, actions: np.ndarray) -> tuple[dict[str, float], np.ndarray]:
+    import torch
+
+    td = env.reset()
+    out = []
+    for a in actions:
+        td["action"] = torch.as_tensor(a, dtype=env.action_spec.dtype)
+        td = env.step(td)["next"]
+        out.append(td["observation"].numpy().copy())
+    return dict(zip(env.transform.param_names, td["sim2real_signal_params"].tolist(), strict=True)), np.array(out)
+
+
+def _reference(env: Any, actions: np.ndarray, repeat: int, action_lag: int = 0, obs_lag: int = 0) -> np.ndarray:
+    """The bare env stepped by hand: ctrl applied ``action_lag`` physics steps late; an observation taken at
+    physics step t arrives at t + ``obs_lag`` (the reset one at once) and the newest arrived one is seen."""
+    env.reset(seed=0)
+    model, data = env.unwrapped.model, env.unwrapped.data
+    per_step = repeat * env.unwrapped.frame_skip
+    taken, seen, t = [(0, env.unwrapped._get_obs())], [], 0
+    for _ in actions:
+        for _ in range(repeat):
+            for _ in range(env.unwrapped.frame_skip):
+                source = t - action_lag
+                data.ctrl[:] = actions[source // per_step] if source >= 0 else 0.0
+                mujoco.mj_step(model, data)
+                t += 1
+            mujoco.mj_rnePostConstraint(model, data)
+        taken.append((t, env.unwrapped._get_obs()))
+        seen.append([obs for stamp, obs in taken if stamp == 0 or stamp + obs_lag <= t][-1])
+    return np.array(seen)
+
+
+@pytest.mark.parametrize("repeat", [1, 2])
+@pytest.mark.parametrize(
+    ("model", "lags"),
+    [(ActionLatency(steps=8), (8, 0)), (ActionLatency(steps=6), (6, 0)), (ObservationLatency(steps=6), (0, 6))],
+    ids=["action-whole-steps", "action-mid-step", "observation"],
+)
+def test_physics_rate_latency_under_torchrl_frame_skip_is_what_is_reported(
+    tmp_path: Any, repeat: int, model: Any, lags: tuple[int, int]
+) -> None:
+    from torchrl.envs import GymWrapper
+
+    path = str(tmp_path / "arm.xml")
+    with open(path, "w") as f:
+        f.write(ARM_XML)
+    env = s2r.wrap(GymWrapper(_user_mujoco_env(path, 4), frame_skip=repeat), model, seed=0)
+    actions = np.random.default_rng(0).uniform(-1, 1, (10, 2)).astype(np.float32)  # the env's action dtype
+    params, seen = _torchrl_path(env, actions)
+    side = "action" if isinstance(model, ActionLatency) else "obs"
+    assert params[f"{side}_latency_steps"] == max(lags)
+    # With frame_skip=2, a latency of whole control steps delayed the command by 2 TorchRL steps for the first half of
+    # each step and not at all for the second, and the observation by 2 TorchRL steps (16 physics steps, not 6).
+    np.testing.assert_array_equal(seen, _reference(_user_mujoco_env(path, 4), actions, repeat, *lags))
+
+
+def test_mocap_action_latency_under_torchrl_frame_skip_counts_torchrl_steps(tmp_path: Any) -> None:
+    from torchrl.envs import GymWrapper
+
+    path = str(tmp_path / "mocap.xml")
+    with open(path, "w") as f:
+        f.write(MOCAP_XML)
+    actions = np.random.default_rng(1).uniform(-1, 1, (6, 3)).astype(np.float32)
+    env = s2r.wrap(
+        GymWrapper(_user_mujoco_env(path, 20, mocap=True), frame_skip=2), ActionLatency(seconds=0.08), seed=0
+    )
+    params, seen = _torchrl_path(env, actions)
+    assert env.transform.action_latency_path == "action"
+    # 0.08 s is one TorchRL step of 2 x 20 physics steps (it was applied as 2 steps, 0.16 s, and reported as 0.08 s)
+    assert (params["action_latency"], params["action_latency_steps"], params["action_latency_control_steps"]) == (
+        0.08,
+        40.0,
+        1.0,
+    )
+    late = GymWrapper(_user_mujoco_env(path, 20, mocap=True), frame_skip=2)
+    _, expected = _torchrl_path_bare(late, np.vstack([np.zeros((1, 3), np.float32), actions[:-1]]))
+    np.testing.assert_array_equal(seen, expected)
+
+
+def _torchrl_path_bare(env: Any, actions: np.ndarray) -> tuple[None, np.ndarray]:
+    import torch
+
+    td = env.reset()
+    out = []
+    for a in actions:
+        td["action"] = torch.as_tensor(a)
+        td = env.step(td)["next"]
+        out.append(td["observation"].numpy().copy())
+    return None, np.array(out)

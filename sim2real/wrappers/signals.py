@@ -108,6 +108,10 @@ class SignalClock:
         env: the env to find MuJoCo in (may have none).
         corruptor: the engine (not yet bound).
         obs: observation layout; action: action layout; dtypes of both signals.
+        handle: the physics handle when the caller found it already.
+        repeat: how many times ``env`` steps with each action (TorchRL's own action repeat: a
+            ``GymWrapper(..., frame_skip=2)`` runs the wrapped env's step twice per control step), so a control
+            step is ``repeat`` times the physics steps of one step of the env that holds the model.
     """
 
     def __init__(
@@ -119,13 +123,14 @@ class SignalClock:
         obs_dtype: Any,
         action_dtype: Any,
         handle: PhysicsHandle | None = None,
+        repeat: int = 1,
     ) -> None:
         self.corruptor = corruptor
         self.handle = handle if handle is not None else find_physics(env)
         handle = self.handle
         if handle is not None:
             timestep: float | None = float(handle.model.opt.timestep)
-            substeps = handle.substeps or 1
+            substeps = (handle.substeps or 1) * repeat
         else:
             timestep = _control_dt(env)
             substeps = 1
@@ -147,7 +152,7 @@ class SignalClock:
                         "physics steps per action: give the env a `frame_skip` (or `n_substeps`) attribute or a "
                         f"`dt`. Received an env of type {type(env).__qualname__} with neither."
                     )
-                substeps = max(1, round(convert_time(dt, "seconds", "physics_steps", timestep=timestep)))
+                substeps = max(1, round(convert_time(dt, "seconds", "physics_steps", timestep=timestep))) * repeat
                 self.nominal = substeps
         corruptor.bind(
             obs=obs,
@@ -227,6 +232,8 @@ class SignalClock:
                 size = len(ring)
                 ring[k % size][:] = ctrl
                 ctrl[:] = ring[(k + 1) % size]
+            else:  # as in _stepper
+                self._ctrl[:] = ring[self._sent % len(ring)]
             self._passed += nstep
             run(nstep)
 
@@ -247,6 +254,10 @@ class SignalClock:
                 size = len(ring)
                 ring[k % size][:] = ctrl  # memoryviews: a byte copy
                 ctrl[:] = ring[(k + 1) % size]
+            else:
+                # A later call in the same control step (TorchRL's frame_skip steps the env again, and its step writes
+                # the undelayed action to ctrl): the command of this control step again.
+                self._ctrl[:] = ring[self._sent % len(ring)]
             self._passed += nstep
             run(nstep)
             return

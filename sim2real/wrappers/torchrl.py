@@ -275,7 +275,13 @@ class CorruptSignalsTransform(Transform):
             act_layout = Layout(n_act, low=alow if afinite else None, high=ahigh if afinite else None)
             obs_dtype = _numpy_dtype(obs_spec[keys[0]].dtype) if keys else np.float64
             self._clock = SignalClock(
-                parent.base_env, self.corruptor, obs_layout, act_layout, obs_dtype, _numpy_dtype(aspec.dtype)
+                parent.base_env,
+                self.corruptor,
+                obs_layout,
+                act_layout,
+                obs_dtype,
+                _numpy_dtype(aspec.dtype),
+                repeat=_action_repeat(parent),
             )
             # The names come from a throwaway draw so the spec is known before the first reset.
             self.corruptor.begin_episode()
@@ -368,6 +374,22 @@ class CorruptSignalsTransform(Transform):
             self._clock.close()
             self._clock = None
         super().close() if hasattr(super(), "close") else None
+
+
+def _action_repeat(parent: Any) -> int:
+    """How many times TorchRL steps the env that holds the model per step of ``parent``: a ``GymWrapper``'s or
+    ``GymEnv``'s ``frame_skip`` (its ``wrapper_frame_skip`` loop) times each ``FrameSkipTransform`` before this
+    transform. A control step of the transform is that many steps of the env, so its physics steps are that many
+    times the env's ``frame_skip``."""
+    from torchrl.envs.transforms import Compose, FrameSkipTransform
+
+    repeat = getattr(parent.base_env, "wrapper_frame_skip", 1)
+    repeat = repeat if isinstance(repeat, int) and not isinstance(repeat, bool) and repeat >= 1 else 1
+    transform = getattr(parent, "transform", None)
+    for t in transform if isinstance(transform, Compose) else (transform,):
+        if isinstance(t, FrameSkipTransform):
+            repeat *= int(t.frame_skip)
+    return repeat
 
 
 def _key_name(key: NestedKey) -> str:
