@@ -534,3 +534,31 @@ def test_as_policy_flat_sac_path_is_the_torchrl_mean_action_bitwise(activation: 
             p.mul_(1.5).add_(0.01)
     obs = torch.randn(40, 6) * 2
     np.testing.assert_array_equal(policy(obs.numpy()), torchrl(obs), strict=True)
+
+
+def test_checkpoint_of_a_model_task_survives_a_moved_project(tmp_path: Path) -> None:
+    """A ``model:<path>`` task is named by the MJCF's absolute path: a project folder moved or copied elsewhere still
+    loads its checkpoints (same MJCF bytes), while another model under the same name is refused and says why."""
+    from sim2real.agents import CheckpointError, load_checkpoint, save_checkpoint
+    from sim2real.agents.nets import build_actor
+
+    xml = '<mujoco><worldbody><body><joint name="j" type="hinge"/><geom size=".1"/></body></worldbody></mujoco>\n'
+    old, new, other = (tmp_path / d / "robot.xml" for d in ("old", "new", "other"))
+    for file, text in ((old, xml), (new, xml), (other, xml.replace('size=".1"', 'size=".2"'))):
+        file.parent.mkdir()
+        file.write_text(text)
+    actor = build_actor("ppo", 4, [-1.0], [1.0], TINY_PPO.hidden_sizes, TINY_PPO.activation)
+    path = tmp_path / "old" / "policy.pt"
+    save_checkpoint(path, actor, TINY_PPO, 0, "run", task=f"model:{old}")
+    loaded = load_checkpoint(path, task=f"model:{new}")  # the project moved: same bytes, another path
+    assert loaded.task == f"model:{old}"
+    with pytest.raises(CheckpointError) as err:
+        load_checkpoint(path, task=f"model:{other}")
+    assert str(err.value) == (
+        f"checkpoint '{path}' was trained on task 'model:{old}', not on 'model:{other}' (another MJCF file: its "
+        "contents differ from the one the policy was trained on)."
+    )
+    old.unlink()  # a checkpoint whose MJCF was gone when it was saved records no digest
+    save_checkpoint(path, actor, TINY_PPO, 0, "run", task=f"model:{old}")
+    with pytest.raises(CheckpointError, match=r"records no digest of its MJCF, so a moved model cannot be recognised"):
+        load_checkpoint(path, task=f"model:{new}")

@@ -7,12 +7,14 @@ a half-written file under the final name.
 Keys: ``format`` / ``format_version``, ``algo``, ``config`` (the config as a dict), ``task``, ``obs_dim``,
 ``action_low`` / ``action_high``, ``state_dict`` (the actor's weights), ``seed``, ``run_id``,
 ``git_commit`` (None outside a git checkout), ``versions`` (python, numpy, torch, torchrl, tensordict,
-mujoco, sim2real) and ``created`` (UTC, ISO 8601).
+mujoco, sim2real), ``created`` (UTC, ISO 8601) and, for a ``model:<path>`` task, ``model_sha256`` (the MJCF file's
+digest: a project folder moved elsewhere still matches its checkpoints).
 """
 
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import math
 import os
 import platform
@@ -167,8 +169,28 @@ def save_checkpoint(
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "effects": effects,
         "adr": adr,
+        # A model: task is named by its file's absolute path; its bytes' digest lets a moved project still match.
+        "model_sha256": _model_digest(task),
     }
     atomic_write(path, lambda tmp: torch.save(payload, tmp))
+
+
+def _model_digest(task: str | None) -> str | None:
+    """SHA-256 of the MJCF file of a ``model:<path>`` task id (None for other ids or a file that cannot be read)."""
+    if task is None or not task.startswith("model:"):
+        return None
+    try:
+        return hashlib.sha256(Path(task[len("model:") :]).read_bytes()).hexdigest()
+    except OSError:
+        return None
+
+
+def _same_task(recorded: str, digest: Any, task: str) -> bool:
+    """Whether a checkpoint that recorded ``recorded`` (and its MJCF's ``digest``) was trained on ``task``: the same
+    id, or for ``model:`` ids the same MJCF bytes at another path (a project folder moved or copied elsewhere)."""
+    if recorded == task:
+        return True
+    return recorded.startswith("model:") and isinstance(digest, str) and digest == _model_digest(task)
 
 
 def _shape(value: Any) -> tuple[int, ...]:
@@ -219,8 +241,15 @@ def load_checkpoint(path: str | os.PathLike[str], *, task: str | None = None) ->
         )
     _check_fields(data, file)
     # A checkpoint saved without its task cannot be checked by name; evaluate() then checks its sizes.
-    if task is not None and data["task"] is not None and data["task"] != task:
-        raise CheckpointError(f"checkpoint {str(file)!r} was trained on task {data['task']!r}, not on {task!r}.")
+    if task is not None and data["task"] is not None and not _same_task(data["task"], data.get("model_sha256"), task):
+        hint = ""
+        if data["task"].startswith("model:") and task.startswith("model:"):
+            hint = (
+                " (another MJCF file: its contents differ from the one the policy was trained on)"
+                if data.get("model_sha256")
+                else " (the checkpoint records no digest of its MJCF, so a moved model cannot be recognised)"
+            )
+        raise CheckpointError(f"checkpoint {str(file)!r} was trained on task {data['task']!r}, not on {task!r}{hint}.")
     try:
         config = config_class(data["algo"]).from_dict(data["config"], source=f"checkpoint {str(file)!r} config")
     except (TypeError, ValueError) as err:
