@@ -14,6 +14,7 @@ import pytest
 
 import sim2real as s2r
 from noise_models import ActionLatency, ActionNoise, Bias, Gaussian, ObservationLatency, ObservationNoise
+from randomizers import Uniform
 
 ARM_XML = """
 <mujoco>
@@ -355,3 +356,53 @@ def _torchrl_path_bare(env: Any, actions: np.ndarray) -> tuple[None, np.ndarray]
         td = env.step(td)["next"]
         out.append(td["observation"].numpy().copy())
     return None, np.array(out)
+
+
+# -- copies ---------------------------------------------------------------------------------------------------------
+
+
+def _copies() -> list[Any]:
+    import copy
+    import pickle
+
+    return [copy.deepcopy, lambda env: pickle.loads(pickle.dumps(env))]
+
+
+@pytest.mark.parametrize("physics", [False, True], ids=["signals", "fused"])
+def test_an_env_with_signal_models_refuses_copies_and_says_what_to_do(physics: bool) -> None:
+    from dm_control import suite
+    from torchrl.envs import GymWrapper
+
+    effects = (s2r.Mass(scale=1.5),) if physics else ()
+    models = (ObservationNoise(Gaussian(std=0.1)), ActionLatency(steps=2))
+    envs = [
+        s2r.wrap(gym.make("InvertedPendulum-v5"), *effects, *models, seed=0),
+        s2r.wrap(suite.load("cartpole", "balance"), *effects, *models, seed=0),
+        s2r.wrap(GymWrapper(gym.make("InvertedPendulum-v5")), *effects, *models, seed=0),
+    ]
+    for env in envs:
+        env.reset()
+        for copy in _copies():
+            # Before: "cannot pickle 'memoryview' object" / "Can't pickle local object 'Gaussian.compile.<locals>...'";
+            # a deep copy that got past them would have shared the original's noise closures and physics-step hook.
+            with pytest.raises(TypeError, match=r"cannot be pickled or deep-copied: .*gymnasium\.make\(env\.spec\)"):
+                copy(env)
+        env.close()
+
+
+def test_a_physics_only_env_is_copied_with_a_model_of_its_own() -> None:
+    env = s2r.wrap(gym.make("InvertedPendulum-v5"), s2r.Mass(scale=Uniform(0.5, 2.0)), seed=0)
+    model = env.unwrapped.model
+    nominal = model.body_mass.copy()
+    obs, info = env.reset(seed=3)
+    for copy in _copies():
+        twin = copy(env)
+        assert twin.unwrapped.model is not model
+        obs2, info2 = twin.reset(seed=3)
+        np.testing.assert_array_equal(obs2, obs)
+        assert info2["sim2real"]["params"] == info["sim2real"]["params"]
+        twin.close()
+        np.testing.assert_array_equal(twin.unwrapped.model.body_mass, nominal)
+    assert not np.array_equal(model.body_mass, nominal)  # the original keeps its draws until it closes
+    env.close()
+    np.testing.assert_array_equal(model.body_mass, nominal)

@@ -52,6 +52,7 @@ from sim2real.wrappers.dm import DmEnvWrapper
 __all__ = [
     "CorruptSignals",
     "CorruptSignalsDmEnv",
+    "NoCopy",
     "SignalClock",
     "action_delay_path",
     "box_layout",
@@ -100,7 +101,32 @@ class _DictCodec:
         return out
 
 
-class SignalClock:
+class NoCopy:
+    """Refuses pickling and deep copies with a message that says what to do instead; a shallow ``copy.copy`` (what
+    TorchRL's ``Transform.clone`` makes) shares everything and stays allowed."""
+
+    def __copy__(self) -> Any:
+        cls = type(self)
+        twin = cls.__new__(cls)
+        twin.__dict__.update(self.__dict__)
+        return twin
+
+    def __deepcopy__(self, memo: Any) -> Any:
+        self.__reduce_ex__(4)
+
+    def __reduce_ex__(self, protocol: Any) -> Any:
+        # A copy would share what no copy can own: the per-episode noise closures hold the original's generators
+        # and buffers (copy.deepcopy keeps functions as they are), and the physics-step hook is installed on the env
+        # as a closure over the original's clock.
+        raise TypeError(
+            f"{type(self).__name__} cannot be pickled or deep-copied: its signal models run in closures over its own "
+            "random streams and its physics-step hook is installed on the env it wraps. Make another with the same "
+            "models and seed instead (gymnasium.make(env.spec), or sim2real.wrap(new_env, *effects, seed=seed)): "
+            "draws are keyed by the seed, so its episodes match."
+        )
+
+
+class SignalClock(NoCopy):
     """Connects a :class:`SignalCorruptor` to an env's physics: layouts are given by the wrapper,
     this finds MuJoCo, sets the time base, and intercepts physics stepping when needed.
 
@@ -375,7 +401,7 @@ def _gym_signal(space: gym.Space, keys: tuple[tuple[str, slice, tuple[int, ...]]
     return None, None, None
 
 
-class CorruptSignals(gym.Wrapper, gym.utils.RecordConstructorArgs):
+class CorruptSignals(NoCopy, gym.Wrapper, gym.utils.RecordConstructorArgs):
     """Applies noise and timing models (:mod:`noise_models`) to a gymnasium env's observations and
     actions; reports every per-episode draw in ``info["sim2real"]["params"]``.
 
@@ -508,7 +534,7 @@ class CorruptSignals(gym.Wrapper, gym.utils.RecordConstructorArgs):
         super().close()
 
 
-class CorruptSignalsDmEnv(DmEnvWrapper):
+class CorruptSignalsDmEnv(NoCopy, DmEnvWrapper):
     """:class:`CorruptSignals` for dm_env environments (dm-control suite and composer).
 
     dm_env timesteps carry no info dict: the draws are on :attr:`current_params`. Dict observations

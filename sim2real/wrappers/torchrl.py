@@ -28,6 +28,7 @@ from randomizers import Effect, PhysicsRandomizer
 from randomizers.seeding import SeedLike
 from sim2real.physics import PhysicsHandle
 from sim2real.wrappers.gym import require_physics
+from sim2real.wrappers.signals import NoCopy
 
 __all__ = ["CorruptSignalsTransform", "RandomizePhysicsTransform"]
 
@@ -172,7 +173,7 @@ class RandomizePhysicsTransform(Transform):
         super().close() if hasattr(super(), "close") else None
 
 
-class CorruptSignalsTransform(Transform):
+class CorruptSignalsTransform(NoCopy, Transform):
     """Applies noise and timing models (:mod:`noise_models`) inside a TorchRL ``TransformedEnv``:
     observation pipelines, latency and sample-and-hold on the observation entries, action noise on
     ``"action"``, and physics-rate action latency / control jitter inside the base env's physics step.
