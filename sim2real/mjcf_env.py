@@ -7,6 +7,11 @@ perturbation. The reward is a placeholder that makes training and evaluation mea
 home pose, ``-sum((qpos - home)**2)`` over hinge and slide joints. For a real task bring an env factory
 (``--env package.module:factory``) instead.
 
+The control period is 50 Hz unless the model says otherwise: ``<custom><numeric name="sim2real_control_timestep"
+data="0.005"/></custom>`` in the MJCF makes every command that takes ``--model`` (and ``sim2real.make("model:...")``,
+and every process and checkpoint that names the file) step it at 200 Hz, a whole number of ``opt.timestep`` each;
+``control_timestep=`` given in Python still wins.
+
 Example:
     >>> xml = ('<mujoco><worldbody><body><joint name="j" range="-1 1"/><geom type="capsule" size=".05" fromto="0 0 0 0 0 -.3"/>'
     ...        '</body></worldbody><actuator><motor joint="j" ctrlrange="-1 1"/></actuator></mujoco>')
@@ -30,10 +35,46 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-__all__ = ["DEFAULT_CONTROL_TIMESTEP", "MjcfEnv", "home_key", "home_pose"]
+__all__ = [
+    "CONTROL_TIMESTEP_NUMERIC",
+    "DEFAULT_CONTROL_TIMESTEP",
+    "MjcfEnv",
+    "declared_control_timestep",
+    "home_key",
+    "home_pose",
+]
 
-#: Control period (seconds) of an MJCF env unless ``control_timestep`` is given: 50 Hz, a common driver rate.
+#: Control period (seconds) of an MJCF env unless ``control_timestep`` is given or the model declares one: 50 Hz, a
+#: common driver rate.
 DEFAULT_CONTROL_TIMESTEP = 0.02
+#: The MJCF ``<custom><numeric>`` through which a model declares its control period in seconds.
+CONTROL_TIMESTEP_NUMERIC = "sim2real_control_timestep"
+
+
+def declared_control_timestep(model: mujoco.MjModel, where: str = "the model") -> float | None:
+    """The control period ``model`` declares (``<numeric name="sim2real_control_timestep" data="SECONDS"/>``), or
+    None when it declares none.
+
+    Raises:
+        ValueError: the numeric is not one number of seconds > 0.
+
+    Example:
+        >>> m = mujoco.MjModel.from_xml_string('<mujoco><custom><numeric name="sim2real_control_timestep" '
+        ...                                    'data="0.005"/></custom></mujoco>')
+        >>> declared_control_timestep(m)
+        0.005
+    """
+    i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_NUMERIC, CONTROL_TIMESTEP_NUMERIC)
+    if i < 0:
+        return None
+    start, size = int(model.numeric_adr[i]), int(model.numeric_size[i])
+    values = [float(v) for v in model.numeric_data[start : start + size]]
+    if len(values) != 1 or not (math.isfinite(values[0]) and values[0] > 0):
+        raise ValueError(
+            f'<numeric name="{CONTROL_TIMESTEP_NUMERIC}"> in {where} must hold one number of seconds > 0 (the control '
+            f"period). Received {values}."
+        )
+    return values[0]
 
 
 def home_key(model: mujoco.MjModel) -> int | None:
@@ -72,7 +113,8 @@ class MjcfEnv(gym.Env[np.ndarray, np.ndarray]):
         path: an MJCF file (give ``path`` or ``xml``).
         xml: MJCF text.
         control_timestep: seconds per control step, a whole multiple of ``opt.timestep`` (rounded to the
-            nearest; default :data:`DEFAULT_CONTROL_TIMESTEP`, at least one physics step).
+            nearest, at least one physics step); default: what the model declares (:func:`declared_control_timestep`),
+            else :data:`DEFAULT_CONTROL_TIMESTEP`.
         max_episode_steps: control steps per episode before ``truncated``.
         reset_noise: half-width (rad or m) of the uniform perturbation of the home pose at reset.
         render_mode: None or ``"rgb_array"``.
@@ -128,7 +170,11 @@ class MjcfEnv(gym.Env[np.ndarray, np.ndarray]):
         model.vis.global_.offheight = max(model.vis.global_.offheight, self.height)
         self.data = mujoco.MjData(model)
         timestep = float(model.opt.timestep)
-        wanted = DEFAULT_CONTROL_TIMESTEP if control_timestep is None else control_timestep
+        if control_timestep is None:
+            declared = declared_control_timestep(model, repr(self.path) if self.path is not None else "`xml`")
+            wanted: Any = DEFAULT_CONTROL_TIMESTEP if declared is None else declared
+        else:
+            wanted = control_timestep
         if not (isinstance(wanted, (int, float)) and math.isfinite(wanted) and wanted > 0):
             raise ValueError(f"`control_timestep` must be a number of seconds > 0. Received {control_timestep!r}.")
         self.n_substeps = max(1, round(float(wanted) / timestep))

@@ -317,3 +317,35 @@ def test_a_torchrl_factory_serves_record_and_fit_but_not_the_gym_commands(
         "can use its MuJoCo model, but this command needs a gymnasium env or a dm_env.Environment (or call "
         "sim2real.agents.train(env) from Python).\n"
     )
+
+
+def test_an_mjcf_declares_its_control_period(workdir: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A driver at 250 Hz: ``<numeric name="sim2real_control_timestep" data="0.004"/>`` in the MJCF sets the period
+    every ``--model`` command and ``make("model:...")`` step it at (whole physics steps); Python's
+    ``control_timestep=`` still wins; a malformed declaration is refused naming the file and what it holds."""
+    from sim2real.mjcf_env import MjcfEnv
+
+    xml = generate_arm(dof=6, seed=5, actuators="position")
+    declare = '<custom><numeric name="sim2real_control_timestep" data="{}"/></custom></mujoco>'
+    Path("fast.xml").write_text(xml.replace("</mujoco>", declare.format("0.004")))
+    timestep = mujoco.MjModel.from_xml_string(xml).opt.timestep
+    env = sim2real.make(f"model:{Path('fast.xml').resolve()}")
+    assert env.unwrapped.n_substeps == round(0.004 / timestep) > 1
+    assert env.unwrapped.control_timestep == pytest.approx(0.004)
+    env.close()
+    assert MjcfEnv("fast.xml", control_timestep=0.02).control_timestep == pytest.approx(0.02)
+    assert (
+        main(["record", "--model", "fast.xml", "--episodes", "1", "--steps", "40", "--quiet", "--out", "log.npz"]) == 0
+    )
+    log = sysid.load_log("log.npz")
+    assert log.control_timestep == pytest.approx(0.004)
+    assert log.qpos.shape[0] == 40  # 40 steps at 250 Hz: 0.16 s of the arm
+    for data, shown in (("-0.01", "[-0.01]"), ("0.005 0.01", "[0.005, 0.01]")):
+        Path("bad.xml").write_text(xml.replace("</mujoco>", declare.format(data)))
+        with pytest.raises(ValueError) as err:
+            MjcfEnv("bad.xml")
+        assert str(err.value) == (
+            "<numeric name=\"sim2real_control_timestep\"> in 'bad.xml' must hold one number of seconds > 0 (the "
+            f"control period). Received {shown}."
+        )
+    capsys.readouterr()
