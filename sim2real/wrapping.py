@@ -252,9 +252,14 @@ def _reports_every_step(effects: Iterable[Any]) -> bool:
     )
 
 
-class _ReportAtReset(gym.Wrapper):
+class _ReportAtReset(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """A :func:`make_vec` sub-env whose ``info["sim2real"]`` comes with resets and with steps whose physics
-    diverged only (its draws are fixed for the episode; see :func:`make_vec`)."""
+    diverged only (its draws are fixed for the episode; see :func:`make_vec`). It records its (no) arguments so
+    the sub-env's spec recreates it, as every other sim2real layer does."""
+
+    def __init__(self, env: gym.Env) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self)
+        super().__init__(env)
 
     def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
         obs, reward, terminated, truncated, info = self.env.step(action)

@@ -406,3 +406,17 @@ def test_a_physics_only_env_is_copied_with_a_model_of_its_own() -> None:
     assert not np.array_equal(model.body_mass, nominal)  # the original keeps its draws until it closes
     env.close()
     np.testing.assert_array_equal(model.body_mass, nominal)
+
+
+def test_a_make_vec_sub_env_is_recreated_from_its_spec() -> None:
+    envs = s2r.make_vec("gym/InvertedPendulum-v5", 2, s2r.Mass(scale=Uniform(0.5, 2.0)), seed=4)
+    sub = envs.envs[1]
+    twin = gym.make(sub.spec)  # "_ReportAtReset wrapper does not inherit from RecordConstructorArgs" before
+    assert type(twin) is type(sub) and type(twin.env) is type(sub.env)
+    obs, info = sub.reset(seed=2)
+    obs2, info2 = twin.reset(seed=2)
+    np.testing.assert_array_equal(obs2, obs)
+    assert info2["sim2real"]["params"] == info["sim2real"]["params"]
+    assert "sim2real" not in twin.step(twin.action_space.sample())[4]  # still reports at resets only
+    twin.close()
+    envs.close()
