@@ -25,7 +25,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TypeVar
 
-__all__ = ["atomic_write", "make_temp_dir"]
+__all__ = ["atomic_write", "check_suffix", "make_temp_dir"]
 
 _T = TypeVar("_T")
 _ATTEMPTS = 100
@@ -41,6 +41,23 @@ def _unique(folder: Path, prefix: str, suffix: str, create: Callable[[Path], _T]
         except FileExistsError:
             continue
     raise FileExistsError(f"no free temporary name in {str(folder)!r} after {_ATTEMPTS} attempts.")
+
+
+def check_suffix(path: str | os.PathLike[str], argument: str, suffixes: tuple[str, ...], what: str) -> Path:
+    """``path``, checked to end in one of ``suffixes`` (case-insensitive): the file a writer produces is of one
+    format (``what`` says which), and a name that promises another would hold the wrong bytes.
+
+    Example:
+        >>> check_suffix("fit.pdf", "--report", (".html", ".htm"), "an HTML page")
+        Traceback (most recent call last):
+        ...
+        ValueError: --report must end in '.html' or '.htm' (an HTML page). Received 'fit.pdf'.
+    """
+    target = Path(path)
+    if target.suffix.lower() not in suffixes:
+        allowed = " or ".join(repr(s) for s in suffixes)
+        raise ValueError(f"{argument} must end in {allowed} ({what}). Received {os.fspath(path)!r}.")
+    return target
 
 
 def make_temp_dir(parent: str | os.PathLike[str], *, prefix: str = ".", suffix: str = ".tmp") -> Path:

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from randomizers import Effect, load_effects
-from randomizers.files import atomic_write
+from randomizers.files import atomic_write, check_suffix
 from sim2real.output_paths import check_file
 from sim2real.pixels import check_size
 from sim2real.tasks import make
@@ -98,8 +98,7 @@ def contact_sheet(
     size = check_size(size)
     if out is not None:
         check_file(out, "`out`")  # before any rendering: a path that cannot be written costs nothing
-        if Path(out).suffix.lower() != ".png":  # the sheet is PNG bytes: a 'sheet.jpg' would hold a PNG
-            raise ValueError(f"`out` must end in '.png' (the sheet is a PNG image). Received {str(out)!r}.")
+        check_suffix(out, "`out`", (".png",), "the sheet is a PNG image")
     chosen = _effects(effects)
     env = wrap(make(task, pixels=True, size=size, camera=camera), *chosen, seed=seed)
     frames, params = [], []

@@ -59,7 +59,7 @@ import numpy as np
 
 from noise_models.timing import convert_time
 from randomizers.addressing import joint_dofs
-from randomizers.files import atomic_write
+from randomizers.files import atomic_write, check_suffix
 
 __all__ = [
     "OPTIONAL_KEYS",
@@ -373,10 +373,7 @@ def check_log_path(path: str | os.PathLike[str], argument: str = "`path`") -> Pa
         ...
         ValueError: --out must end in '.npz' (a trajectory log). Received 'run.dat'.
     """
-    target = Path(path)
-    if target.suffix != ".npz":
-        raise ValueError(f"{argument} must end in '.npz' (a trajectory log). Received {str(path)!r}.")
-    return target
+    return check_suffix(path, argument, (".npz",), "a trajectory log")
 
 
 def save_log(log: TrajectoryLog, path: str | os.PathLike[str]) -> None:

@@ -253,3 +253,23 @@ def test_no_output_may_overwrite_an_input_file(tmp_path: Path, arm: Path) -> Non
         )
     assert {p: p.read_bytes() for p in (arm, log)} == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["log.npz", "my arm.xml"]
+
+
+def test_sysid_fit_refuses_a_report_that_is_not_html_before_fitting(tmp_path: Path, arm: Path, monkeypatch) -> None:
+    import sysid
+
+    def fail(*args: object, **kwargs: object) -> None:
+        raise AssertionError("fitted before the report path was checked")
+
+    monkeypatch.setattr(sysid, "fit", fail)
+    log = tmp_path / "log.npz"
+    log.write_bytes(b"")  # never read: the outputs are checked first
+    report = tmp_path / "fit.pdf"
+    argv = ["sysid", "fit", str(log), "--model", str(arm), "--params", "dof_damping[*]", "--report", str(report)]
+    code, out, err = _run(argv)
+    assert (code, out) == (2, "")
+    assert (
+        err
+        == f"sim2real sysid: error: --report must end in '.html' or '.htm' (an HTML page). Received {str(report)!r}.\n"
+    )
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([arm.name, "log.npz"])

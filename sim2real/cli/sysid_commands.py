@@ -148,7 +148,7 @@ def _fit_report_html(result: Any, task: str, log_path: str) -> str:
 
 def cmd_sysid(args: argparse.Namespace, out: TextIO) -> int:
     import sysid
-    from randomizers.files import atomic_write
+    from randomizers.files import atomic_write, check_suffix
 
     if args.sysid_command != "fit":
         raise UsageError("choose a sysid command: `sim2real sysid fit LOG --task TASK --params ...`")
@@ -158,6 +158,11 @@ def cmd_sysid(args: argparse.Namespace, out: TextIO) -> int:
         {"--out": args.out, "--report": args.report, "--export": args.export},
         inputs={"`log`": args.log, "--model": args.model, "--columns": args.columns},
     )
+    if args.report is not None:
+        try:
+            check_suffix(args.report, "--report", (".html", ".htm"), "an HTML page")
+        except ValueError as err:
+            raise UsageError(str(err)) from err
     source = source_of(args)
     if not Path(args.log).is_file():
         raise UsageError(f"cannot read the log: `log` {args.log!r} does not exist.")
