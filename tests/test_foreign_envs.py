@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 import sim2real as s2r
-from noise_models import ActionLatency, ActionNoise, Bias, Gaussian, ObservationLatency, ObservationNoise
-from randomizers import Uniform
+from noise_models import ActionLatency, ActionNoise, Bias, ControlJitter, Gaussian, ObservationLatency, ObservationNoise
+from randomizers import Choice, Uniform
 
 ARM_XML = """
 <mujoco>
@@ -420,3 +420,110 @@ def test_a_make_vec_sub_env_is_recreated_from_its_spec() -> None:
     assert "sim2real" not in twin.step(twin.action_space.sample())[4]  # still reports at resets only
     twin.close()
     envs.close()
+
+
+# -- envs that step MuJoCo themselves ---------------------------------------------------------------------------
+
+
+def _pd_arm(xml_path: str) -> Any:
+    """A user's MujocoEnv that runs its own PD loop with ``mujoco.mj_step``, never through ``do_simulation``."""
+    env = _user_mujoco_env(xml_path, 4)
+
+    def step(action: Any) -> Any:
+        for _ in range(env.frame_skip):
+            env.data.ctrl[:] = 5.0 * (np.asarray(action) - env.data.qpos) - 0.5 * env.data.qvel
+            mujoco.mj_step(env.model, env.data)
+        return env._get_obs(), 0.0, False, False, {}
+
+    env.step = step
+    return env
+
+
+UNREACHED = (
+    "{module}._user_mujoco_env.<locals>.UserArm advanced its physics without calling do_simulation(ctrl, n_frames), so {names} (acting inside "
+    "that call) would be reported but not applied. Step MuJoCo through do_simulation(ctrl, n_frames) in the env's "
+    "`step`."
+)
+
+
+@pytest.mark.parametrize(
+    ("models", "names"),
+    [
+        ((ActionLatency(steps=8),), "ActionLatency"),
+        ((ControlJitter(Choice((-2.0, 2.0))), ObservationNoise(Gaussian(std=0.1))), "ControlJitter"),
+    ],
+    ids=["latency", "jitter"],
+)
+@pytest.mark.parametrize("api", ["gymnasium", "fused", "torchrl"])
+def test_a_physics_rate_model_refuses_an_env_that_steps_mujoco_itself(
+    tmp_path: Any, models: tuple[Any, ...], names: str, api: str
+) -> None:
+    path = str(tmp_path / "arm.xml")
+    with open(path, "w") as f:
+        f.write(ARM_XML)
+    message = UNREACHED.format(module=__name__, names=names)
+    if api == "torchrl":
+        import torch
+        from torchrl.envs import GymWrapper
+
+        env = s2r.wrap(GymWrapper(_pd_arm(path)), *models, seed=0)
+        td = env.reset()
+        td["action"] = torch.zeros(2, dtype=env.action_spec.dtype)
+        with pytest.raises(TypeError) as err:
+            env.step(td)
+    else:
+        effects = (s2r.Mass(scale=1.0),) if api == "fused" else ()
+        env = s2r.wrap(_pd_arm(path), *effects, *models, seed=0)
+        env.reset(seed=0)
+        # Before: the wrapped env stepped bitwise as the bare one while reporting the latency / jitter as applied.
+        with pytest.raises(TypeError) as err:
+            env.step(np.zeros(2))
+    assert str(err.value) == message
+
+
+def test_the_first_step_check_leaves_an_env_that_steps_through_its_hook_alone(tmp_path: Any) -> None:
+    path = str(tmp_path / "arm.xml")
+    with open(path, "w") as f:
+        f.write(ARM_XML)
+    env = s2r.wrap(_user_mujoco_env(path, 4), ActionLatency(steps=8), seed=0)
+    assert "step" in vars(env)  # the one-shot check
+    env.reset(seed=0)
+    env.step(np.zeros(2))
+    assert "step" not in vars(env)  # later steps are the class's own
+    env.close()
+
+
+class SelfSteppingDm(dm_env.Environment):
+    """A plain dm_env around MuJoCo that has a ``_simulate`` method but steps with ``mujoco.mj_step`` itself."""
+
+    def __init__(self) -> None:
+        self.model = mujoco.MjModel.from_xml_string(ARM_XML)
+        self.data = mujoco.MjData(self.model)
+        self.n_substeps = 4
+
+    def _simulate(self, nstep: int) -> None:
+        mujoco.mj_step(self.model, self.data, nstep=nstep)
+
+    def reset(self) -> dm_env.TimeStep:
+        mujoco.mj_resetData(self.model, self.data)
+        return dm_env.restart(self.data.qpos.copy())
+
+    def step(self, action: Any) -> dm_env.TimeStep:
+        self.data.ctrl[:] = action
+        mujoco.mj_step(self.model, self.data, nstep=self.n_substeps)
+        return dm_env.transition(0.0, self.data.qpos.copy())
+
+    def observation_spec(self) -> Any:
+        return dm_env.specs.Array((2,), np.float64, "qpos")
+
+    def action_spec(self) -> Any:
+        return dm_env.specs.BoundedArray((2,), np.float64, -1.0, 1.0, "action")
+
+
+@pytest.mark.parametrize("physics", [False, True], ids=["signals", "fused"])
+def test_a_dm_env_that_steps_mujoco_itself_is_refused_at_its_first_step(physics: bool) -> None:
+    effects = (s2r.Mass(scale=1.0),) if physics else ()
+    env = s2r.wrap(SelfSteppingDm(), *effects, ActionLatency(steps=6), seed=0)
+    env.reset()
+    with pytest.raises(TypeError, match=r"^tests?[\w.]*SelfSteppingDm advanced its physics without calling _simulate"):
+        env.step(np.zeros(2))

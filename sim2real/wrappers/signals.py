@@ -211,6 +211,34 @@ class SignalClock(NoCopy):
         self._ctrl: memoryview = memoryview(b"")
         self._sent = 0
 
+    @property
+    def hooked(self) -> bool:
+        """Whether the env's physics stepping is intercepted (physics-rate ActionLatency, ControlJitter)."""
+        return self._remove is not None
+
+    def check_reached(self) -> bool:
+        """Right after a control step of an env whose stepping is intercepted: True when the step went through the
+        hook, False when its physics did not advance (nothing to tell yet).
+
+        Raises:
+            TypeError: the physics advanced without the hook (an env whose ``step`` calls ``mujoco.mj_step``
+                itself instead of ``do_simulation``/``_simulate``): what is reported would not be applied.
+        """
+        if self._passed:
+            return True
+        if self.now() == 0:
+            return False
+        owner = self.handle.owner  # type: ignore[union-attr]
+        hook = "_simulate(nstep)" if callable(getattr(owner, "_simulate", None)) else "do_simulation(ctrl, n_frames)"
+        timing = self.corruptor.timing
+        names = ["ActionLatency"] if ActionLatency in timing and self.action_path == "ctrl" else []
+        names += ["ControlJitter"] if ControlJitter in timing else []
+        raise TypeError(
+            f"{type(owner).__module__}.{type(owner).__qualname__} advanced its physics without calling {hook}, so "
+            f"{' and '.join(names)} (acting inside that call) would be reported but not applied. Step MuJoCo "
+            f"through {hook} in the env's `step`."
+        )
+
     def now(self) -> int:
         """Time since reset: physics steps with MuJoCo, else control steps."""
         if self.handle is None:
@@ -438,6 +466,16 @@ class CorruptSignals(NoCopy, gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._jitter = self.corruptor.needs_physics_hook and ControlJitter in self.corruptor.timing
         self._extra_report = self._jitter or self.clock.action_path is not None
         self._closed = False
+        if self.clock.hooked:
+            # Checked on the first step that moves the physics, then the class's step runs again (an instance
+            # attribute costs later steps nothing).
+            self.step = self._checked_step  # type: ignore[method-assign]
+
+    def _checked_step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
+        out = type(self).step(self, action)
+        if self.clock.check_reached():
+            del self.step
+        return out
 
     @property
     def current_params(self) -> dict[str, float]:
@@ -575,6 +613,14 @@ class CorruptSignalsDmEnv(NoCopy, DmEnvWrapper):
         self._has_action = self.corruptor.has_action
         self._needs_now = self.corruptor.observation_needs_time  # this episode's, from its first observation on
         self._closed = False
+        if self.clock.hooked:  # checked until a step moves the physics (see CorruptSignals)
+            self._inner_step = self._checked_inner_step  # type: ignore[method-assign]
+
+    def _checked_inner_step(self, action: Any) -> dm_env.TimeStep:
+        timestep = type(self)._inner_step(self, action)
+        if self.clock.check_reached():
+            del self._inner_step
+        return timestep
 
     @property
     def current_params(self) -> dict[str, float]:

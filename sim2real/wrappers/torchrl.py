@@ -364,6 +364,8 @@ class CorruptSignalsTransform(NoCopy, Transform):
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
         clock = self._bound()
         clock._in_step = False
+        if clock.hooked and not self.__dict__.get("_reached") and clock.check_reached():
+            self.__dict__["_reached"] = True  # the hook is reached (see CorruptSignals); not checked again
         if self.corruptor.has_observation:
             now = clock.now() if self.__dict__.get("_needs_now", True) else 0
             self._write(next_tensordict, self.corruptor.observe(self._flat(next_tensordict), now))
