@@ -273,3 +273,11 @@ def test_sysid_fit_refuses_a_report_that_is_not_html_before_fitting(tmp_path: Pa
         == f"sim2real sysid: error: --report must end in '.html' or '.htm' (an HTML page). Received {str(report)!r}.\n"
     )
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([arm.name, "log.npz"])
+
+
+def test_study_on_a_model_says_which_commands_run_its_loop(tmp_path: Path, arm: Path) -> None:
+    out = tmp_path / "study"
+    code, stdout, err = _run(["study", "--model", str(arm), "--out", str(out)])
+    assert (code, stdout) == (2, "") and not out.exists()
+    assert err.startswith("sim2real study: error: the study runs on tasks with a bundled profile and trained policies")
+    assert err.endswith(f"(README, 'Your own robot'). Received --model {arm}.\n") and err.count("\n") == 1

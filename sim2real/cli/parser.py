@@ -262,6 +262,11 @@ def build_parser() -> argparse.ArgumentParser:
         ),
     )
     study.add_argument("--task", default="dmc/reacher-easy", help="task with a bundled study (default: %(default)s)")
+    for flag, metavar in (("--model", "ROBOT.xml"), ("--env", "MODULE:FACTORY")):
+        study.add_argument(
+            flag, metavar=metavar, default=None,
+            help="refused with the commands that run the same loop on your robot (the study's policies ship trained)",
+        )  # fmt: skip
     study.add_argument(
         "--out",
         default=None,
