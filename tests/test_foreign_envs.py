@@ -527,3 +527,61 @@ def test_a_dm_env_that_steps_mujoco_itself_is_refused_at_its_first_step(physics:
     env.reset()
     with pytest.raises(TypeError, match=r"^tests?[\w.]*SelfSteppingDm advanced its physics without calling _simulate"):
         env.step(np.zeros(2))
+
+
+# -- TorchRL envs whose action entry is not "action" -----------------------------------------------------------
+
+
+def _keyed_torchrl_arm() -> Any:
+    """A TorchRL env whose action is ``("arm", "torque")``."""
+    import torch
+    from tensordict import TensorDict
+    from torchrl.data import Bounded, Composite, Unbounded
+    from torchrl.envs import EnvBase
+
+    class KeyedArm(EnvBase):
+        def __init__(self) -> None:
+            super().__init__(device="cpu")
+            self.model = mujoco.MjModel.from_xml_string(ARM_XML)
+            self.data = mujoco.MjData(self.model)
+            self.n_substeps = 4
+            self.observation_spec = Composite(qpos=Unbounded((2,), dtype=torch.float64))
+            self.action_spec = Composite(arm=Composite(torque=Bounded(-1.0, 1.0, (2,), dtype=torch.float64)))
+            self.reward_spec = Unbounded((1,))
+
+        def _out(self, **extra: Any) -> Any:
+            done = torch.zeros(1, dtype=torch.bool)
+            qpos = torch.tensor(self.data.qpos.copy())
+            return TensorDict({"qpos": qpos, "done": done, "terminated": done.clone(), **extra}, [])
+
+        def _reset(self, td: Any) -> Any:
+            mujoco.mj_resetData(self.model, self.data)
+            return self._out()
+
+        def _simulate(self, nstep: int) -> None:
+            mujoco.mj_step(self.model, self.data, nstep=nstep)
+
+        def _step(self, td: Any) -> Any:
+            self.data.ctrl[:] = td["arm", "torque"].numpy()
+            self._simulate(self.n_substeps)
+            return self._out(reward=torch.zeros(1))
+
+        def _set_seed(self, seed: int | None) -> None:
+            pass
+
+    return KeyedArm()
+
+
+def test_signal_models_use_a_torchrl_envs_own_action_key() -> None:
+    import torch
+    from torchrl.envs.utils import check_env_specs
+
+    for models in ((ObservationNoise(Gaussian(std=0.1)),), (ActionNoise(Bias(0.25)), ActionLatency(steps=4))):
+        env = s2r.wrap(_keyed_torchrl_arm(), *models, seed=0)  # KeyError: 'action' before, whatever the models
+        check_env_specs(env, seed=0)
+    data = s2r.find_physics(env).data
+    td = env.reset()
+    td["arm", "torque"] = torch.tensor([0.1, -0.2], dtype=torch.float64)
+    env.step(td)
+    env.step(td)
+    np.testing.assert_allclose(data.ctrl, [0.35, 0.05])  # the noisy command, one control step (4 physics steps) late

@@ -176,7 +176,8 @@ class RandomizePhysicsTransform(Transform):
 class CorruptSignalsTransform(NoCopy, Transform):
     """Applies noise and timing models (:mod:`noise_models`) inside a TorchRL ``TransformedEnv``:
     observation pipelines, latency and sample-and-hold on the observation entries, action noise on
-    ``"action"``, and physics-rate action latency / control jitter inside the base env's physics step.
+    the env's action entry (``"action"``, or its one ``action_key``), and physics-rate action latency / control
+    jitter inside the base env's physics step.
 
     The per-episode draws travel in every TensorDict under ``"sim2real_signal_params"`` (float64,
     one entry per name in :attr:`param_names`) and are on :attr:`current_params`; physics draws of a
@@ -215,6 +216,7 @@ class CorruptSignalsTransform(NoCopy, Transform):
         self._keys: list[str] = []
         self._names: tuple[str, ...] = ()
         self._params: torch.Tensor | None = None
+        self._action_key: NestedKey = "action"
 
     @property
     def current_params(self) -> dict[str, float]:
@@ -268,12 +270,23 @@ class CorruptSignalsTransform(NoCopy, Transform):
             )
             self._shapes = dict(shapes)
             self._slices = slices
-            aspec = parent.full_action_spec["action"]
-            self._action_shape = tuple(aspec.shape[len(parent.batch_size) :])
-            n_act = int(np.prod(self._action_shape))
-            alow, ahigh = _spec_bounds(aspec, n_act)
-            afinite = bool(np.isfinite(alow).any() or np.isfinite(ahigh).any())
-            act_layout = Layout(n_act, low=alow if afinite else None, high=ahigh if afinite else None)
+            # The env's own action entry: "action" for TorchRL's wrappers, ("arm", "torque") for an env that says so.
+            action_keys = [unravel_key(k) for k in parent.action_keys]
+            act_layout, act_dtype = None, np.float64
+            if len(action_keys) == 1:
+                self._action_key = action_keys[0]
+                aspec = parent.full_action_spec[self._action_key]
+                self._action_shape = tuple(aspec.shape[len(parent.batch_size) :])
+                n_act = int(np.prod(self._action_shape))
+                alow, ahigh = _spec_bounds(aspec, n_act)
+                afinite = bool(np.isfinite(alow).any() or np.isfinite(ahigh).any())
+                act_layout = Layout(n_act, low=alow if afinite else None, high=ahigh if afinite else None)
+                act_dtype = _numpy_dtype(aspec.dtype)
+            elif self.corruptor.has_action:
+                raise ValueError(
+                    "action models (ActionNoise, ActionLatency) need an env with one action entry. Received an env "
+                    f"with {len(action_keys)}: {action_keys}."
+                )
             obs_dtype = _numpy_dtype(obs_spec[keys[0]].dtype) if keys else np.float64
             self._clock = SignalClock(
                 parent.base_env,
@@ -281,7 +294,7 @@ class CorruptSignalsTransform(NoCopy, Transform):
                 obs_layout,
                 act_layout,
                 obs_dtype,
-                _numpy_dtype(aspec.dtype),
+                act_dtype,
                 repeat=_action_repeat(parent),
             )
             # The names come from a throwaway draw so the spec is known before the first reset.
@@ -350,14 +363,14 @@ class CorruptSignalsTransform(NoCopy, Transform):
     def _inv_call(self, tensordict: TensorDictBase) -> TensorDictBase:
         clock = self._bound()
         if self.corruptor.has_action:
-            action = tensordict.get("action")
+            action = tensordict.get(self._action_key)
             shape = tuple(action.shape[len(tensordict.batch_size) :])
             if shape != self._action_shape:
                 from sim2real.wrappers.signals import wrong_action_shape
 
                 raise ValueError(wrong_action_shape(shape, self._action_shape))
             out = self.corruptor.act(action.detach().cpu().numpy().reshape(-1))
-            tensordict.set("action", torch.from_numpy(out.reshape(action.shape)).to(action.dtype))
+            tensordict.set(self._action_key, torch.from_numpy(out.reshape(action.shape)).to(action.dtype))
         clock.begin_step()
         return tensordict
 
