@@ -67,6 +67,35 @@ class PhysicsHandle:
         self.model, self.data = model, data
         self.warnings = data.warning.number
 
+    def rebuilt(self) -> bool:
+        """Whether a gymnasium env replaced its MuJoCo model since the handle last looked (an env that compiles a
+        new model in its reset, e.g. a procedural scene); the handle then points at the new model and data.
+        Composer envs say so through :meth:`on_recompile` instead.
+
+        Example:
+            >>> import gymnasium as gym
+            >>> env = gym.make("InvertedPendulum-v5").unwrapped
+            >>> handle = find_physics(env)
+            >>> handle.rebuilt()
+            False
+            >>> import copy
+            >>> env.model = copy.copy(env.model)  # what a rebuild in reset leaves: a new model and its data
+            >>> env.data = mujoco.MjData(env.model)
+            >>> handle.rebuilt(), handle.model is env.model
+            (True, True)
+        """
+        if self.source != "gymnasium":
+            return False
+        owner = self.owner
+        model = _attribute(owner, "model")
+        if model is self.model or not isinstance(model, mujoco.MjModel):
+            return False
+        data = _attribute(owner, "data")
+        if not isinstance(data, mujoco.MjData) or data.qpos.shape != (model.nq,):
+            return False
+        self.refresh(model, data)
+        return True
+
     def on_recompile(self, callback: Callable[[mujoco.MjModel, mujoco.MjData], None]) -> Callable[..., None]:
         """Registers ``callback(model, data)`` to run right after each recompile (composer only).
 

@@ -585,3 +585,91 @@ def test_signal_models_use_a_torchrl_envs_own_action_key() -> None:
     env.step(td)
     env.step(td)
     np.testing.assert_allclose(data.ctrl, [0.35, 0.05])  # the noisy command, one control step (4 physics steps) late
+
+
+# -- envs that compile a new model in every reset -----------------------------------------------------------------
+
+SLIDER_XML = """
+<mujoco>
+  <option timestep="0.01"/>
+  <worldbody>
+    <body name="box" pos="0 0 {height}"><joint name="lift" type="slide" axis="0 0 1" damping="1"/>
+      <geom size="0.1" mass="1"/></body>
+  </worldbody>
+  <actuator><motor name="push" joint="lift"/></actuator>
+</mujoco>
+"""
+
+
+class RebuiltScene(gym.Env):
+    """A procedural scene: every reset compiles a new model (the box at a height drawn from the reset's seed)."""
+
+    frame_skip = 2
+
+    def __init__(self) -> None:
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (2,), np.float64)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float64)
+        self._build()
+
+    def _build(self) -> None:
+        height = float(self.np_random.uniform(0.0, 1.0))
+        self.model = mujoco.MjModel.from_xml_string(SLIDER_XML.format(height=height))
+        self.data = mujoco.MjData(self.model)
+
+    def _simulate(self, nstep: int) -> None:
+        mujoco.mj_step(self.model, self.data, nstep=nstep)
+
+    def _obs(self) -> np.ndarray:
+        return np.concatenate([self.data.qpos, self.data.qvel])
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict]:
+        super().reset(seed=seed)
+        self._build()
+        mujoco.mj_forward(self.model, self.data)
+        return self._obs(), {}
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict]:
+        self.data.ctrl[:] = action
+        self._simulate(self.frame_skip)
+        return self._obs(), 0.0, False, False, {}
+
+
+def _held_by(model: mujoco.MjModel) -> dict[str, float]:
+    return {"body_mass[box]": float(model.body_mass[1]), "dof_damping[lift]": float(model.dof_damping[0])}
+
+
+@pytest.mark.parametrize("signals", [False, True], ids=["physics", "fused"])
+def test_draws_reach_a_model_the_env_compiles_in_its_reset(signals: bool) -> None:
+    effects = (s2r.Mass(scale=Uniform(0.5, 2.0)), s2r.Damping(scale=Uniform(2.0, 3.0)))
+    models = (ObservationNoise(Bias(0.0)),) if signals else ()
+    env = s2r.wrap(RebuiltScene(), *effects, *models, seed=0)
+    for episode in range(3):
+        obs, info = env.reset(seed=episode)
+        params = {k: v for k, v in info["sim2real"]["params"].items() if k in ("body_mass[box]", "dof_damping[lift]")}
+        assert params == _held_by(env.unwrapped.model)  # the draws stayed in the first model before
+        np.testing.assert_array_equal(obs, env.unwrapped._obs())
+    model = env.unwrapped.model
+    env.close()
+    assert _held_by(model) == {"body_mass[box]": 1.0, "dof_damping[lift]": 1.0}  # the current model's nominal
+
+
+def test_torchrl_draws_reach_a_rebuilt_model() -> None:
+    from torchrl.envs import GymWrapper
+
+    env = s2r.wrap(GymWrapper(RebuiltScene()), s2r.Mass(scale=Uniform(0.5, 2.0)), seed=0)
+    for _ in range(2):
+        td = env.reset()
+        (mass,) = td["sim2real_params"].tolist()
+        assert mass == s2r.find_physics(env).model.body_mass[1] != 1.0
+
+
+def test_physics_rate_latency_follows_a_rebuilt_model() -> None:
+    actions = np.random.default_rng(0).uniform(-1, 1, (6, 1))
+    env = s2r.wrap(RebuiltScene(), ActionLatency(steps=2), seed=0)
+    for episode in range(2):  # the second episode runs on a model compiled after wrap
+        env.reset(seed=episode)
+        seen = np.array([env.step(a)[0] for a in actions])
+        late = RebuiltScene()
+        late.reset(seed=episode)
+        expected = np.array([late.step(a)[0] for a in np.vstack([np.zeros((1, 1)), actions[:-1]])])
+        np.testing.assert_array_equal(seen, expected)  # 2 physics steps = one control step late

@@ -18,11 +18,10 @@ from collections.abc import Sequence
 from typing import Any
 
 import dm_env
-import mujoco
 
 from randomizers import Effect, PhysicsRandomizer
 from randomizers.seeding import SeedLike
-from sim2real.wrappers.gym import require_physics
+from sim2real.wrappers.gym import require_physics, settle_draws
 
 __all__ = ["RandomizePhysicsDmEnv"]
 
@@ -97,11 +96,10 @@ class PhysicsDmSteps:
             return dm_env.restart(observation)
         # The task's reset may overwrite a draw (finger's hinge damping): write it again, keep the state the
         # task chose, recompute what derives from it (and the observation, for suite tasks).
-        self.reapplied = self.randomizer.reapply_overwritten()
-        if self.reapplied:
+        self.reapplied, moved = settle_draws(self._handle, self.randomizer)
+        if moved:
             from sim2real.adapters import suite_observation
 
-            mujoco.mj_forward(self._handle.model, self._handle.data)
             observation = suite_observation(self._env)
             if observation is not None:
                 timestep = timestep._replace(observation=observation)

@@ -30,7 +30,6 @@ from typing import Any
 
 import dm_env
 import gymnasium as gym
-import mujoco
 import numpy as np
 
 from noise_models import SignalModel
@@ -38,7 +37,7 @@ from noise_models.timing import elapsed_steps
 from randomizers import Effect, PhysicsRandomizer
 from randomizers.seeding import SeedLike
 from sim2real.wrappers.dm import PhysicsDmSteps
-from sim2real.wrappers.gym import merge_report, observe_again, require_physics
+from sim2real.wrappers.gym import merge_report, observe_again, require_physics, settle_draws
 from sim2real.wrappers.signals import CorruptSignals, CorruptSignalsDmEnv, wrong_action_shape
 
 __all__ = ["RandomizeAndCorrupt", "RandomizeAndCorruptDmEnv"]
@@ -159,10 +158,9 @@ class RandomizeAndCorrupt(CorruptSignals):
         if self._hook is None:
             randomizer.apply()
         obs, info = self.env.reset(seed=seed, options=options)
-        # As RandomizePhysics: draws the task's own reset overwrote are written again, the state it chose kept.
-        self._reapplied = randomizer.reapply_overwritten()
-        if self._reapplied:
-            mujoco.mj_forward(self._handle.model, self._handle.data)
+        # As RandomizePhysics: the draws go (again) into the model the env holds, the state it chose kept.
+        self._reapplied, moved = settle_draws(self._handle, randomizer)
+        if moved:
             fresh = observe_again(self.env)
             if fresh is not None:
                 obs = fresh

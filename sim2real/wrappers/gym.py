@@ -26,7 +26,7 @@ from randomizers import Effect, PhysicsRandomizer
 from randomizers.seeding import SeedLike
 from sim2real.physics import PhysicsHandle, find_physics
 
-__all__ = ["RandomizePhysics", "merge_report", "observe_again", "require_physics"]
+__all__ = ["RandomizePhysics", "merge_report", "observe_again", "require_physics", "settle_draws"]
 
 # Wrappers that hand the inner observation through unchanged, so it may be recomputed underneath them.
 _PASS_THROUGH = (
@@ -62,6 +62,27 @@ def require_physics(env: Any, effects: Sequence[Effect]) -> PhysicsHandle:
             "a gymnasium env with `unwrapped.model`/`unwrapped.data`, or a TorchRL DMControlEnv/GymEnv."
         )
     return handle
+
+
+def settle_draws(handle: PhysicsHandle, randomizer: PhysicsRandomizer) -> tuple[tuple[str, ...], bool]:
+    """After the env's own reset, makes the model hold the episode's draws: an env that compiled a new model in
+    its reset (a procedural scene) gets them written into that one (its reset ran on the new nominal model), and
+    draws the task's reset overwrote (dm-control ``finger`` resets its hinge damping) are written again. The state
+    the env chose is kept; ``mj_forward`` recomputes what derives from it.
+
+    Returns:
+        The addresses written again, and whether the model changed under the env's reset state (then its
+        reset observation should be computed again, see :func:`observe_again`).
+    """
+    rebuilt = handle.rebuilt()
+    if rebuilt:
+        randomizer.bind(handle.model, handle.data)
+        randomizer.apply()
+    reapplied = randomizer.reapply_overwritten()
+    moved = rebuilt or bool(reapplied)
+    if moved:
+        mujoco.mj_forward(handle.model, handle.data)
+    return reapplied, moved
 
 
 _SCALARS = (str, bytes, int, float, complex, type(None), np.number, np.bool_)
@@ -175,11 +196,10 @@ class RandomizePhysics(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if self._hook is None:
             self.randomizer.apply()
         obs, info = self.env.reset(seed=seed, options=options)
-        # The task's own reset may have written a randomised field (dm-control finger resets its hinge
-        # damping): write the draws again, keep the state the task chose, and recompute what derives from it.
-        self._reapplied = self.randomizer.reapply_overwritten()
-        if self._reapplied:
-            mujoco.mj_forward(self._handle.model, self._handle.data)
+        # The env's own reset may have written a randomised field (dm-control finger resets its hinge damping) or
+        # compiled a new model: the draws go (again) into the model it holds, the state it chose is kept.
+        self._reapplied, moved = settle_draws(self._handle, self.randomizer)
+        if moved:
             fresh = observe_again(self.env)
             if fresh is not None:
                 obs = fresh

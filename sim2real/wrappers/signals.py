@@ -254,6 +254,10 @@ class SignalClock(NoCopy):
         self._control = 0
         self._ring = None
         if self.handle is not None:
+            if self.handle.rebuilt() and self._remove is not None:
+                # The env compiled a new model in its reset: the physics-step interception moves to it.
+                self._remove()
+                self._remove = self.handle.intercept_step(self._stepper, self._direct)
             data = self.handle.data
             self._t0 = float(data.time)
             c = self.corruptor

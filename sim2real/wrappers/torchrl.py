@@ -27,7 +27,7 @@ from torchrl.envs.transforms import Transform
 from randomizers import Effect, PhysicsRandomizer
 from randomizers.seeding import SeedLike
 from sim2real.physics import PhysicsHandle
-from sim2real.wrappers.gym import require_physics
+from sim2real.wrappers.gym import require_physics, settle_draws
 from sim2real.wrappers.signals import NoCopy
 
 __all__ = ["CorruptSignalsTransform", "RandomizePhysicsTransform"]
@@ -118,12 +118,7 @@ class RandomizePhysicsTransform(Transform):
         # and mj_forward recomputes what derives from it. The reset observation stays the base env's: a
         # transform cannot recompute it without bypassing transforms before it; only force- or
         # acceleration-derived sensors can differ.
-        self.reapplied = self.randomizer.reapply_overwritten()
-        if self.reapplied:
-            import mujoco
-
-            handle = self._bound()
-            mujoco.mj_forward(handle.model, handle.data)
+        self.reapplied, _ = settle_draws(self._bound(), self.randomizer)
         tensordict_reset.set(PARAMS_KEY, self._params_tensor(tensordict_reset.batch_size))
         # dm-control's exceptions are off (see _no_exceptions): a reset that diverged shows in the warnings.
         self._reset_diverged = self._bound().diverged()
