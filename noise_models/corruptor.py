@@ -458,6 +458,8 @@ class SignalCorruptor:
             self._held = sample.copy()
         self._obs_samples = 0
         if self._obs_delay is not None:
+            if sample is obs:  # kept for later steps: the caller's array may be a buffer its env writes again
+                sample = obs.copy()
             self._obs_delay.reset(sample, 0)
             if self._obs_lag is not None:
                 self._obs_ring = [sample] * (self._obs_lag + 1)
@@ -493,7 +495,8 @@ class SignalCorruptor:
             return self._hot_noisy_lag(pipes[0], ring, lag)
 
         def observe(obs: np.ndarray, now: int = 0) -> np.ndarray:
-            sample = obs if noise is None else noise(obs)
+            # Kept in the ring: without noise (whose output is new) a copy, as the env may write its buffer again.
+            sample = obs.copy() if noise is None else noise(obs)
             # Fixed latency, fixed control period: the sample of ``lag`` control steps ago, from a ring of
             # references (the same answer as the arrival-ordered delay line, with less work).
             k = self._obs_samples + 1
@@ -545,6 +548,8 @@ class SignalCorruptor:
                 sample[self._sah_idx] = self._held[self._sah_idx]
             self._last_obs_time = now
         lag = self._obs_lag
+        if sample is obs and self._obs_delay is not None:
+            sample = obs.copy()  # kept for later steps: the caller's array may be a buffer its env writes again
         if lag is not None:
             # Fixed latency, fixed control period: the sample of ``lag`` control steps ago, from a ring
             # of references (the same answer as the arrival-ordered delay line, with less work).

@@ -673,3 +673,54 @@ def test_physics_rate_latency_follows_a_rebuilt_model() -> None:
         late.reset(seed=episode)
         expected = np.array([late.step(a)[0] for a in np.vstack([np.zeros((1, 1)), actions[:-1]])])
         np.testing.assert_array_equal(seen, expected)  # 2 physics steps = one control step late
+
+
+# -- envs that reuse their observation buffer -------------------------------------------------------------------
+
+
+class BufferedObservation(gym.Env):
+    """Writes every observation into one preallocated array and returns it (no allocation per step)."""
+
+    def __init__(self) -> None:
+        self.model = mujoco.MjModel.from_xml_string(SLIDER_XML.format(height=0.0))
+        self.data = mujoco.MjData(self.model)
+        self.frame_skip = 1
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (2,), np.float64)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float64)
+        self._buffer = np.zeros(2)
+
+    def _obs(self) -> np.ndarray:
+        self._buffer[0], self._buffer[1] = self.data.qpos[0], self.data.qvel[0]
+        return self._buffer
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict]:
+        super().reset(seed=seed)
+        mujoco.mj_resetData(self.model, self.data)
+        return self._obs(), {}
+
+    def _simulate(self, nstep: int) -> None:
+        mujoco.mj_step(self.model, self.data, nstep=nstep)
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict]:
+        self.data.ctrl[:] = action
+        self._simulate(self.frame_skip)
+        return self._obs(), 0.0, False, False, {}
+
+
+@pytest.mark.parametrize(
+    "latency",
+    [ObservationLatency(steps=3), ObservationLatency(steps=3, jitter=Choice((0.0, 1.0)))],
+    ids=["fixed", "jittered"],
+)
+def test_observation_latency_delays_an_env_that_reuses_its_observation_array(latency: Any) -> None:
+    env = s2r.wrap(BufferedObservation(), latency, seed=0)
+    first = env.reset(seed=0)[0].copy()
+    seen = np.array([env.step(np.ones(1))[0].copy() for _ in range(8)])
+    bare = BufferedObservation()
+    truth = np.array([first, *(bare.step(np.ones(1))[0].copy() for _ in range(8))])
+    taken = [int(np.flatnonzero((truth == row).all(axis=1))[-1]) for row in seen]  # the physics step observed
+    # At physics step k + 1 the newest sample that has arrived was taken at k + 1 - 3 or before (the reset sample
+    # until then). Before: every "delayed" observation was the env's live buffer, the current state.
+    assert all(t == 0 or k + 1 - t >= 3 for k, t in enumerate(taken)), taken
+    if latency.jitter is None:
+        assert taken == [0, 0, 0, 1, 2, 3, 4, 5]

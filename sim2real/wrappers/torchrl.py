@@ -325,12 +325,10 @@ class CorruptSignalsTransform(NoCopy, Transform):
 
     def _flat(self, td: TensorDictBase) -> Any:
         # On the CPU ``Tensor.numpy()`` is a view of the tensor's memory: one entry reaches the corruptor without a
-        # copy when a noise pipeline comes first (its output is a new array); without one, a latency or hold
-        # buffer would keep the view of a tensor TorchRL may reuse, so it gets a copy, as several entries do.
+        # copy (a latency or hold buffer copies what it keeps: TorchRL may reuse the tensor, as envs their buffers).
         keys = self._keys
         if len(keys) == 1:
-            vec = td.get(keys[0]).detach().cpu().numpy().reshape(-1)
-            return vec if self.corruptor.obs_noise else vec.copy()
+            return td.get(keys[0]).detach().cpu().numpy().reshape(-1)
         import numpy as np
 
         return np.concatenate([td.get(k).detach().cpu().numpy().reshape(-1) for k in keys])
