@@ -137,6 +137,16 @@ def wrap(env: Any, *effects: Any, adr: ADR | None = None, seed: SeedLike = None)
         return CorruptSignals(env, signals, seed) if signals else env
     if _is_torchrl_env(env):
         from torchrl.envs import Compose, TransformedEnv
+        from torchrl.envs.batched_envs import BatchedEnvBase
+
+        base = env.base_env if isinstance(env, TransformedEnv) else env
+        if isinstance(base, BatchedEnvBase):
+            # Its MuJoCo models live in its workers, and its observations carry a batch dimension.
+            raise TypeError(
+                f"`env` is a batched TorchRL env ({type(base).__name__}, batch_size {list(env.batch_size)}): wrap "
+                "each sub-environment in its factory instead, e.g. `SerialEnv(2, [lambda i=i: sim2real.wrap("
+                "GymEnv(...), *effects, seed=(seed, i)) for i in range(2)])`."
+            )
 
         from sim2real.wrappers.torchrl import CorruptSignalsTransform, RandomizePhysicsTransform
 

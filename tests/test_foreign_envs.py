@@ -724,3 +724,22 @@ def test_observation_latency_delays_an_env_that_reuses_its_observation_array(lat
     assert all(t == 0 or k + 1 - t >= 3 for k, t in enumerate(taken)), taken
     if latency.jitter is None:
         assert taken == [0, 0, 0, 1, 2, 3, 4, 5]
+
+
+def test_a_batched_torchrl_env_is_refused_with_the_per_worker_recipe() -> None:
+    from torchrl.envs import GymEnv, SerialEnv
+
+    for effects in ((ObservationNoise(Gaussian(std=0.1)),), (s2r.Mass(scale=Uniform(0.5, 2.0)),)):
+        # Before: a RecursionError (signals: TorchRL's batched __getattr__) or "has no MuJoCo model" (physics).
+        with pytest.raises(TypeError, match=r"^`env` is a batched TorchRL env \(SerialEnv, batch_size \[2\]\): wrap"):
+            s2r.wrap(SerialEnv(2, lambda: GymEnv("InvertedPendulum-v5")), *effects, seed=0)
+    recipe = SerialEnv(
+        2,
+        [
+            lambda i=i: s2r.wrap(GymEnv("InvertedPendulum-v5"), s2r.Mass(scale=Uniform(0.5, 2.0)), seed=(0, i))
+            for i in range(2)
+        ],
+    )
+    first, second = recipe.reset()["sim2real_params"].tolist()
+    assert first != second
+    recipe.close()

@@ -392,7 +392,8 @@ def _action_repeat(parent: Any) -> int:
     times the env's ``frame_skip``."""
     from torchrl.envs.transforms import Compose, FrameSkipTransform
 
-    repeat = getattr(parent.base_env, "wrapper_frame_skip", 1)
+    # From __dict__, as TorchRL reads it: a batched env's __getattr__ would start (or recurse into) its workers.
+    repeat = vars(parent.base_env).get("wrapper_frame_skip", 1)
     repeat = repeat if isinstance(repeat, int) and not isinstance(repeat, bool) and repeat >= 1 else 1
     transform = getattr(parent, "transform", None)
     for t in transform if isinstance(transform, Compose) else (transform,):
