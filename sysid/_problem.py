@@ -5,6 +5,13 @@ fitted nuisance initial state) and is rolled out open loop through ``mujoco.roll
 commands, delayed by the action latency. One rollout call carries every (parameter set x segment) pair,
 so the residual of B parameter sets, or a whole finite-difference Jacobian, costs one batched,
 multi-threaded call.
+
+Rows need not sit on the control grid: a CSV log from a jittery driver clock keeps each sample at its own time
+(``log.time``; :func:`sysid.load_csv`). A segment then starts at the physics step nearest its anchor row's time,
+commands switch at their grid points as always, and every row is predicted at its own time, between two physics
+steps (linear in between: MuJoCo's integrators move the state in whole steps). Interpolating the samples onto the grid
+instead leaves an error of the order of jitter x acceleration, which a servo's velocity (its acceleration jumps
+at every command) turns into coloured residuals that fail the whiteness check of a right model.
 """
 
 from __future__ import annotations
@@ -23,6 +30,22 @@ from sysid.params import ModelPool, ParameterSpace
 __all__ = ["Problem", "Segments", "make_segments"]
 
 _SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
+_ON_GRID = 1e-6  # physics steps: a row's time this close to its grid point is on the grid (float rounding)
+
+
+def sample_offsets(log: TrajectoryLog) -> np.ndarray | None:
+    """(T,) how far each row's time is from its control-grid point (in physics steps; the grid of an episode
+    starts at its first row), or None when every row is on the grid, or when some row is half a control step or
+    more off (not a jittery grid: such a log is fitted row by row as before)."""
+    dt, h, n_sub = log.control_timestep, log.timestep, log.n_substeps
+    offset = np.empty(log.num_steps)
+    for a, b in log.episode_bounds():
+        grid = log.time[a] + dt * np.arange(b - a)
+        offset[a:b] = (log.time[a:b] - grid) / h
+    peak = float(np.max(np.abs(offset)))
+    if peak <= _ON_GRID or peak >= 0.5 * n_sub:
+        return None
+    return offset
 
 
 @dataclass(frozen=True)
@@ -156,6 +179,18 @@ class Problem:
         self._template = np.empty(self.nstate)
         mujoco.mj_getState(model, data, self._template, _SPEC)
         self._controls: dict[int, np.ndarray] = {}
+        # Rows off the grid: a segment starts at the physics step nearest its anchor row's time (the rollout stays
+        # on the physics steps its commands switch at) and runs one control step longer, so its last row can be
+        # read after its grid point.
+        self.offset = sample_offsets(log)
+        self.extra = 0 if self.offset is None else self.n_sub + 1
+        self._shift = np.zeros(segments.count, dtype=np.intp)
+        self._position = np.zeros(0)
+        if self.offset is not None:
+            self._shift = np.round(self.offset[segments.start]).astype(np.intp)
+            rows = np.minimum(segments.start[:, None] + np.arange(self.L + 1)[None, :], log.num_steps - 1)
+            # (S, L+1) physics steps from the segment's start at which each of its rows was sampled
+            self._position = np.arange(self.L + 1)[None, :] * self.n_sub + self.offset[rows] - self._shift[:, None]
         # The last single-set rollout (values, delay, x0, states, sensors): Levenberg–Marquardt asks for the
         # Jacobian right where it accepted a trial step, so its base rows need not be rolled out again.
         self._last: tuple[np.ndarray, int, np.ndarray, np.ndarray, np.ndarray] | None = None
@@ -168,6 +203,8 @@ class Problem:
     def _initial_states(self, x0: np.ndarray) -> np.ndarray:
         states = np.tile(self._template, (x0.shape[0], 1))
         states[:, 0] = self.log.time[self.seg.start]
+        if self.offset is not None:  # the physics step the segment starts at
+            states[:, 0] -= (self.offset[self.seg.start] - self._shift) * self.log.timestep
         states[:, 1 : 1 + self.nx] = x0
         if self.na and self.log.act is not None:
             states[:, 1 + self.nx : 1 + self.nx + self.na] = self.log.act[self.seg.start]
@@ -179,8 +216,8 @@ class Problem:
         if cached is not None:
             return cached
         n_sub, seg = self.n_sub, self.seg
-        steps = np.arange(self.L * n_sub)
-        absolute = seg.start[:, None] * n_sub + steps[None, :]
+        steps = np.arange(self.L * n_sub + self.extra)
+        absolute = seg.start[:, None] * n_sub + self._shift[:, None] + steps[None, :]
         source = np.floor_divide(absolute - delay, n_sub)
         source = np.clip(source, seg.episode_start[:, None], seg.episode_stop[:, None] - 1)
         out = np.ascontiguousarray(self.log.ctrl[source])
@@ -188,18 +225,40 @@ class Problem:
         return out
 
     def rollout(
-        self, models: list[mujoco.MjModel], states: np.ndarray, controls: np.ndarray
+        self, models: list[mujoco.MjModel], states: np.ndarray, controls: np.ndarray, segs: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Rolls out rows; returns predicted states (R, L+1, nx) and sensors (R, L, ns) at control rows."""
-        nstep = self.L * self.n_sub
+        """Rolls out rows; returns predicted states (R, L+1, nx) and sensors (R, L, ns) at control rows.
+
+        ``segs`` (R,) is the shooting segment of each row (default: the segments in order, repeated), which
+        says at what times its rows were sampled when they are off the grid."""
+        nstep = self.L * self.n_sub + self.extra
         state_out, sensor_out = mujoco.rollout.rollout(
             models, self._datas, states, controls, nstep=nstep, persistent_pool=False
         )
+        if self.offset is not None:
+            segs = np.tile(np.arange(self.seg.count), states.shape[0] // self.seg.count) if segs is None else segs
+            return self._at_sample_times(states, state_out, sensor_out, self._position[segs])
         pred = np.empty((states.shape[0], self.L + 1, self.nx))
         pred[:, 0] = states[:, 1 : 1 + self.nx]
         pred[:, 1:] = state_out[:, self.n_sub - 1 :: self.n_sub, 1 : 1 + self.nx]
         sens = sensor_out[:, :: self.n_sub] if self.use_sensors else np.zeros((states.shape[0], self.L, 0))
         return pred, sens
+
+    def _at_sample_times(
+        self, states: np.ndarray, state_out: np.ndarray, sensor_out: np.ndarray, position: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """States and sensors at fractional physics steps ``position`` (R, L+1) of each rollout row."""
+        full = np.concatenate([states[:, None, 1 : 1 + self.nx], state_out[:, :, 1 : 1 + self.nx]], axis=1)
+        rows = np.arange(full.shape[0])[:, None]
+        low = np.clip(np.floor(position).astype(np.intp), 0, full.shape[1] - 2)
+        w = (position - low)[..., None]
+        pred = (1.0 - w) * full[rows, low] + w * full[rows, low + 1]
+        if not self.use_sensors:
+            return pred, np.zeros((states.shape[0], self.L, 0))
+        # sensor_out[:, i] is read at the state before step i, as full[:, i]
+        low = np.minimum(low[:, : self.L], sensor_out.shape[1] - 2)
+        w = (position[:, : self.L] - low)[..., None]
+        return pred, (1.0 - w) * sensor_out[rows, low] + w * sensor_out[rows, low + 1]
 
     def simulate(self, values: np.ndarray, delay: int, x0: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Predictions for B parameter sets: states (B, S, L+1, nx), sensors (B, S, L, ns)."""
@@ -226,10 +285,10 @@ class Problem:
             self._datas,
             self._initial_states(x0),
             self.controls(delay),
-            nstep=self.L * n_sub,
+            nstep=self.L * n_sub + self.extra,
             persistent_pool=False,
         )
-        steps = np.arange(self.L * n_sub)
+        steps = np.arange(self.L * n_sub + self.extra)
         reach = self.seg.start[:, None] + (steps[None, :] + n_sub) // n_sub  # after step k: row start + ceil((k+1)/n)
         last = self.seg.start + self.seg.length + (0 if self.fitted_anchor else 1)
         keep = reach < last[:, None]
@@ -300,7 +359,10 @@ class Problem:
             states.append(pert)
             controls.append(np.repeat(self.controls(delay), nxa, axis=0))
             row_models += [models[0]] * (s * nxa)
-        pred, sens = self.rollout(row_models, np.vstack(states), np.concatenate(controls))
+        segs = [np.tile(np.arange(s), table.shape[0] - first)]
+        if fit_x0:
+            segs.append(np.repeat(np.arange(s), nxa))
+        pred, sens = self.rollout(row_models, np.vstack(states), np.concatenate(controls), np.concatenate(segs))
         if cached is not None:
             pred, sens = np.concatenate([cached[0], pred]), np.concatenate([cached[1], sens])
         n_sets = table.shape[0]

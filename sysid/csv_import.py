@@ -7,9 +7,13 @@
   ``value = scale * (raw in SI units) + offset`` (offset in the log's units: rad, rad/s, s, actuator units);
 * **time** converted to seconds and checked against ``meta["control_timestep"]``: a median spacing more than 20%
   away is an error (it names the column and, when the ratio is ~1000 or ~10^6, the unit it looks like);
-* **jitter**: rows within a segment are resampled onto the control grid ``t0 + k * control_timestep`` (states
-  interpolated linearly, commands taken from the nearest row: a command is held for its control step); the
-  largest deviation from the grid is ``meta["csv"]["max_jitter_s"]``;
+* **jitter**: a segment gets one row per point of its control grid ``t0 + k * control_timestep``: the sample
+  nearest that point, kept at its own time (``log.time``; :func:`sysid.fit` predicts every row at its time), and
+  the command of the nearest row, held from the grid point for its control step. A point that no sample rounds to
+  is interpolated (a hinge's or a slide's position by cubic Hermite through the logged velocity, the rest
+  linearly; ``meta["csv"]["interpolated_rows"]`` counts them). Interpolating every sample onto the grid instead
+  made fits of right models "not ok": a servo's acceleration jumps at every command, so a velocity sampled 2 ms off
+  the grid cannot be carried onto it. The largest deviation from the grid is ``meta["csv"]["max_jitter_s"]``;
 * **gaps**: a spacing over 1.5 control steps (dropped rows) ends the segment; the log continues in a new segment
   (the ``episode`` key numbers the segments, so the fit restarts from the logged state there) and a
   :class:`CsvWarning` says where. Nothing is interpolated across a gap;
@@ -333,15 +337,52 @@ def _segments(
     return [(a, b) for a, b in itertools.pairwise(edges) if b > a], gaps
 
 
+def _hermite(grid: np.ndarray, t: np.ndarray, y: np.ndarray, slope: np.ndarray) -> np.ndarray:
+    """Cubic Hermite interpolation of samples ``y`` with derivatives ``slope`` at ``t``, evaluated at ``grid``."""
+    i = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, t.shape[0] - 2)
+    h = t[i + 1] - t[i]
+    s = np.clip((grid - t[i]) / h, 0.0, 1.0)
+    s2, s3 = s * s, s * s * s
+    return (
+        (2 * s3 - 3 * s2 + 1) * y[i]
+        + (s3 - 2 * s2 + s) * h * slope[i]
+        + (3 * s2 - 2 * s3) * y[i + 1]
+        + (s3 - s2) * h * slope[i + 1]
+    )
+
+
+def _velocity_of(model: mujoco.MjModel | None, nq: int, nv: int) -> list[int | None]:
+    """Per ``qpos`` column, the ``qvel`` column holding its derivative (a hinge's or a slide's), else None (free and
+    ball joints: a quaternion's derivative is not a velocity column). Without a model, ``nq == nv`` means every
+    joint is a hinge or a slide."""
+    if model is None:
+        return list(range(nq)) if nq == nv else [None] * nq
+    out: list[int | None] = [None] * nq
+    smooth = {int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)}
+    for j in range(model.njnt):
+        if int(model.jnt_type[j]) in smooth:
+            k, d = int(model.jnt_qposadr[j]), int(model.jnt_dofadr[j])
+            if k < nq and d < nv:
+                out[k] = d
+    return out
+
+
 def _resample(
-    arrays: dict[str, np.ndarray], bounds: list[tuple[int, int]], dt: float
-) -> tuple[dict[str, np.ndarray], np.ndarray, float, int]:
-    """Each segment on its control grid; returns the arrays, the segment index per row, the max jitter and the
-    number of one-row segments dropped."""
+    arrays: dict[str, np.ndarray], bounds: list[tuple[int, int]], dt: float, velocity_of: list[int | None]
+) -> tuple[dict[str, np.ndarray], np.ndarray, float, int, int]:
+    """Each segment on its control grid; returns the arrays, the segment index per row, the max jitter, the
+    number of one-row segments dropped and the number of grid points interpolated.
+
+    Off the grid, a grid point keeps the sample nearest it at that sample's own time (the fit predicts every row at
+    its time): interpolating onto the grid leaves an error of jitter x acceleration, and a servo's velocity, whose
+    acceleration jumps at every command, cannot be interpolated from samples a control step apart. A grid point
+    that no sample rounds to is interpolated: a hinge's or a slide's position by cubic Hermite through the logged
+    velocities, everything else linearly. Commands are taken from the row nearest each grid point."""
     out: dict[str, list[np.ndarray]] = {key: [] for key in arrays if key != "episode"}
     segment: list[np.ndarray] = []
     jitter = 0.0
     dropped = 0
+    filled = 0
     for a, b in bounds:
         t = arrays["time"][a:b]
         if b - a < 2:
@@ -354,22 +395,39 @@ def _resample(
         grid = t[0] + dt * np.arange(n)
         exact = n == t.shape[0] and bool(np.all(np.abs(residual) <= 1e-9 * dt))
         nearest = np.clip(np.searchsorted(t, grid - 0.5 * dt), 0, t.shape[0] - 1)
+        # per grid point, the sample rounding to it that is nearest it (-1: none): sorted by grid point, the
+        # nearest last
+        pick = np.full(n, -1)
+        order = np.lexsort((-np.abs(residual), k))
+        ks = k[order].astype(np.intp)
+        last = np.append(ks[1:] != ks[:-1], True)
+        pick[ks[last]] = order[last]
+        kept = pick >= 0
+        filled += int(n - kept.sum()) if not exact else 0
         for key, values in arrays.items():
             if key == "episode":
                 continue
             block = values[a:b]
             if key == "time":
-                out[key].append(block.copy() if exact else grid)
+                out[key].append(block.copy() if exact else np.where(kept, t[np.maximum(pick, 0)], grid))
             elif exact:
                 out[key].append(block.copy())
             elif key == "ctrl":
                 out[key].append(block[nearest])  # a command is held for its control step: never interpolated
             else:
-                out[key].append(np.column_stack([np.interp(grid, t, block[:, c]) for c in range(block.shape[1])]))
+                columns = []
+                for c in range(block.shape[1]):
+                    d = velocity_of[c] if key == "qpos" and c < len(velocity_of) else None
+                    if d is None:
+                        filled_in = np.interp(grid, t, block[:, c])
+                    else:
+                        filled_in = _hermite(grid, t, block[:, c], arrays["qvel"][a:b, d])
+                    columns.append(np.where(kept, block[np.maximum(pick, 0), c], filled_in))
+                out[key].append(np.column_stack(columns))
         segment.append(np.full(t.shape[0] if exact else n, len(segment)))
     if not segment:
         raise LogError("the CSV log has no segment of 2 or more rows between its gaps.")
-    return {key: np.concatenate(v) for key, v in out.items()}, np.concatenate(segment), jitter, dropped
+    return {key: np.concatenate(v) for key, v in out.items()}, np.concatenate(segment), jitter, dropped, filled
 
 
 def load_csv(
@@ -400,8 +458,9 @@ def load_csv(
         offset: column name or pattern -> added after scaling (in the log's units).
 
     Returns:
-        A validated log on the control grid; ``meta["csv"]`` holds ``file``, ``units``, ``max_jitter_s``,
-        ``gaps`` (``[{"row", "dt_s"}]``), ``segments`` and ``resampled``.
+        A validated log with one row per control step (rows of a jittery clock at their sample times);
+        ``meta["csv"]`` holds ``file``, ``units``, ``max_jitter_s``, ``gaps`` (``[{"row", "dt_s"}]``),
+        ``segments``, ``resampled`` (True when rows were off the grid) and ``interpolated_rows``.
 
     Raises:
         LogError: a mapped column is missing (close matches listed), a cell is not a number (file, row and
@@ -482,7 +541,8 @@ def load_csv(
         explicit = {header[i] for i in unit_of if mapped[i] == "qpos"}
         _check_degrees(arrays["qpos"], names, explicit, model, f"CSV file {where}")
     bounds, gaps = _segments(arrays["time"], episode, dt, time_column, f"CSV file {where}")
-    resampled, segment, jitter, dropped = _resample(arrays, bounds, dt)
+    velocity_of = _velocity_of(model, arrays["qpos"].shape[1], arrays["qvel"].shape[1])
+    resampled, segment, jitter, dropped, filled = _resample(arrays, bounds, dt, velocity_of)
     name = Path(path).name
     if gaps:
         first = gaps[0]
@@ -501,6 +561,7 @@ def load_csv(
         "gaps": gaps,
         "segments": int(segment.max()) + 1,
         "resampled": bool(jitter > 1e-9 * dt),
+        "interpolated_rows": filled,
     }
     log = TrajectoryLog(
         **resampled,

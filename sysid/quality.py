@@ -309,9 +309,10 @@ def assess(
 ) -> FitQuality:
     """Runs every check and returns the :class:`FitQuality` with a reason per failure.
 
-    ``jitter`` is the largest offset, in control steps, of a CSV log's samples from the control grid they were
-    interpolated onto (``log.meta["csv"]["max_jitter_s"]`` over the control timestep): the interpolation error is
-    coloured too, so a whiteness failure then names it among the causes.
+    ``jitter`` is the largest offset, in control steps, of a CSV log's samples from its control grid
+    (``log.meta["csv"]["max_jitter_s"]`` over the control timestep). The fit predicts every sample at its own time
+    but takes each command to act from its grid point, so a driver that sends its commands on the jittery clock
+    leaves coloured residuals: a whiteness failure then names that among the causes.
 
     Example:
         >>> q = assess({"qpos[a]": 20.0, "qpos[b]": 30.0}, {"qpos[a]": 1e-9, "qpos[b]": 1e-6}, ("dof_damping[a]",),
@@ -346,8 +347,8 @@ def assess(
             f"p={pvals[coloured[0]]:.2g} < {NOT_WHITE_P:g}/{len(pvals)}): unmodelled dynamics, a wrong latency or "
             "a wrong model"
             + (
-                f", or the resampling of the CSV's jittery clock (samples up to {jitter:.0%} of a control step off the "
-                "grid, interpolated onto it)"
+                f", or the CSV's jittery clock (samples up to {jitter:.0%} of a control step off the grid; the fit "
+                "takes each command to act from its grid point)"
                 if jitter > 0
                 else ""
             )

@@ -177,7 +177,7 @@ def test_sysid_fit_help_states_the_exit_code_the_command_returns() -> None:
     assert "%%" not in text and "95% intervals" in text
 
 
-def test_a_whiteness_failure_on_a_resampled_csv_names_the_resampling_among_its_causes(tmp_path: Path) -> None:
+def test_a_whiteness_failure_on_a_jittery_csv_names_the_command_timing_among_its_causes(tmp_path: Path) -> None:
     from sysid.fit import _jitter_steps
     from sysid.quality import assess
 
@@ -191,8 +191,8 @@ def test_a_whiteness_failure_on_a_resampled_csv_names_the_resampling_among_its_c
     coloured = ({"qvel[a]": 40.0}, {"qvel[a]": 1e-6}, (), 10.0, True, 1.0, {"d": 1.0}, 0, 1)
     (reason,) = [r for r in assess(*coloured, jitter=_jitter_steps(log)).reasons if "far from white" in r]
     assert reason.endswith(
-        "a wrong model, or the resampling of the CSV's jittery clock (samples up to 20% of a control step off the "
-        "grid, interpolated onto it)"
+        "a wrong model, or the CSV's jittery clock (samples up to 20% of a control step off the grid; the fit takes "
+        "each command to act from its grid point)"
     )
     assert [r for r in assess(*coloured).reasons if r.endswith("a wrong latency or a wrong model")]
 

@@ -116,7 +116,7 @@ def test_milliseconds_read_as_seconds_fail_on_the_spacing_check(tmp_path, arm, f
         load_csv(path, COLUMNS, meta={"timestep": 0.002, "control_timestep": 0.02}, units={**UNITS}, scale={"t_ms": 2})
 
 
-def test_jitter_is_resampled_onto_the_control_grid_and_reported(tmp_path, arm, fine) -> None:
+def test_jittered_rows_keep_their_sample_times_and_a_missing_grid_point_is_interpolated(tmp_path, arm, fine) -> None:
     model, _ = arm
     rng = np.random.default_rng(0)
     jitter = rng.integers(-2, 3, size=STEPS)  # physics steps of 2 ms: up to +-4 ms on a 20 ms period
@@ -127,12 +127,27 @@ def test_jitter_is_resampled_onto_the_control_grid_and_reported(tmp_path, arm, f
     log = load_csv(path, COLUMNS, meta=_meta(model), model=model, units=UNITS)
     assert log.meta["csv"]["max_jitter_s"] == pytest.approx(np.abs(jitter).max() * model.opt.timestep, abs=1e-12)
     assert log.meta["csv"]["resampled"] is True
-    np.testing.assert_allclose(log.time, fine.time[_grid()], rtol=0, atol=1e-9)  # on the control grid
+    assert log.meta["csv"]["interpolated_rows"] == 0
+    # one row per grid point, each the sample taken nearest it, at its own time (the fit predicts it there)
+    np.testing.assert_allclose(log.time, fine.time[rows], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(log.qpos, fine.qpos[rows], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(log.qvel, fine.qvel[rows], rtol=0, atol=1e-12)
     np.testing.assert_array_equal(log.ctrl, fine.ctrl[_grid()])  # commands are held, never interpolated
-    truth = fine.qpos[_grid()]
-    resampled = np.sqrt(np.mean((log.qpos - truth) ** 2))
-    naive = np.sqrt(np.mean((fine.qpos[rows] - truth) ** 2))  # the jittered samples taken as on-grid
-    assert resampled < 0.2 * naive, (resampled, naive)  # measured: 2.3e-4 vs 2.3e-3 rad
+    # grid point 41 gets no sample (40 is sampled 4 ms late, 41 at 12 ms: nearer 42, whose sample is dropped): it
+    # is interpolated on the grid, positions by cubic Hermite through the logged velocities
+    rows = _grid().copy()
+    rows[40] += 2
+    rows[41] += 6
+    rows = np.delete(rows, 42)
+    _write(path, fine, rows)
+    log = load_csv(path, COLUMNS, meta=_meta(model), model=model, units=UNITS)
+    assert log.meta["csv"]["interpolated_rows"] == 1 and log.meta["csv"]["gaps"] == []
+    assert log.num_steps == STEPS
+    assert log.time[41] == pytest.approx(fine.time[410], abs=1e-12)
+    np.testing.assert_allclose(log.time[[40, 42]], fine.time[[402, 416]], rtol=0, atol=1e-12)
+    linear = np.array([np.interp(fine.time[410], fine.time[[402, 416]], fine.qpos[[402, 416], c]) for c in range(6)])
+    hermite = np.abs(log.qpos[41] - fine.qpos[410]).max()
+    assert hermite < 0.1 * np.abs(linear - fine.qpos[410]).max(), hermite
 
 
 def test_a_gap_starts_a_new_segment_and_is_never_interpolated(tmp_path, arm, fine) -> None:

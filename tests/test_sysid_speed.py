@@ -51,9 +51,9 @@ def _count_rows(problem: Problem, monkeypatch: pytest.MonkeyPatch) -> list[int]:
     rows: list[int] = []
     original = Problem.rollout
 
-    def counting(self: Problem, models: list, states: np.ndarray, controls: np.ndarray):  # type: ignore[no-untyped-def]
+    def counting(self: Problem, models: list, states: np.ndarray, controls: np.ndarray, segs=None):  # type: ignore[no-untyped-def]
         rows.append(states.shape[0])
-        return original(self, models, states, controls)
+        return original(self, models, states, controls, segs)
 
     monkeypatch.setattr(Problem, "rollout", counting)
     return rows
