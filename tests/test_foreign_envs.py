@@ -743,3 +743,22 @@ def test_a_batched_torchrl_env_is_refused_with_the_per_worker_recipe() -> None:
     first, second = recipe.reset()["sim2real_params"].tolist()
     assert first != second
     recipe.close()
+
+
+@pytest.mark.parametrize("repeat", [1, 2])
+def test_torchrl_reports_the_substeps_control_jitter_applied(repeat: int) -> None:
+    from torchrl.envs import GymWrapper
+    from torchrl.envs.utils import check_env_specs
+
+    jitter = ControlJitter(Choice((-2.0, 0.0, 3.0)))
+    env = s2r.wrap(GymWrapper(gym.make("InvertedPendulum-v5"), frame_skip=repeat), jitter, seed=0)
+    check_env_specs(env, seed=0)  # the per-step draw was in no TensorDict key before
+    data = s2r.find_physics(env).data
+    td = env.reset()
+    applied, reported = [], []
+    for _ in range(12):
+        start = data.time
+        td = env.rand_step(td)["next"]
+        applied.append(round((data.time - start) / 0.02))  # InvertedPendulum-v5: 0.02 s per physics step
+        reported.append(int(td["sim2real_substeps"]))
+    assert reported == applied and len(set(applied)) > 1

@@ -24,6 +24,7 @@ from tensordict import NestedKey, TensorDictBase, unravel_key
 from torchrl.data import Binary, Composite, Unbounded
 from torchrl.envs.transforms import Transform
 
+from noise_models.timing import ControlJitter
 from randomizers import Effect, PhysicsRandomizer
 from randomizers.seeding import SeedLike
 from sim2real.physics import PhysicsHandle
@@ -35,6 +36,7 @@ __all__ = ["CorruptSignalsTransform", "RandomizePhysicsTransform"]
 PARAMS_KEY = "sim2real_params"
 DIVERGED_KEY = "sim2real_diverged"
 SIGNAL_PARAMS_KEY = "sim2real_signal_params"
+SUBSTEPS_KEY = "sim2real_substeps"
 
 
 def _no_exceptions(physics: Any) -> None:
@@ -176,7 +178,8 @@ class CorruptSignalsTransform(NoCopy, Transform):
 
     The per-episode draws travel in every TensorDict under ``"sim2real_signal_params"`` (float64,
     one entry per name in :attr:`param_names`) and are on :attr:`current_params`; physics draws of a
-    :class:`RandomizePhysicsTransform` stay in ``"sim2real_params"``.
+    :class:`RandomizePhysicsTransform` stay in ``"sim2real_params"``. With ControlJitter,
+    ``"sim2real_substeps"`` (int64) holds the physics substeps of the control step just taken.
 
     Args:
         models: ObservationNoise, ActionNoise, ObservationLatency, ActionLatency, SampleAndHold, ControlJitter.
@@ -321,7 +324,23 @@ class CorruptSignalsTransform(NoCopy, Transform):
         observation_spec[SIGNAL_PARAMS_KEY] = Unbounded(
             shape=(*observation_spec.shape, len(self._names)), dtype=torch.float64, device=observation_spec.device
         )
+        if self._jitter:
+            observation_spec[SUBSTEPS_KEY] = Unbounded(
+                shape=(*observation_spec.shape, 1), dtype=torch.int64, device=observation_spec.device
+            )
         return observation_spec
+
+    @property
+    def _jitter(self) -> bool:
+        """Whether each control step draws its physics substeps (ControlJitter reaching the physics)."""
+        return bool(self._bound().hooked) and ControlJitter in self.corruptor.timing
+
+    def _substeps(self, batch: torch.Size, reset: bool = False) -> torch.Tensor:
+        # The substeps run in this control step: all of the draw, or its share of the env steps TorchRL's own
+        # frame_skip took before the episode ended (the nominal count at reset).
+        clock = self._bound()
+        value = clock.nominal if reset else clock._passed * clock._target // clock.nominal
+        return torch.full((*batch, 1), int(value), dtype=torch.int64)
 
     def _flat(self, td: TensorDictBase) -> Any:
         # On the CPU ``Tensor.numpy()`` is a view of the tensor's memory: one entry reaches the corruptor without a
@@ -351,6 +370,8 @@ class CorruptSignalsTransform(NoCopy, Transform):
         if self.corruptor.has_observation:
             self._write(tensordict_reset, self.corruptor.first_observation(self._flat(tensordict_reset)))
         tensordict_reset.set(SIGNAL_PARAMS_KEY, self._params_tensor(tensordict_reset.batch_size))
+        if self._jitter:
+            tensordict_reset.set(SUBSTEPS_KEY, self._substeps(tensordict_reset.batch_size, reset=True))
         return tensordict_reset
 
     def _inv_call(self, tensordict: TensorDictBase) -> TensorDictBase:
@@ -376,6 +397,8 @@ class CorruptSignalsTransform(NoCopy, Transform):
             now = clock.now() if self.__dict__.get("_needs_now", True) else 0
             self._write(next_tensordict, self.corruptor.observe(self._flat(next_tensordict), now))
         next_tensordict.set(SIGNAL_PARAMS_KEY, self._params_tensor(next_tensordict.batch_size))
+        if self._jitter:  # this control step's draw, as gymnasium's info["sim2real"]["substeps"]
+            next_tensordict.set(SUBSTEPS_KEY, self._substeps(next_tensordict.batch_size))
         return next_tensordict
 
     def close(self) -> None:
