@@ -32,7 +32,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from randomizers.effects import Binding, Effect, Interval, PushBinding, PushEvent
+from randomizers.effects import Binding, Effect, Interval, Push, PushBinding, PushEvent
 from randomizers.seeding import SeedLike, StreamFactory, normalize_seed, reseeded_root
 from randomizers.setconst import SetConst
 
@@ -128,6 +128,42 @@ class PhysicsRandomizer:
     def root_seed(self) -> tuple[int, ...]:
         """The root the current streams derive from."""
         return self._streams.root
+
+    @property
+    def push_count(self) -> int:
+        """How many :class:`~randomizers.Push` effects there are (the rows of :meth:`push_state`)."""
+        return sum(isinstance(slot.effect, Push) for slot in self._slots)
+
+    def push_state(self) -> np.ndarray:
+        """What each :class:`~randomizers.Push` effect applies right now, one row each: the body id it pushes
+        (-1 when idle) and the force in newtons (world frame). Shape ``(push_count, 4)``.
+
+        Example:
+            >>> import mujoco
+            >>> from randomizers import PhysicsRandomizer, Push
+            >>> model = mujoco.MjModel.from_xml_string(
+            ...     '<mujoco><worldbody><body name="box"><freejoint/><geom size=".1"/></body></worldbody></mujoco>')
+            >>> r = PhysicsRandomizer([Push(force=2.0, interval=1)], seed=0)
+            >>> r.bind(model, mujoco.MjData(model))
+            >>> r.begin_episode()
+            >>> r.apply()
+            >>> r.push_state().tolist()
+            [[-1.0, 0.0, 0.0, 0.0]]
+            >>> _ = r.step()
+            >>> body, *force = r.push_state()[0]
+            >>> int(body), round(float(np.linalg.norm(force)), 6)
+            (1, 2.0)
+        """
+        rows = []
+        for slot in self._slots:
+            binding = slot.binding
+            if isinstance(binding, PushBinding):
+                active = binding.active
+                if active is None or self.data is None:
+                    rows.append((-1.0, 0.0, 0.0, 0.0))
+                else:
+                    rows.append((float(active), *self.data.xfrc_applied[active, :3].tolist()))
+        return np.array(rows, dtype=np.float64).reshape(-1, 4)
 
     @property
     def has_step_effects(self) -> bool:

@@ -762,3 +762,24 @@ def test_torchrl_reports_the_substeps_control_jitter_applied(repeat: int) -> Non
         applied.append(round((data.time - start) / 0.02))  # InvertedPendulum-v5: 0.02 s per physics step
         reported.append(int(td["sim2real_substeps"]))
     assert reported == applied and len(set(applied)) > 1
+
+
+@pytest.mark.parametrize("signals", [False, True], ids=["physics", "fused"])
+def test_torchrl_reports_the_pushes_each_step_applied(signals: bool) -> None:
+    from torchrl.envs import GymEnv
+    from torchrl.envs.utils import check_env_specs
+
+    push = s2r.Push(force=Uniform(1.0, 2.0), interval=Uniform(2.0, 3.0), bodies="object")
+    models = (ObservationNoise(Gaussian(std=0.01)),) if signals else ()
+    env = s2r.wrap(GymEnv("Pusher-v5"), push, *models, seed=0)
+    check_env_specs(env, seed=0)
+    td = env.rollout(12)
+    rows = td["next", "sim2real_pushes"][:, 0].numpy()  # the pushes were in no TensorDict key before
+    physics = env.transform.physics if signals else env.transform
+    events = physics.randomizer.events
+    body = s2r.find_physics(env).model.body("object").id
+    assert len(events) >= 3
+    for event in events:
+        np.testing.assert_array_equal(rows[event.step - 1], [body, *event.force])
+    started = {event.step - 1 for event in events}
+    assert all(rows[k, 0] == -1.0 for k in range(12) if k not in started)

@@ -37,6 +37,7 @@ PARAMS_KEY = "sim2real_params"
 DIVERGED_KEY = "sim2real_diverged"
 SIGNAL_PARAMS_KEY = "sim2real_signal_params"
 SUBSTEPS_KEY = "sim2real_substeps"
+PUSHES_KEY = "sim2real_pushes"
 
 
 def _no_exceptions(physics: Any) -> None:
@@ -48,6 +49,9 @@ def _no_exceptions(physics: Any) -> None:
 
 class RandomizePhysicsTransform(Transform):
     """Applies physics effects on every reset of the TorchRL env it is appended to.
+
+    With :class:`~randomizers.Push` effects, ``"sim2real_pushes"`` (float64, ``(push effects, 4)``) holds what each
+    applies during the step: the body id it pushes (-1 when idle) and the force in newtons (world frame).
 
     Args:
         effects: physics effects from :mod:`randomizers`.
@@ -127,7 +131,13 @@ class RandomizePhysicsTransform(Transform):
         tensordict_reset.set(
             DIVERGED_KEY, torch.full((*tensordict_reset.batch_size, 1), self._reset_diverged, dtype=torch.bool)
         )
+        if self.randomizer.push_count:
+            tensordict_reset.set(PUSHES_KEY, self._pushes(tensordict_reset.batch_size))
         return tensordict_reset
+
+    def _pushes(self, batch: torch.Size) -> torch.Tensor:
+        state = torch.from_numpy(self.randomizer.push_state())
+        return state.expand(*batch, *state.shape).clone()
 
     def _inv_call(self, tensordict: TensorDictBase) -> TensorDictBase:
         if self.randomizer.has_step_effects:
@@ -141,6 +151,8 @@ class RandomizePhysicsTransform(Transform):
         diverged = handle.diverged() or self._reset_diverged
         next_tensordict.set(PARAMS_KEY, self._params_tensor(batch))
         next_tensordict.set(DIVERGED_KEY, torch.full((*batch, 1), diverged, dtype=torch.bool))
+        if self.randomizer.push_count:  # the pushes this step applied, as gymnasium's info["sim2real"]["events"]
+            next_tensordict.set(PUSHES_KEY, self._pushes(batch))
         if diverged:
             for key in ("truncated", "done"):
                 if key in next_tensordict:
@@ -156,6 +168,10 @@ class RandomizePhysicsTransform(Transform):
         observation_spec[DIVERGED_KEY] = Binary(
             n=1, shape=(*batch, 1), dtype=torch.bool, device=observation_spec.device
         )
+        if self.randomizer.push_count:
+            observation_spec[PUSHES_KEY] = Unbounded(
+                shape=(*batch, self.randomizer.push_count, 4), dtype=torch.float64, device=observation_spec.device
+            )
         return observation_spec
 
     def restore_nominal(self) -> None:
