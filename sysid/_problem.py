@@ -255,7 +255,8 @@ class Problem:
         pred = (1.0 - w) * full[rows, low] + w * full[rows, low + 1]
         if not self.use_sensors:
             return pred, np.zeros((states.shape[0], self.L, 0))
-        # sensor_out[:, i] is read at the state before step i, as full[:, i]
+        # sensor_out[:, i] is read at the state before step i, as full[:, i]. A row's sensors are read at the time
+        # of the row they are simulated at: with a fitted observation latency, not at the logged row's own jitter.
         low = np.minimum(low[:, : self.L], sensor_out.shape[1] - 2)
         w = (position[:, : self.L] - low)[..., None]
         return pred, (1.0 - w) * sensor_out[rows, low] + w * sensor_out[rows, low + 1]
