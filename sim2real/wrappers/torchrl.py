@@ -61,6 +61,7 @@ class RandomizePhysicsTransform(Transform):
     def __init__(self, effects: Sequence[Effect], seed: SeedLike = None) -> None:
         super().__init__(in_keys=[], out_keys=[PARAMS_KEY, DIVERGED_KEY])
         self.randomizer = PhysicsRandomizer(effects, seed)
+        self._pushes_count = 0  # Push effects among the bound randomizer's (set by _bound, read per step)
         self._handle: PhysicsHandle | None = None
         self._hook: Any = None
         self._names: tuple[str, ...] = ()
@@ -83,6 +84,7 @@ class RandomizePhysicsTransform(Transform):
             self._handle = handle
             # Addresses come from a throwaway draw so the spec is known before the first reset.
             self._names = tuple(self.randomizer.nominal_params())
+            self._pushes_count = self.randomizer.push_count
         return self._handle
 
     def _recompiled(self, model: Any, data: Any) -> None:
@@ -131,7 +133,7 @@ class RandomizePhysicsTransform(Transform):
         tensordict_reset.set(
             DIVERGED_KEY, torch.full((*tensordict_reset.batch_size, 1), self._reset_diverged, dtype=torch.bool)
         )
-        if self.randomizer.push_count:
+        if self._pushes_count:
             tensordict_reset.set(PUSHES_KEY, self._pushes(tensordict_reset.batch_size))
         return tensordict_reset
 
@@ -151,7 +153,7 @@ class RandomizePhysicsTransform(Transform):
         diverged = handle.diverged() or self._reset_diverged
         next_tensordict.set(PARAMS_KEY, self._params_tensor(batch))
         next_tensordict.set(DIVERGED_KEY, torch.full((*batch, 1), diverged, dtype=torch.bool))
-        if self.randomizer.push_count:  # the pushes this step applied, as gymnasium's info["sim2real"]["events"]
+        if self._pushes_count:  # the pushes this step applied, as gymnasium's info["sim2real"]["events"]
             next_tensordict.set(PUSHES_KEY, self._pushes(batch))
         if diverged:
             for key in ("truncated", "done"):
@@ -168,9 +170,9 @@ class RandomizePhysicsTransform(Transform):
         observation_spec[DIVERGED_KEY] = Binary(
             n=1, shape=(*batch, 1), dtype=torch.bool, device=observation_spec.device
         )
-        if self.randomizer.push_count:
+        if self._pushes_count:
             observation_spec[PUSHES_KEY] = Unbounded(
-                shape=(*batch, self.randomizer.push_count, 4), dtype=torch.float64, device=observation_spec.device
+                shape=(*batch, self._pushes_count, 4), dtype=torch.float64, device=observation_spec.device
             )
         return observation_spec
 
@@ -231,6 +233,7 @@ class CorruptSignalsTransform(NoCopy, Transform):
         self._names: tuple[str, ...] = ()
         self._params: torch.Tensor | None = None
         self._action_key: NestedKey = "action"
+        self._jitter = False
 
     @property
     def current_params(self) -> dict[str, float]:
@@ -311,6 +314,8 @@ class CorruptSignalsTransform(NoCopy, Transform):
                 act_dtype,
                 repeat=_action_repeat(parent),
             )
+            # Whether each control step draws its physics substeps (ControlJitter reaching the physics).
+            self._jitter = self._clock.hooked and ControlJitter in self.corruptor.timing
             # The names come from a throwaway draw so the spec is known before the first reset.
             self.corruptor.begin_episode()
             self._names = tuple(self.corruptor.current_params)
@@ -345,11 +350,6 @@ class CorruptSignalsTransform(NoCopy, Transform):
                 shape=(*observation_spec.shape, 1), dtype=torch.int64, device=observation_spec.device
             )
         return observation_spec
-
-    @property
-    def _jitter(self) -> bool:
-        """Whether each control step draws its physics substeps (ControlJitter reaching the physics)."""
-        return bool(self._bound().hooked) and ControlJitter in self.corruptor.timing
 
     def _substeps(self, batch: torch.Size, reset: bool = False) -> torch.Tensor:
         # The substeps run in this control step: all of the draw, or its share of the env steps TorchRL's own
