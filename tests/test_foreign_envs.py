@@ -484,3 +484,29 @@ def test_observation_latency_delays_an_env_that_reuses_its_observation_array(lat
     assert all(t == 0 or k + 1 - t >= 3 for k, t in enumerate(taken)), taken
     if latency.jitter is None:
         assert taken == [0, 0, 0, 1, 2, 3, 4, 5]
+
+
+class AlternatingScenes(RebuiltScene):
+    """Keeps two compiled scenes and switches between them at every reset (a pool of pre-built variants)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._pool = [mujoco.MjModel.from_xml_string(SLIDER_XML.format(height=h)) for h in (0.2, 0.8)]
+        self._next = 0
+
+    def _build(self) -> None:
+        if not hasattr(self, "_pool"):
+            return super()._build()
+        self.model = self._pool[self._next % 2]
+        self.data = mujoco.MjData(self.model)
+        self._next += 1
+
+
+def test_draws_never_compound_on_a_model_the_env_comes_back_to() -> None:
+    env = s2r.wrap(AlternatingScenes(), s2r.Mass(scale=Uniform(0.5, 2.0)), seed=0)
+    for episode in range(6):
+        _, info = env.reset(seed=episode)
+        mass = info["sim2real"]["params"]["body_mass[box]"]
+        assert 0.5 <= mass < 2.0 and mass == env.unwrapped.model.body_mass[1]  # scaled from 1.0, never from a draw
+    env.close()
+    assert [float(m.body_mass[1]) for m in env.unwrapped._pool] == [1.0, 1.0]

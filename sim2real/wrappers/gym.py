@@ -76,6 +76,9 @@ def settle_draws(handle: PhysicsHandle, randomizer: PhysicsRandomizer) -> tuple[
     """
     rebuilt = handle.rebuilt()
     if rebuilt:
+        # The model left behind gets its nominal back first: an env that picks among models it keeps would
+        # otherwise come back to one holding old draws and snapshot them as its nominal.
+        randomizer.restore_nominal()
         randomizer.bind(handle.model, handle.data)
         randomizer.apply()
     reapplied = randomizer.reapply_overwritten()
