@@ -555,7 +555,8 @@ class Push(Effect):
         force: force magnitude distribution in newtons (>= 0).
         interval: control steps between the end of one push and the start of the next (>= 1).
         duration: control steps a push lasts (int >= 1).
-        bodies: name pattern(s) of candidate bodies (world excluded).
+        bodies: name pattern(s) of candidate bodies (the world, bodies welded to it and mocap bodies excluded:
+            a force on them moves nothing).
         planar: push only in the x-y plane.
         name: stable stream name.
 
@@ -622,6 +623,16 @@ class PushBinding:
     def __init__(self, effect: Push, model: mujoco.MjModel) -> None:
         self.effect = effect
         chosen = select(model, "body", effect.patterns, "bodies", exclude=(0,))
+        # A force on a body welded to the world (or a mocap body) moves nothing: such a push would be reported
+        # but never felt, so those bodies are no candidates.
+        movable = [(i, n) for i, n in chosen if model.body_weldid[i] != 0 and model.body_mocapid[i] < 0]
+        if not movable:
+            names = ", ".join(repr(n) for _, n in chosen)
+            raise ValueError(
+                f"`bodies` of Push selects only bodies that cannot move (welded to the world or mocap): {names}. "
+                f"Received {effect.patterns[0] if len(effect.patterns) == 1 else list(effect.patterns)!r}."
+            )
+        chosen = movable
         self.body_ids = np.array([i for i, _ in chosen], dtype=np.intp)
         self.body_names = [n for _, n in chosen]
         self.t = 0

@@ -510,3 +510,34 @@ def test_draws_never_compound_on_a_model_the_env_comes_back_to() -> None:
         assert 0.5 <= mass < 2.0 and mass == env.unwrapped.model.body_mass[1]  # scaled from 1.0, never from a draw
     env.close()
     assert [float(m.body_mass[1]) for m in env.unwrapped._pool] == [1.0, 1.0]
+
+
+PUSHABLE_XML = """
+<mujoco>
+  <worldbody>
+    <body name="target" mocap="true"/>
+    <body name="shelf" pos="0 0 0.5"><geom type="box" size="0.2 0.2 0.01"/></body>
+    <body name="box" pos="0 0 1"><freejoint/><geom size="0.1" mass="1"/></body>
+  </worldbody>
+</mujoco>
+"""
+
+
+def test_push_never_picks_a_body_that_cannot_move() -> None:
+    from randomizers import PhysicsRandomizer
+
+    model = mujoco.MjModel.from_xml_string(PUSHABLE_XML)
+    randomizer = PhysicsRandomizer([s2r.Push(force=1.0, interval=1)], seed=0)
+    randomizer.bind(model, mujoco.MjData(model))
+    randomizer.begin_episode()
+    randomizer.apply()
+    for _ in range(40):
+        randomizer.step()
+    # Before: the mocap target and the shelf welded to the world were pushed too, and the pushes reported.
+    assert {event.body for event in randomizer.events} == {"box"}
+    with pytest.raises(ValueError) as err:
+        s2r.Push(force=1.0, interval=1, bodies=["target", "shelf"]).bind(model)
+    assert str(err.value) == (
+        "`bodies` of Push selects only bodies that cannot move (welded to the world or mocap): 'target', 'shelf'. "
+        "Received ['target', 'shelf']."
+    )
