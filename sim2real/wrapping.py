@@ -165,9 +165,13 @@ def wrap(env: Any, *effects: Any, adr: ADR | None = None, seed: SeedLike = None)
             transforms.append(CorruptSignalsTransform(signals, seed))
         if not isinstance(env, TransformedEnv):
             # One transform stays reachable as ``env.transform`` itself (several become a Compose).
-            return TransformedEnv(env, transforms[0] if len(transforms) == 1 else Compose(*transforms))
-        for transform in transforms:
-            env.append_transform(transform)
+            env = TransformedEnv(env, transforms[0] if len(transforms) == 1 else Compose(*transforms))
+        else:
+            for transform in transforms:
+                env.append_transform(transform)
+        # The transforms bind when the specs are asked for: asked here, an env they cannot serve is refused by wrap,
+        # not at the first reset.
+        env.full_observation_spec  # noqa: B018
         return env
     import dm_env
 

@@ -328,3 +328,27 @@ def test_torchrl_reports_the_pushes_each_step_applied(signals: bool) -> None:
         np.testing.assert_array_equal(rows[event.step - 1], [body, *event.force])
     started = {event.step - 1 for event in events}
     assert all(rows[k, 0] == -1.0 for k in range(12) if k not in started)
+
+
+def test_a_second_physics_or_signal_layer_on_a_torchrl_env_is_refused() -> None:
+    from torchrl.envs import GymEnv
+    from torchrl.envs.utils import check_env_specs
+
+    inner = s2r.wrap(GymEnv("InvertedPendulum-v5"), s2r.Mass(scale=Uniform(0.5, 2.0)), seed=0)
+    # Before: the second transform's "sim2real_params" replaced the first's (the masses' draws were in no key).
+    with pytest.raises(ValueError) as err:
+        s2r.wrap(inner, s2r.Damping(scale=Uniform(0.5, 2.0)), seed=1)
+    assert str(err.value) == (
+        "`env` already has a sim2real physics transform (RandomizePhysicsTransform) writing 'sim2real_params': give "
+        "every physics effect to one sim2real.wrap call (a second transform would overwrite its draws)."
+    )
+    signals = s2r.wrap(GymEnv("InvertedPendulum-v5"), ObservationNoise(Gaussian(std=0.1)), seed=0)
+    with pytest.raises(ValueError, match=r"^`env` already has a sim2real signal transform \(CorruptSignalsTransform\)"):
+        s2r.wrap(signals, ActionLatency(steps=1), seed=1)
+    # The documented composition, physics first and signals around it, still stacks.
+    layered = s2r.wrap(
+        s2r.wrap(GymEnv("InvertedPendulum-v5"), s2r.Mass(scale=Uniform(0.5, 2.0)), seed=0),
+        ObservationNoise(Gaussian(std=0.1)),
+        seed=0,
+    )
+    check_env_specs(layered, seed=0)

@@ -74,6 +74,7 @@ class RandomizePhysicsTransform(Transform):
             parent = self.parent
             if parent is None:
                 raise RuntimeError("RandomizePhysicsTransform must be appended to a TransformedEnv before use.")
+            _refuse_second(parent, "physics", "sim2real_params", RandomizePhysicsTransform)
             base = parent.base_env
             handle = require_physics(base, self.randomizer.effects)
             self.randomizer.bind(handle.model, handle.data)
@@ -250,6 +251,7 @@ class CorruptSignalsTransform(NoCopy, Transform):
             parent = self.parent
             if parent is None:
                 raise RuntimeError("CorruptSignalsTransform must be appended to a TransformedEnv before use.")
+            _refuse_second(parent, "signal", "sim2real_signal_params", CorruptSignalsTransform)
             obs_spec = parent.full_observation_spec
             known = [unravel_key(k) for k in obs_spec.keys(True, True)]
             if self._observation_keys is None:
@@ -422,6 +424,20 @@ class CorruptSignalsTransform(NoCopy, Transform):
             self._clock.close()
             self._clock = None
         super().close() if hasattr(super(), "close") else None
+
+
+def _refuse_second(parent: Any, kind: str, key: str, cls: type) -> None:
+    """A second transform of ``kind`` would write ``key`` over the first one's draws (gymnasium merges the reports of
+    stacked layers; a TensorDict entry holds one): refused, saying to pass every effect to one ``wrap``."""
+    from torchrl.envs.transforms import Compose
+
+    transform = getattr(parent, "transform", None)
+    for t in transform if isinstance(transform, Compose) else (transform,):
+        if isinstance(t, cls) or isinstance(getattr(t, "physics", None), cls):
+            raise ValueError(
+                f"`env` already has a sim2real {kind} transform ({type(t).__name__}) writing {key!r}: give every "
+                f"{kind} effect to one sim2real.wrap call (a second transform would overwrite its draws)."
+            )
 
 
 def _action_repeat(parent: Any) -> int:
