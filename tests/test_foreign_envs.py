@@ -121,7 +121,7 @@ def test_action_models_refuse_an_empty_action_on_dm_env_and_torchrl() -> None:
         s2r.wrap(DroppedBallDm(), ActionLatency(steps=3), seed=0)
     assert str(err.value) == EMPTY_ACTION.format("ActionLatency")
     with pytest.raises(ValueError) as err:
-        s2r.wrap(GymWrapper(DroppedBall()), ActionNoise(Gaussian(std=0.1)), seed=0).reset()  # binds on first use
+        s2r.wrap(GymWrapper(DroppedBall()), ActionNoise(Gaussian(std=0.1)), seed=0)
     assert str(err.value) == EMPTY_ACTION.format("ActionNoise")
 
 
