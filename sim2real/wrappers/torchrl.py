@@ -28,8 +28,8 @@ from noise_models.timing import ControlJitter
 from randomizers import Effect, PhysicsRandomizer
 from randomizers.seeding import SeedLike
 from sim2real.physics import PhysicsHandle
+from sim2real.wrappers.clock import NoCopy
 from sim2real.wrappers.gym import require_physics, settle_draws
-from sim2real.wrappers.signals import NoCopy
 
 __all__ = ["CorruptSignalsTransform", "RandomizePhysicsTransform"]
 
@@ -246,7 +246,7 @@ class CorruptSignalsTransform(NoCopy, Transform):
             import numpy as np
 
             from noise_models import Layout
-            from sim2real.wrappers.signals import SignalClock
+            from sim2real.wrappers.clock import SignalClock
 
             parent = self.parent
             if parent is None:
