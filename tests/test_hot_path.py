@@ -221,7 +221,10 @@ def test_torchrl_rollout_is_bitwise_that_before_the_hot_path() -> None:
         for key in sorted(td.keys(True, True), key=str):
             h.update(str(key).encode())
             h.update(td.get(key).contiguous().numpy().tobytes())
-    assert h.hexdigest()[:16] == "1704de1f035300d3"
+    # Re-pinned when TorchRL's set_seed(s) started to restart the streams at (wrap seed, s), as gymnasium's
+    # reset(seed=s) does (before, "1704de1f035300d3": the streams went on across set_seed). The new meaning is pinned
+    # against gymnasium's draws in tests/test_physics_torchrl.py; the gymnasium and dm_env digests above are unchanged.
+    assert h.hexdigest()[:16] == "ab97f7acc5abbe56"
 
 
 # -- hot vs general, in one process -----------------------------------------------------------------------------

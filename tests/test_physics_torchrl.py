@@ -60,3 +60,43 @@ def test_plain_gymnasium_and_dm_control_handles_are_unchanged() -> None:
     assert handle is not None and handle.owner is env.unwrapped and handle.substeps == 2
     dm = s2r.find_physics(s2r.make("dmc/reacher-easy"))
     assert dm is not None and dm.source == "dm_control.suite" and dm.substeps == 1  # reacher: one 0.02 s step
+
+
+def test_torchrl_set_seed_restarts_the_streams_as_gymnasium_reset_seed_does() -> None:
+    """``env.set_seed(s)`` on a wrapped TorchRL env (which TorchRL hands only to the base env) makes the next reset
+    draw from the streams of ``(wrap seed, s)``: the draws of gymnasium's ``reset(seed=s)`` on the same wrap, the
+    same again for the same seed, and different draws for the workers of a ``SerialEnv``, which gets one seed each."""
+    import numpy as np
+    from torchrl.envs import GymWrapper, SerialEnv
+
+    from noise_models import Bias, ObservationNoise
+
+    def effects() -> tuple[object, ...]:
+        return (s2r.Damping(scale=s2r.Uniform(0.5, 2.0)), ObservationNoise(Bias(s2r.Uniform(-1.0, 1.0))))
+
+    def make() -> object:
+        return s2r.wrap(GymWrapper(s2r.make("dmc/reacher-easy")), *effects(), seed=3)
+
+    def draws(td: object) -> np.ndarray:
+        return np.concatenate([td["sim2real_params"].numpy(), td["sim2real_signal_params"].numpy()], axis=-1)
+
+    env = make()
+    env.set_seed(5)
+    first, following = draws(env.reset()), draws(env.reset())
+    env.set_seed(5)
+    again = draws(env.reset())
+    np.testing.assert_array_equal(first, again)
+    assert not np.array_equal(first, following)  # without a new seed the streams go on, as in gymnasium
+    gym_env = s2r.wrap(s2r.make("dmc/reacher-easy"), *effects(), seed=3)
+    _, info = gym_env.reset(seed=5)
+    np.testing.assert_array_equal(first, np.array(list(info["sim2real"]["params"].values())))
+    env.close()
+    gym_env.close()
+
+    serial = SerialEnv(2, make)
+    serial.set_seed(10)
+    workers = draws(serial.reset())
+    serial.set_seed(10)
+    assert not np.array_equal(workers[0], workers[1])  # one seed per worker: independent draws
+    np.testing.assert_array_equal(workers, draws(serial.reset()))
+    serial.close()

@@ -47,6 +47,33 @@ def _no_exceptions(physics: Any) -> None:
         physics._warnings_cause_exception = False
 
 
+class _SeedRelay:
+    """What ``set_seed(s)`` on the env of a sim2real transform runs: TorchRL's ``TransformedEnv.set_seed`` seeds only
+    its base env, so the base env's ``_set_seed`` (what every ``set_seed`` calls) is this, which seeds the base env as
+    before and leaves ``s`` for ``owner``, whose next reset restarts its streams at ``(wrap seed, s)``: what
+    gymnasium's ``reset(seed=s)`` does. A ``SerialEnv`` or ``ParallelEnv`` hands each worker its own seed, so their
+    draws differ; the same seed gives the same draws. A plain object (not a closure): the env still pickles and
+    copies as far as its transforms allow."""
+
+    def __init__(self, base: Any, owner: Transform) -> None:
+        self.base, self.owner = base, owner
+        self.previous = base.__dict__.get("_set_seed")  # another sim2real transform's relay on the same env
+
+    def __call__(self, seed: int | None) -> None:
+        if self.previous is not None:
+            self.previous(seed)
+        else:
+            type(self.base)._set_seed(self.base, seed)
+        if seed is not None:
+            self.owner.__dict__["_next_seed"] = int(seed)
+
+
+def _follow_set_seed(parent: Any, owner: Transform) -> None:
+    """Makes ``set_seed`` on ``parent``'s env reach ``owner`` (see :class:`_SeedRelay`)."""
+    base = parent.base_env
+    base._set_seed = _SeedRelay(base, owner)  # an instance attribute: EnvBase.set_seed calls self._set_seed
+
+
 class RandomizePhysicsTransform(Transform):
     """Applies physics effects on every reset of the TorchRL env it is appended to.
 
@@ -55,7 +82,7 @@ class RandomizePhysicsTransform(Transform):
 
     Args:
         effects: physics effects from :mod:`randomizers`.
-        seed: root seed of the effect streams.
+        seed: root seed of the effect streams; ``env.set_seed(s)`` restarts them at ``(seed, s)`` for the next reset.
     """
 
     def __init__(self, effects: Sequence[Effect], seed: SeedLike = None) -> None:
@@ -86,6 +113,7 @@ class RandomizePhysicsTransform(Transform):
             # Addresses come from a throwaway draw so the spec is known before the first reset.
             self._names = tuple(self.randomizer.nominal_params())
             self._pushes_count = self.randomizer.push_count
+            _follow_set_seed(parent, self)
         return self._handle
 
     def _recompiled(self, model: Any, data: Any) -> None:
@@ -116,7 +144,7 @@ class RandomizePhysicsTransform(Transform):
     # -- TorchRL hooks ---------------------------------------------------------------------------
     def _reset_env_preprocess(self, tensordict: TensorDictBase | None) -> TensorDictBase | None:
         handle = self._bound()
-        self.randomizer.begin_episode()
+        self.randomizer.begin_episode(self.__dict__.pop("_next_seed", None))  # set_seed(s): streams of (seed, s)
         self.__dict__["_params_cache"] = None
         if not handle.recompiles:
             self.randomizer.apply()
@@ -202,7 +230,7 @@ class CorruptSignalsTransform(NoCopy, Transform):
 
     Args:
         models: ObservationNoise, ActionNoise, ObservationLatency, ActionLatency, SampleAndHold, ControlJitter.
-        seed: root seed of the models' streams.
+        seed: root seed of the models' streams; ``env.set_seed(s)`` restarts them at ``(seed, s)`` for the next reset.
         observation_keys: the entries treated as the observation (default: every floating-point
             entry of the observation spec except ``sim2real_*``, nested ones included), concatenated in this
             order. A nested entry is a tuple key, ``("robot", "qpos")``, and goes by ``"robot.qpos"`` in
@@ -322,6 +350,7 @@ class CorruptSignalsTransform(NoCopy, Transform):
             self.corruptor.begin_episode()
             self._names = tuple(self.corruptor.current_params)
             self.corruptor.episode = -1
+            _follow_set_seed(parent, self)
         return self._clock
 
     @property
@@ -377,7 +406,7 @@ class CorruptSignalsTransform(NoCopy, Transform):
 
     def _reset_env_preprocess(self, tensordict: TensorDictBase | None) -> TensorDictBase | None:
         self._bound()
-        self.corruptor.begin_episode()
+        self.corruptor.begin_episode(self.__dict__.pop("_next_seed", None))  # set_seed(s): streams of (seed, s)
         self._params = None
         return tensordict
 
