@@ -2,7 +2,8 @@
 
 :class:`DmEnvToGym` declares float32 ``Box`` spaces, flattens dict observations in spec order
 (or keeps them as a ``Dict`` space with ``flatten=False``), honours ``reset(seed=...)`` by
-re-seeding the task's own ``RandomState`` in place, ends an episode whose physics diverged with
+re-seeding the task's own ``RandomState`` in place (a deterministic dm_env takes a seed with nothing to
+re-seed; one whose randomness cannot be re-seeded refuses it, naming where it keeps it), ends an episode whose physics diverged with
 ``truncated=True`` and ``info["diverged"] = True`` instead of raising (a reset that diverges
 returns ``info["diverged"] = True`` and its next step ends the episode), and exposes the dm_env and
 its physics.
@@ -20,6 +21,7 @@ Example:
 
 from __future__ import annotations
 
+import random
 from collections import OrderedDict
 from typing import Any
 
@@ -39,6 +41,34 @@ def _random_state(env: Any) -> np.random.RandomState | None:
     task = getattr(env, "task", None)  # suite control.Environment
     state = getattr(task, "random", None)
     return state if isinstance(state, np.random.RandomState) else None
+
+
+_RANDOM_SOURCES = (np.random.Generator, np.random.RandomState, np.random.BitGenerator, random.Random)
+
+
+def _unseedable_randomness(env: Any) -> str | None:
+    """Where a dm_env without a dm-control RandomState keeps a random generator (``"env._rng
+    (numpy.random.Generator)"``), or None when none is visible: the attributes of the env, of its ``task``
+    and of the dm_envs it wraps are searched (a generator hidden deeper, or the global ``np.random``, is not)."""
+    stack: list[tuple[str, Any]] = [("env", env)]
+    seen: set[int] = set()
+    while stack:
+        path, obj = stack.pop()
+        if id(obj) in seen:
+            continue
+        seen.add(id(obj))
+        try:
+            attributes = vars(obj)
+        except TypeError:  # no __dict__ (slots, builtins)
+            continue
+        for name, value in attributes.items():
+            if isinstance(value, _RANDOM_SOURCES):
+                kind = type(value)
+                module = "numpy.random" if kind.__module__.startswith("numpy.random") else kind.__module__
+                return f"{path}.{name} ({module}.{kind.__name__})"
+            if isinstance(value, dm_env.Environment) or name in ("task", "_task"):
+                stack.append((f"{path}.{name}", value))
+    return None
 
 
 def suite_observation(env: Any) -> Any:
@@ -158,18 +188,33 @@ class DmEnvToGym(gym.Env):
         return np.concatenate([observation[k] for k in self._keys], axis=None, dtype=np.float32)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
-        """Starts an episode; a ``seed`` re-seeds the task's RandomState in place first."""
+        """Starts an episode; a ``seed`` re-seeds the task's RandomState in place first.
+
+        A dm_env with no random generator among its attributes (nor its ``task``'s, nor those of the dm_envs it
+        wraps) is taken as deterministic: it accepts a seed, which only seeds ``self.np_random`` (there is
+        nothing else to re-seed), so ``gymnasium``'s ``check_env`` runs on it. One that keeps a generator
+        DmEnvToGym cannot re-seed (e.g. ``self._rng = np.random.default_rng()``) refuses a seed, naming the
+        attribute, rather than ignore it. Randomness drawn from the global ``np.random`` cannot be seen.
+
+        Raises:
+            ValueError: ``options`` given, or a ``seed`` for an env whose randomness cannot be re-seeded.
+        """
         super().reset(seed=seed)
         if options:
             raise ValueError(f"`options` is not supported by dm-control environments. Received {options!r}.")
         if seed is not None:
             state = _random_state(self.dm_env)
-            if state is None:
-                raise ValueError(
-                    f"`seed` cannot be honoured: {type(self.dm_env).__name__} exposes no RandomState "
-                    "(expected a dm-control suite task's `random` or a composer env's `random_state`)."
-                )
-            state.seed(int(np.random.SeedSequence(seed).generate_state(1)[0]))
+            if state is not None:
+                state.seed(int(np.random.SeedSequence(seed).generate_state(1)[0]))
+            else:
+                hidden = _unseedable_randomness(self.dm_env)
+                if hidden is not None:
+                    raise ValueError(
+                        f"`seed` cannot be honoured: {type(self.dm_env).__name__} draws from {hidden}, which "
+                        "DmEnvToGym cannot re-seed. Keep the env's randomness in a numpy RandomState named "
+                        "`random_state` (re-seeded in place, as for composer envs), or seed the env in its "
+                        f"factory and call reset() without a seed. Received seed={seed!r}."
+                    )
         self._reset_diverged = False
         try:
             timestep = self.dm_env.reset()
