@@ -281,7 +281,11 @@ def _fit_fields(
         )
         for i, a in enumerate(fit.addresses)
     )
-    return parameters, tuple(fit.warnings), tuple((str(k), float(v)) for k, v in fit.fit_percent.items())
+    # A fit the CLI refused to export (exit 4) must not read as a clean one in the report: its not-ok reasons
+    # come first, before the per-channel warnings.
+    not_ok = tuple(f"the fit is NOT OK: {reason}" for reason in fit.quality.reasons)
+    warnings = not_ok + tuple(fit.warnings)
+    return parameters, warnings, tuple((str(k), float(v)) for k, v in fit.fit_percent.items())
 
 
 def _root_seed(rng: np.random.Generator | int) -> int:
