@@ -134,13 +134,34 @@ def load_column_map(path: str | os.PathLike[str]) -> dict[str, Any]:
     return dict(config)
 
 
+def _hits(pattern: str, names: Sequence[str]) -> list[int]:
+    """Indices of ``names`` that ``pattern`` selects: the name itself, else an fnmatch pattern, else the pattern with
+    its ``[`` taken literally. Drivers write units in brackets (``shoulder_pos [rad]``), which fnmatch reads as a
+    character class, so the header's own name matched nothing.
+
+    Example:
+        >>> _hits("q [rad]", ["t", "q [rad]"]), _hits("*_pos [rad]", ["a_pos [rad]", "b_pos [rad]"])
+        ([1], [0, 1])
+        >>> _hits("q[01]", ["q0", "q1", "q2"])
+        [0, 1]
+    """
+    exact = [i for i, name in enumerate(names) if name == pattern]
+    if exact:
+        return exact
+    hits = [i for i, name in enumerate(names) if fnmatch.fnmatchcase(name, pattern)]
+    if hits or "[" not in pattern:
+        return hits
+    literal = pattern.replace("[", "[[]")  # fnmatch's escape for a literal '['
+    return [i for i, name in enumerate(names) if fnmatch.fnmatchcase(name, literal)]
+
+
 def _resolve_columns(spec: str | Sequence[str], header: list[str], key: str, where: str) -> list[int]:
     patterns = [spec] if isinstance(spec, str) else list(spec)
     if not patterns or not all(isinstance(p, str) for p in patterns):
         raise LogError(f"`columns['{key}']` must be a column name, a pattern or a list of them. Received {spec!r}.")
     out: list[int] = []
     for pattern in patterns:
-        hits = [i for i, name in enumerate(header) if fnmatch.fnmatchcase(name, pattern)]
+        hits = _hits(pattern, header)
         if not hits:
             close = difflib.get_close_matches(pattern, header, n=3, cutoff=0.5)
             hint = f" Close matches: {', '.join(repr(c) for c in close)}." if close else ""
@@ -168,7 +189,8 @@ def _per_column(
     if not isinstance(option, Mapping):
         raise LogError(f"`{name}` must map CSV column names (or patterns) to values. Received {option!r}.")
     for pattern, value in option.items():
-        hits = [i for i in mapped if fnmatch.fnmatchcase(header[i], str(pattern))]
+        names = list(mapped)
+        hits = [names[k] for k in _hits(str(pattern), [header[i] for i in names])]
         if not hits:
             raise LogError(
                 f"`{name}` names column {pattern!r}, which is not a mapped column of {where}. "

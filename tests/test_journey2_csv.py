@@ -1,0 +1,109 @@
+"""Journey 2: a driver CSV with conventions nobody here designed for, one test per defect.
+
+Nanosecond Unix timestamps, units in brackets in the header (``j0_pos [rad]``), radians for positions but deg/s for
+velocities, a trailing empty column, dropped rows and commands logged at another rate than the states. The "robot"
+is a generated 3-DoF servo arm simulated at the physics rate and sampled every control step.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+import sysid
+from sysid import LogError, load_csv
+from sysid.synthetic import generate_arm
+
+SUBSTEPS = 5
+STEPS = 120
+N = 6  # joints
+EPOCH_NS = 1_764_240_000_000_000_000  # 2025-11-27, nanoseconds since the Unix epoch
+
+
+@pytest.fixture(scope="module")
+def arm(tmp_path_factory: pytest.TempPathFactory) -> tuple[mujoco.MjModel, Path]:
+    path = tmp_path_factory.mktemp("arm") / "arm.xml"
+    path.write_text(generate_arm(dof=N, seed=2, actuators="position", frictionloss=0.0))
+    return mujoco.MjModel.from_xml_path(str(path)), path
+
+
+@pytest.fixture(scope="module")
+def truth(arm: tuple[mujoco.MjModel, Path]) -> sysid.TrajectoryLog:
+    """One row per control step: servo set-points around home, each held for its control step."""
+    model, _ = arm
+    home = model.key_qpos[0]
+    t = np.arange(STEPS) * SUBSTEPS * model.opt.timestep
+    ctrl = home + 0.2 * np.sin(2 * math.pi * np.outer(t, [0.7, 1.1, 1.3, 0.9, 1.7, 0.5]))
+    fine = sysid.record_log(model, np.repeat(ctrl, SUBSTEPS, axis=0), initial_qpos=home)
+    rows = np.arange(STEPS) * SUBSTEPS
+    return sysid.TrajectoryLog(
+        time=fine.time[rows], qpos=fine.qpos[rows], qvel=fine.qvel[rows], ctrl=fine.ctrl[rows], meta=fine.meta
+    )
+
+
+def _meta(model: mujoco.MjModel) -> dict[str, float]:
+    return {"timestep": float(model.opt.timestep), "control_timestep": SUBSTEPS * float(model.opt.timestep)}
+
+
+def _write(
+    path: Path,
+    log: sysid.TrajectoryLog,
+    header: list[str],
+    *,
+    time: list[str] | None = None,
+    qvel_scale: float = 1.0,
+    skip: tuple[int, ...] = (),
+    trailing: bool = False,
+    blank_ctrl: tuple[int, ...] = (),
+) -> Path:
+    """The driver's CSV: ``header`` names time, N positions, N velocities, N commands; ``time`` the time cells."""
+    cells = time or [repr(float(t)) for t in log.time]
+    lines = [",".join(header) + ("," if trailing else "")]
+    for k in range(log.time.shape[0]):
+        if k in skip:
+            continue
+        ctrl = [""] * N if k in blank_ctrl else [repr(float(u)) for u in log.ctrl[k]]
+        row = [cells[k], *(repr(float(q)) for q in log.qpos[k]), *(repr(float(v * qvel_scale)) for v in log.qvel[k])]
+        lines.append(",".join([*row, *ctrl]) + ("," if trailing else ""))
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+PLAIN = ["t", *(f"q{i}" for i in range(N)), *(f"dq{i}" for i in range(N)), *(f"u{i}" for i in range(N))]
+PLAIN_MAP = {"time": "t", "qpos": "q?", "qvel": "dq?", "ctrl": "u?"}
+BRACKETS = [
+    "stamp [s]",
+    *(f"j{i}_pos [rad]" for i in range(N)),
+    *(f"j{i}_vel [rad/s]" for i in range(N)),
+    *(f"j{i}_cmd" for i in range(N)),
+]
+
+
+def _same(a: sysid.TrajectoryLog, b: sysid.TrajectoryLog) -> None:
+    for key in ("time", "qpos", "qvel", "ctrl"):
+        np.testing.assert_array_equal(getattr(a, key), getattr(b, key), err_msg=key)
+
+
+def test_columns_with_units_in_brackets_are_found_by_their_own_name(
+    tmp_path: Path, arm: tuple[mujoco.MjModel, Path], truth: sysid.TrajectoryLog
+) -> None:
+    # Before: "`columns['time']` names column 'stamp [s]', which CSV file ... does not have. Close matches:
+    # 'stamp [s]'." - fnmatch read '[s]' as a character class, so a header's own name never matched.
+    model, _ = arm
+    reference = load_csv(_write(tmp_path / "plain.csv", truth, PLAIN), PLAIN_MAP, _meta(model), model)
+    path = _write(tmp_path / "brackets.csv", truth, BRACKETS)
+    by_name = {
+        "time": "stamp [s]",
+        "qpos": [f"j{i}_pos [rad]" for i in range(N)],
+        "qvel": [f"j{i}_vel [rad/s]" for i in range(N)],
+        "ctrl": "j?_cmd",
+    }
+    _same(load_csv(path, by_name, _meta(model), model, scale={"j0_vel [rad/s]": 1.0}), reference)
+    by_pattern = {"time": "stamp*", "qpos": "*_pos [rad]", "qvel": "*_vel [rad/s]", "ctrl": "*_cmd"}
+    _same(load_csv(path, by_pattern, _meta(model), model), reference)
+    with pytest.raises(LogError, match=r"names column 'j\*_torque \[Nm\]', which CSV file .* does not have"):
+        load_csv(path, {**by_pattern, "ctrl": "j*_torque [Nm]"}, _meta(model), model)
