@@ -90,3 +90,109 @@ def test_a_dm_control_suite_env_is_still_reseeded_and_passes_check_env() -> None
     again, _ = env.reset(seed=11)
     assert first.tobytes() == again.tobytes() and first.tobytes() != other.tobytes()
     check_env(env, skip_render_check=True)
+
+
+@pytest.mark.parametrize(
+    ("task_id", "options"),
+    [
+        ("dmc/reacher-easy", {}),
+        ("dmc/manipulator-bring_ball", {"time_limit": 2.0, "flatten": False, "textures": False}),
+        ("sim2real/arm-reach", {"max_episode_steps": 20}),
+    ],
+)
+def test_a_task_env_has_a_spec_that_gymnasium_make_recreates(task_id: str, options: dict[str, Any]) -> None:
+    import gymnasium as gym
+
+    import sim2real as s2r
+
+    env = s2r.make(task_id, **options)
+    assert env.spec is not None  # None before: gym.make(env.spec) raised
+    assert env.spec.id == task_id and env.spec.entry_point == "sim2real.tasks:make"
+    assert env.spec.kwargs == {"task_id": task_id, **options}
+    twin = gym.make(env.spec)
+    assert type(twin) is type(env) and twin.spec == env.spec  # no checker/order/time-limit layers added
+    first, _ = env.reset(seed=5)
+    again, _ = twin.reset(seed=5)
+    flat = (lambda o: np.concatenate([np.ravel(v) for v in o.values()])) if isinstance(first, dict) else np.ravel
+    assert flat(first).tobytes() == flat(again).tobytes()
+    action = np.full(env.action_space.shape, 0.3, env.action_space.dtype)
+    assert flat(env.step(action)[0]).tobytes() == flat(twin.step(action)[0]).tobytes()
+
+
+def test_a_calibrated_task_spec_recreates_the_calibration() -> None:
+    import gymnasium as gym
+
+    import sim2real as s2r
+
+    env = s2r.make("dmc/reacher-easy", params={"body_mass[arm]": 0.5})
+    twin = gym.make(env.spec)
+    assert env.spec is not None and env.spec.kwargs["params"] == {"body_mass[arm]": 0.5}
+    arm = twin.unwrapped.physics.model.body("arm").id
+    assert twin.unwrapped.physics.model.body_mass[arm] == 0.5 == env.unwrapped.physics.model.body_mass[arm]
+
+
+def test_gymnasium_make_of_a_wrapped_task_spec_recreates_the_wrapper_stack() -> None:
+    import gymnasium as gym
+
+    import sim2real as s2r
+    from noise_models import Gaussian, ObservationLatency, ObservationNoise
+    from randomizers import Friction, Mass, Uniform
+
+    base = s2r.make("dmc/reacher-easy", time_limit=1.0)
+    physics = s2r.wrap(base, Mass(scale=Uniform(0.5, 1.5)), seed=4)
+    env = s2r.wrap(physics, ObservationNoise(Gaussian(std=0.01)), ObservationLatency(steps=2), seed=9)
+    fused = s2r.wrap(
+        s2r.make("dmc/reacher-easy"), Friction(scale=Uniform(0.5, 1.5)), ObservationLatency(steps=1), seed=2
+    )
+    for original in (env, fused):
+        twin = gym.make(original.spec)
+        assert [type(e) for e in _layers(twin)] == [type(e) for e in _layers(original)]
+        first, info = original.reset(seed=3)
+        again, twin_info = twin.reset(seed=3)
+        assert first.tobytes() == again.tobytes()
+        assert info["sim2real"]["params"] == twin_info["sim2real"]["params"]
+        for _ in range(3):
+            action = original.action_space.sample()
+            assert original.step(action)[0].tobytes() == twin.step(action)[0].tobytes()
+    vec = gym.make_vec(env.spec, num_envs=2, vectorization_mode="sync")  # rebuilds its sub-envs from the spec
+    obs, _ = vec.reset(seed=3)
+    assert obs.shape == (2, 6)
+
+
+def _layers(env: Any) -> list[Any]:
+    out = [env]
+    while hasattr(out[-1], "env"):
+        out.append(out[-1].env)
+    return out
+
+
+@pytest.mark.render
+def test_a_pixel_task_spec_recreates_the_pixel_env_and_its_wrappers() -> None:
+    import gymnasium as gym
+
+    import sim2real as s2r
+    from randomizers import Mass, Uniform
+
+    env = s2r.wrap(s2r.make("dmc/reacher-easy", pixels=True, size=(24, 32)), Mass(scale=Uniform(0.5, 1.5)), seed=1)
+    twin = gym.make(env.spec)
+    assert [type(e).__name__ for e in _layers(twin)] == ["RandomizePhysics", "PixelObservation", "DmEnvToGym"]
+    first, _ = env.reset(seed=3)
+    again, _ = twin.reset(seed=3)
+    assert first.shape == (24, 32, 3) and first.tobytes() == again.tobytes()
+    env.close()
+    twin.close()
+
+
+def test_a_calibrated_gymnasium_task_keeps_its_spec_and_the_calibration() -> None:
+    import gymnasium as gym
+
+    import sim2real as s2r
+
+    env = s2r.make("gym/Reacher-v5", params={"body_mass[body0]": 0.5})
+    assert env.spec is not None and env.spec.id == "Reacher-v5" and env.spec.max_episode_steps == 50
+    twin = gym.make(env.spec)  # an uncalibrated Reacher before: gymnasium's spec does not know the params
+    assert [type(e).__name__ for e in _layers(twin)] == [type(e).__name__ for e in _layers(env)]
+    body = twin.unwrapped.model.body("body0").id
+    assert twin.unwrapped.model.body_mass[body] == 0.5 == env.unwrapped.model.body_mass[body]
+    assert twin.spec == env.spec
+    assert s2r.make("gym/Reacher-v5").spec.entry_point == "gymnasium.envs.mujoco.reacher_v5:ReacherEnv"

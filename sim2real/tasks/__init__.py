@@ -15,6 +15,7 @@ Received 'dmc/reacher-eazy'. Close matches: 'dmc/reacher-easy', 'dmc/reacher-har
 
 from __future__ import annotations
 
+import copy
 import difflib
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
@@ -228,6 +229,10 @@ def make(task_id: str, *, pixels: bool = False, params: Any = None, **options: A
 
     if not isinstance(pixels, bool):
         raise TypeError(f"`pixels` must be a bool. Received {pixels!r}.")
+    # What gymnasium.make(env.spec) passes back here to build the same env again.
+    recreate = {"task_id": task_id, **({"pixels": True} if pixels else {}), **options}
+    if params is not None:
+        recreate["params"] = params
     if pixels and options.get("textures", True) is not True:
         raise ValueError(f"`textures` must be True with pixels=True. Received {options['textures']!r}.")
     if not pixels:
@@ -242,7 +247,38 @@ def make(task_id: str, *, pixels: bool = False, params: Any = None, **options: A
         from sim2real.calibration import calibrate
 
         calibrate(env, params)
+    _give_spec(env, task_id, recreate)
     return env
+
+
+def _give_spec(env: gym.Env, task_id: str, kwargs: dict[str, Any]) -> None:
+    """Gives a registered task's env the ``EnvSpec`` that recreates it (``gymnasium.make(env.spec)``, and so
+    the spec of every wrapper recording its arguments around it): entry point :func:`make`, ``kwargs`` its
+    arguments. Its flags are those ``gymnasium.make`` stamps on the env it builds from the spec (no checker,
+    order or time-limit wrapper added), so the remade env's spec equals this one. ``gym/*`` envs keep
+    gymnasium's own spec, with a ``params`` calibration added to it (:func:`calibrated_gym`); user models and
+    factories (``model:``/``env:``) keep theirs, if any: their ids are paths, not gymnasium ids."""
+    base = env.unwrapped
+    if base.spec is not None and "params" in kwargs and task_id.startswith("gym/"):
+        spec = copy.copy(base.spec)
+        spec.kwargs = {"entry_point": spec.entry_point, "params": kwargs["params"], **spec.kwargs}
+        spec.entry_point = "sim2real.tasks:calibrated_gym"
+        base.spec = spec
+        layer = env
+        while isinstance(layer, gym.Wrapper):  # gymnasium's own layers cache the spec they derive
+            layer._cached_spec = None
+            layer = layer.env
+        return
+    if task_id not in TASKS or base.spec is not None:
+        return
+    env.unwrapped.spec = gym.envs.registration.EnvSpec(
+        id=task_id,
+        entry_point="sim2real.tasks:make",
+        max_episode_steps=None,
+        order_enforce=False,
+        disable_env_checker=True,
+        kwargs=kwargs,
+    )
 
 
 def _make(task_id: str, **options: Any) -> gym.Env:
@@ -263,3 +299,17 @@ def _make(task_id: str, **options: Any) -> gym.Env:
             f"Received {task_id!r}.{hint}"
         )
     return task.factory(task_id, **options)
+
+
+def calibrated_gym(entry_point: Any, params: Any, **kwargs: Any) -> gym.Env:
+    """The bare gymnasium env of ``entry_point`` (a gymnasium entry point) built with ``kwargs`` and calibrated
+    with ``params``: the spec entry point of ``make("gym/<id>", params=...)``, so ``gymnasium.make(env.spec)``
+    rebuilds the calibration under gymnasium's own checker, order and time-limit layers."""
+    from gymnasium.envs.registration import load_env_creator
+
+    from sim2real.calibration import calibrate
+
+    creator = entry_point if callable(entry_point) else load_env_creator(entry_point)
+    env = creator(**kwargs)
+    calibrate(env, params)
+    return env
