@@ -311,5 +311,7 @@ def calibrated_gym(entry_point: Any, params: Any, **kwargs: Any) -> gym.Env:
 
     creator = entry_point if callable(entry_point) else load_env_creator(entry_point)
     env = creator(**kwargs)
+    if not isinstance(env, gym.Env):
+        raise TypeError(f"`entry_point` must build a gymnasium.Env. Received {type(env).__name__}.")
     calibrate(env, params)
     return env
