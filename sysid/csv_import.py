@@ -238,12 +238,51 @@ def _table(header: list[str], used: list[int], where: str, path: str | os.PathLi
                 raise LogError(
                     f"`path` {where} row {r + 2}, column {header[c]!r} must hold a number. Received {row[c]!r}."
                 ) from None
-            if not math.isfinite(table[r, c]):
+            if cell and not math.isfinite(table[r, c]):  # empty cells are judged by _hold_commands
                 raise LogError(
                     f"`path` {where} row {r + 2}, column {header[c]!r} must hold a finite number (dropped rows are "
                     f"removed, not left empty). Received {row[c]!r}."
                 )
     return table
+
+
+def _hold_commands(
+    table: np.ndarray, header: list[str], index: dict[str, list[int]], where: str
+) -> tuple[np.ndarray, int, int, int]:
+    """Commands logged at another rate than the states: an empty command cell holds the previous command (the
+    driver sent none that step), a row of commands alone (every state cell empty) is merged into the rows after it,
+    and rows before each command column's first value are dropped (nothing says what was sent). Any other empty
+    cell is an error naming its row and column.
+
+    Returns:
+        The table of state rows, and the counts of held cells' rows, merged command rows and dropped leading rows.
+    """
+    ctrl = index["ctrl"]
+    state = [i for key in _STATE_KEYS if key in index for i in index[key]]
+    required = [index[key][0] for key in ("time", "episode") if key in index]
+    blank = np.isnan(table)
+    commands_only = blank[:, state].all(axis=1) & ~blank[:, ctrl].all(axis=1)
+    bad = blank[:, required].any(axis=1) | (blank[:, state].any(axis=1) & ~commands_only)
+    if bad.any():
+        r = int(np.flatnonzero(bad)[0])
+        c = next(i for i in required + state if blank[r, i])
+        raise LogError(
+            f"`path` {where} row {r + 2}, column {header[c]!r} must hold a finite number (dropped rows are removed, "
+            "not left empty; only command columns may be empty, or every state column of a row of commands). "
+            "Received ''."
+        )
+    if not blank[:, ctrl].any():
+        return table, 0, 0, 0
+    held = int((blank[:, ctrl].any(axis=1) & ~commands_only).sum())
+    rows = np.arange(table.shape[0])
+    for c in ctrl:
+        last = np.maximum.accumulate(np.where(blank[:, c], -1, rows))
+        table[:, c] = np.where(last >= 0, table[np.maximum(last, 0), c], np.nan)
+    keep = ~commands_only & ~np.isnan(table[:, ctrl]).any(axis=1)
+    first = int(np.flatnonzero(keep)[0]) if keep.any() else table.shape[0]
+    if keep[first:].sum() < 2:
+        raise LogError(f"`path` {where} must hold at least 2 rows of states with every command column logged.")
+    return table[keep], held, int(commands_only.sum()), first - int(commands_only[:first].sum())
 
 
 def _check_degrees(qpos: np.ndarray, names: list[str], explicit: set[str], model: mujoco.MjModel, where: str) -> None:
@@ -523,6 +562,7 @@ def load_csv(
                     f"columns={dict(columns)!r}."
                 )
     table = _table(header, sorted(mapped), where, path, delimiter)
+    table, held, merged, leading = _hold_commands(table, header, index, where)
     unit_of = _per_column(units, "units", header, mapped, f"CSV file {where}")
     factors = np.ones(len(header))
     for i, unit in unit_of.items():
@@ -576,8 +616,17 @@ def load_csv(
             CsvWarning,
             stacklevel=2,
         )
+    if held or merged or leading:
+        warnings.warn(
+            f"{name!r}: commands logged at another rate than the states: {held} row(s) without a command hold the "
+            f"previous one, {merged} row(s) of commands alone were merged into the rows after them"
+            + (f", {leading} row(s) before the first command were dropped" if leading else ""),
+            CsvWarning,
+            stacklevel=2,
+        )
     report = {
         "file": name,
+        "held_commands": held,
         "units": {header[i]: u for i, u in sorted(unit_of.items())},
         "max_jitter_s": round(jitter, 12),
         "gaps": gaps,

@@ -107,3 +107,36 @@ def test_columns_with_units_in_brackets_are_found_by_their_own_name(
     _same(load_csv(path, by_pattern, _meta(model), model), reference)
     with pytest.raises(LogError, match=r"names column 'j\*_torque \[Nm\]', which CSV file .* does not have"):
         load_csv(path, {**by_pattern, "ctrl": "j*_torque [Nm]"}, _meta(model), model)
+
+
+def test_commands_logged_at_half_the_rate_of_the_states_are_held(
+    tmp_path: Path, arm: tuple[mujoco.MjModel, Path], truth: sysid.TrajectoryLog
+) -> None:
+    # Before: "row 3, column 'u0' must hold a finite number (dropped rows are removed, not left empty). Received
+    # ''." for a driver that logs its commands every other state row (the cell is empty when no command was sent).
+    model, _ = arm
+    held = truth.ctrl.copy()
+    held[1::2] = held[0::2]  # what a 50% command rate sends: each command is held for two state rows
+    sent = sysid.TrajectoryLog(time=truth.time, qpos=truth.qpos, qvel=truth.qvel, ctrl=held, meta=truth.meta)
+    reference = load_csv(_write(tmp_path / "plain.csv", sent, PLAIN), PLAIN_MAP, _meta(model), model)
+    path = _write(tmp_path / "half.csv", sent, PLAIN, blank_ctrl=tuple(range(1, STEPS, 2)))
+    with pytest.warns(sysid.CsvWarning, match=r"60 row\(s\) without a command hold the previous one, 0 row"):
+        log = load_csv(path, PLAIN_MAP, _meta(model), model)
+    _same(log, reference)
+    assert log.meta["csv"]["held_commands"] == STEPS // 2
+    # a row of commands alone (every state cell empty), e.g. a command stream merged into the state log by time:
+    # it applies to the state rows after it; rows before the first command are dropped
+    text = path.read_text().splitlines()
+    text.insert(2, ",".join([repr(float(truth.time[0]) + 0.001)] + [""] * (2 * N) + ["0.5"] * N))
+    text[1] = ",".join(text[1].split(",")[: 1 + 2 * N] + [""] * N)
+    path.write_text("\n".join(text) + "\n")
+    with pytest.warns(sysid.CsvWarning, match=r"1 row\(s\) of commands alone .* 1 row\(s\) before the first command"):
+        log = load_csv(path, PLAIN_MAP, _meta(model), model)
+    np.testing.assert_array_equal(log.ctrl[0], np.full(N, 0.5))
+    np.testing.assert_array_equal(log.qpos, reference.qpos[1:])
+    np.testing.assert_array_equal(log.ctrl[1:], reference.ctrl[2:])  # the next command was logged
+    # an empty state cell is still refused, naming its row and column
+    text[5] = ",".join(["", *text[5].split(",")[1:]])
+    path.write_text("\n".join(text) + "\n")
+    with pytest.raises(LogError, match=r"row 6, column 't' must hold a finite number \(dropped rows are removed"):
+        load_csv(path, PLAIN_MAP, _meta(model), model)
