@@ -67,6 +67,7 @@ UNITS: dict[str, tuple[str, float]] = {
     "s": ("time", 1.0),
     "ms": ("time", 1e-3),
     "us": ("time", 1e-6),
+    "ns": ("time", 1e-9),
     "rad": ("position", 1.0),
     "deg": ("position", math.pi / 180.0),
     "m": ("position", 1.0),
@@ -246,6 +247,26 @@ def _table(header: list[str], used: list[int], where: str, path: str | os.PathLi
     return table
 
 
+def _time_origin(table: np.ndarray, column: int, path: str | os.PathLike[str], delimiter: str) -> str | None:
+    """Rewrites a clock that counts from the Unix epoch (|t| >= 1e9 in its own unit: seconds, or nanoseconds since
+    1970) as time since the first row, in place, and returns the first row's cell (None for any other clock).
+    Integer stamps past 2**53 (nanoseconds) are subtracted as integers: as float64 they are rounded to 256 ns, which
+    made an exact 100 Hz clock look jittery."""
+    first = float(table[0, column])
+    if not abs(first) >= 1e9:
+        return None
+    with open(path, newline="", encoding="utf-8-sig") as handle:
+        cells = [
+            row[column].strip() for row in itertools.islice(csv.reader(handle, delimiter=delimiter), 1, None) if row
+        ]
+    if len(cells) == table.shape[0] and all(re.fullmatch(r"[+-]?\d+", c) for c in cells):
+        origin = int(cells[0])
+        table[:, column] = [float(int(c) - origin) for c in cells]
+        return cells[0]
+    table[:, column] -= first
+    return cells[0] if cells else repr(first)
+
+
 def _hold_commands(
     table: np.ndarray, header: list[str], index: dict[str, list[int]], where: str
 ) -> tuple[np.ndarray, int, int, int]:
@@ -385,7 +406,7 @@ def _segments(
     if abs(spacing - dt) > _SPACING_TOLERANCE * dt:
         ratio = spacing / dt
         hint = ""
-        for unit, factor in (("ms", 1e3), ("us", 1e6)):
+        for unit, factor in (("ms", 1e3), ("us", 1e6), ("ns", 1e9)):
             if abs(ratio / factor - 1) < _SPACING_TOLERANCE:
                 hint = f" It looks like {unit}: add units: {{{column}: {unit}}}."
         raise LogError(
@@ -562,6 +583,7 @@ def load_csv(
                     f"columns={dict(columns)!r}."
                 )
     table = _table(header, sorted(mapped), where, path, delimiter)
+    origin = _time_origin(table, index["time"][0], path, delimiter)
     table, held, merged, leading = _hold_commands(table, header, index, where)
     unit_of = _per_column(units, "units", header, mapped, f"CSV file {where}")
     factors = np.ones(len(header))
@@ -627,6 +649,7 @@ def load_csv(
     report = {
         "file": name,
         "held_commands": held,
+        "time_origin": origin,
         "units": {header[i]: u for i, u in sorted(unit_of.items())},
         "max_jitter_s": round(jitter, 12),
         "gaps": gaps,

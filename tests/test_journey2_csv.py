@@ -140,3 +140,24 @@ def test_commands_logged_at_half_the_rate_of_the_states_are_held(
     path.write_text("\n".join(text) + "\n")
     with pytest.raises(LogError, match=r"row 6, column 't' must hold a finite number \(dropped rows are removed"):
         load_csv(path, PLAIN_MAP, _meta(model), model)
+
+
+def test_nanoseconds_since_the_unix_epoch(
+    tmp_path: Path, arm: tuple[mujoco.MjModel, Path], truth: sysid.TrajectoryLog
+) -> None:
+    # Before: units: {stamp: ns} was "`units` of column 'stamp' must be one of ['s', 'ms', 'us', ...]. Received
+    # 'ns'.", and a nanosecond clock as float64 is rounded to 256 ns, so an exact 100 Hz log looked jittery.
+    model, _ = arm
+    reference = load_csv(_write(tmp_path / "plain.csv", truth, PLAIN), PLAIN_MAP, _meta(model), model)
+    stamps = [str(EPOCH_NS + round(float(t) * 1e9)) for t in truth.time]
+    path = _write(tmp_path / "ns.csv", truth, ["stamp", *PLAIN[1:]], time=stamps)
+    columns = {**PLAIN_MAP, "time": "stamp"}
+    log = load_csv(path, columns, _meta(model), model, units={"stamp": "ns"})
+    np.testing.assert_allclose(log.time, reference.time, rtol=0, atol=1e-12)
+    for key in ("qpos", "qvel", "ctrl"):
+        np.testing.assert_array_equal(getattr(log, key), getattr(reference, key))
+    assert log.meta["csv"]["time_origin"] == str(EPOCH_NS)
+    assert log.meta["csv"]["max_jitter_s"] == 0.0 and not log.meta["csv"]["resampled"]
+    # without the unit, the error says which one it looks like
+    with pytest.raises(LogError, match=r"median spacing of 1e\+07 s, .* It looks like ns: add units: \{stamp: ns\}\."):
+        load_csv(path, columns, _meta(model), model)
