@@ -202,6 +202,36 @@ def _per_column(
     return out
 
 
+#: How drivers spell units in a header's brackets, beyond the names of :data:`UNITS`.
+_ALIASES = {
+    "sec": "s",
+    "msec": "ms",
+    "usec": "us",
+    "µs": "us",
+    "nsec": "ns",
+    "degree": "deg",
+    "degrees": "deg",
+    "°": "deg",
+    "deg/sec": "deg/s",
+    "°/s": "deg/s",
+    "rad/sec": "rad/s",
+}
+
+
+def _header_unit(name: str) -> str | None:
+    """The unit of :data:`UNITS` a column's name ends with in brackets (``j1_vel [deg/s]``, ``t (ns)``), else None.
+
+    Example:
+        >>> _header_unit("j1_vel [deg/s]"), _header_unit("stamp (ns)"), _header_unit("q[0]"), _header_unit("u [Nm]")
+        ('deg/s', 'ns', None, None)
+    """
+    found = re.search(r"[\[(]\s*([^\[\]()]+?)\s*[\])]\s*$", name)
+    if found is None:
+        return None
+    unit = _ALIASES.get(found.group(1).lower(), found.group(1).lower())
+    return unit if unit in UNITS else None
+
+
 def _number(value: Any, name: str, column: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise LogError(f"`{name}` of column {column!r} must be a finite number. Received {value!r}.")
@@ -586,6 +616,15 @@ def load_csv(
     origin = _time_origin(table, index["time"][0], path, delimiter)
     table, held, merged, leading = _hold_commands(table, header, index, where)
     unit_of = _per_column(units, "units", header, mapped, f"CSV file {where}")
+    for i in mapped:
+        said = _header_unit(header[i])
+        if said is None:
+            continue
+        if unit_of.setdefault(i, said) != said:
+            raise LogError(
+                f"`units` of column {header[i]!r} must agree with the unit its header names ({said!r}) in CSV file "
+                f"{where}. Received {unit_of[i]!r}; drop it from `units` (the header's unit is used)."
+            )
     factors = np.ones(len(header))
     for i, unit in unit_of.items():
         if unit not in UNITS:

@@ -161,3 +161,25 @@ def test_nanoseconds_since_the_unix_epoch(
     # without the unit, the error says which one it looks like
     with pytest.raises(LogError, match=r"median spacing of 1e\+07 s, .* It looks like ns: add units: \{stamp: ns\}\."):
         load_csv(path, columns, _meta(model), model)
+
+
+def test_units_named_in_the_header_are_applied(
+    tmp_path: Path, arm: tuple[mujoco.MjModel, Path], truth: sysid.TrajectoryLog
+) -> None:
+    # Before: 'j0_vel [deg/s]' was read as rad/s unless `units` repeated what the header says; the fit of a 7-DoF
+    # arm then went unstable (thousands of MuJoCo warnings) and ended "not ok" with a held-out fit of -11337%.
+    model, _ = arm
+    reference = load_csv(_write(tmp_path / "plain.csv", truth, PLAIN), PLAIN_MAP, _meta(model), model)
+    header = ["t (ms)", *BRACKETS[1 : 1 + N], *(f"j{i}_vel [deg/s]" for i in range(N)), *BRACKETS[1 + 2 * N :]]
+    ms = [repr(1e3 * float(t)) for t in truth.time]
+    path = _write(tmp_path / "header_units.csv", truth, header, time=ms, qvel_scale=180 / math.pi)
+    columns = {"time": "t (ms)", "qpos": "*_pos [rad]", "qvel": "*_vel [deg/s]", "ctrl": "*_cmd"}
+    log = load_csv(path, columns, _meta(model), model)
+    np.testing.assert_allclose(log.time, reference.time, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(log.qvel, reference.qvel, rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(log.qpos, reference.qpos)
+    assert log.meta["csv"]["units"]["j0_vel [deg/s]"] == "deg/s" and log.meta["csv"]["units"]["t (ms)"] == "ms"
+    with pytest.raises(
+        LogError, match=r"`units` of column 'j0_vel \[deg/s\]' must agree with the unit its header names \('deg/s'\)"
+    ):
+        load_csv(path, columns, _meta(model), model, units={"j0_vel*": "rad/s"})
