@@ -3,6 +3,8 @@ the control period's (not the wrapper's own ``frame_skip``) and step interceptio
 
 from __future__ import annotations
 
+from typing import Any
+
 import gymnasium as gym
 import pytest
 
@@ -100,3 +102,36 @@ def test_torchrl_set_seed_restarts_the_streams_as_gymnasium_reset_seed_does() ->
     assert not np.array_equal(workers[0], workers[1])  # one seed per worker: independent draws
     np.testing.assert_array_equal(workers, draws(serial.reset()))
     serial.close()
+
+
+@pytest.mark.parametrize("fused", [False, True], ids=["physics", "physics+signals"])
+@pytest.mark.parametrize("own_setting", [True, False])
+def test_close_gives_dm_control_physics_back_its_warnings_cause_exception(fused: bool, own_setting: bool) -> None:
+    from noise_models import Gaussian, ObservationNoise
+    from randomizers import Mass, Uniform
+
+    base = torchrl_envs.DMControlEnv("reacher", "easy")
+    physics = base._env.physics
+    physics._warnings_cause_exception = own_setting
+    effects = [Mass(scale=Uniform(0.8, 1.2))] + ([ObservationNoise(Gaussian(std=0.01))] if fused else [])
+    env = s2r.wrap(base, *effects, seed=0)
+    env.rollout(3)
+    assert physics._warnings_cause_exception is False  # while wrapped: divergences are read from the warnings
+    env.close()
+    assert physics._warnings_cause_exception is own_setting  # stayed False after close before
+
+
+def test_close_restores_the_setting_of_a_composer_envs_current_physics() -> None:
+    from randomizers import Mass, Uniform
+
+    gym_env: Any = s2r.make("dmc/jaco-reach_site")  # TorchRL's DMControlWrapper takes suite envs only
+    env = s2r.wrap(torchrl_envs.GymWrapper(gym_env), Mass(scale=Uniform(0.8, 1.2)), seed=0)
+    env.reset()
+    first = gym_env.unwrapped.physics
+    env.reset()  # recompiled: a new physics each reset
+    current = gym_env.unwrapped.physics
+    assert current is not first
+    assert current._warnings_cause_exception is False
+    env.transform.close()  # the env closing first frees its physics: nothing is left to restore then
+    assert current._warnings_cause_exception is True  # dm-control's default, as the env built it
+    env.close()  # and closing the env after its physics is freed is fine

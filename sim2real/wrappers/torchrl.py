@@ -16,6 +16,7 @@ Example:
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Sequence
 from typing import Any
 
@@ -40,11 +41,24 @@ SUBSTEPS_KEY = "sim2real_substeps"
 PUSHES_KEY = "sim2real_pushes"
 
 
-def _no_exceptions(physics: Any) -> None:
+def _no_exceptions(physics: Any, saved: list[tuple[Any, bool]]) -> None:
+    """Turns off dm-control's exceptions on MuJoCo warnings for ``physics``, keeping its own setting in ``saved``
+    for ``close`` to restore: one entry, the env's current physics (a composer env frees its old physics when it
+    recompiles, so that one needs nothing back and is not kept alive)."""
     # A transform cannot catch an exception raised inside the base env's step, so let MuJoCo's
     # auto-reset happen and detect the divergence from the warning counters instead.
     if hasattr(physics, "_warnings_cause_exception"):
+        if not saved or not _same(saved[0][0], physics):
+            saved[:] = [(physics, physics._warnings_cause_exception)]
         physics._warnings_cause_exception = False
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Whether two physics (a composer env hands out weak proxies, which compare their referents) are one."""
+    try:
+        return bool(a is b or a == b)
+    except ReferenceError:  # the older one was freed
+        return False
 
 
 class _SeedRelay:
@@ -94,6 +108,7 @@ class RandomizePhysicsTransform(Transform):
         self._names: tuple[str, ...] = ()
         self.reapplied: tuple[str, ...] = ()
         self._reset_diverged = False
+        self._exceptions_saved: list[tuple[Any, bool]] = []  # (dm-control physics, its own setting), for close
 
     # -- binding ---------------------------------------------------------------------------------
     def _bound(self) -> PhysicsHandle:
@@ -106,7 +121,7 @@ class RandomizePhysicsTransform(Transform):
             handle = require_physics(base, self.randomizer.effects)
             self.randomizer.bind(handle.model, handle.data)
             if handle.source.startswith("dm_control"):
-                _no_exceptions(handle.owner.physics)
+                _no_exceptions(handle.owner.physics, self._exceptions_saved)
             if handle.recompiles:
                 self._hook = handle.on_recompile(self._recompiled)
             self._handle = handle
@@ -119,7 +134,7 @@ class RandomizePhysicsTransform(Transform):
     def _recompiled(self, model: Any, data: Any) -> None:
         self.randomizer.bind(model, data)
         self.randomizer.apply()
-        _no_exceptions(self._handle.owner.physics)  # type: ignore[union-attr]
+        _no_exceptions(self._handle.owner.physics, self._exceptions_saved)  # type: ignore[union-attr]
 
     @property
     def param_names(self) -> tuple[str, ...]:
@@ -210,10 +225,17 @@ class RandomizePhysicsTransform(Transform):
         self.randomizer.restore_nominal()
 
     def close(self) -> None:
+        """Restores the nominal model, unhooks recompiles and gives dm-control physics back its own
+        ``_warnings_cause_exception`` setting."""
         self.restore_nominal()
         if self._hook is not None and self._handle is not None:
             self._handle.remove_hook(self._hook)
             self._hook = None
+        for physics, setting in self._exceptions_saved:
+            # A composer env freed its physics when it closed (a dead weak proxy): nothing left to restore.
+            with contextlib.suppress(ReferenceError):
+                physics._warnings_cause_exception = setting
+        self._exceptions_saved.clear()
         super().close() if hasattr(super(), "close") else None
 
 
