@@ -58,25 +58,11 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from sysid._csv_units import _GAP, UNITS, _check_velocity_units, _header_unit, _time_origin
 from sysid.logs import LogError, TrajectoryLog, _check_model, log_format
 
 __all__ = ["UNITS", "CsvWarning", "load_column_map", "load_csv", "log_format"]
 
-#: Unit name -> (kind, factor to SI).
-UNITS: dict[str, tuple[str, float]] = {
-    "s": ("time", 1.0),
-    "ms": ("time", 1e-3),
-    "us": ("time", 1e-6),
-    "ns": ("time", 1e-9),
-    "rad": ("position", 1.0),
-    "deg": ("position", math.pi / 180.0),
-    "m": ("position", 1.0),
-    "mm": ("position", 1e-3),
-    "rad/s": ("velocity", 1.0),
-    "deg/s": ("velocity", math.pi / 180.0),
-    "m/s": ("velocity", 1.0),
-    "mm/s": ("velocity", 1e-3),
-}
 #: The unit kinds each key's columns take: a servo's command or a sensor is a position or a velocity (in degrees, say),
 #: never a time; an episode index takes none.
 _KIND_OF_KEY = {
@@ -90,7 +76,6 @@ _KIND_OF_KEY = {
 }
 _KEYS = ("time", "qpos", "qvel", "ctrl", "sensordata", "episode", "act")
 _STATE_KEYS = ("qpos", "qvel", "sensordata", "act")
-_GAP = 1.5  # a spacing over this many control steps is a gap (dropped rows)
 _SPACING_TOLERANCE = 0.2
 
 
@@ -202,36 +187,6 @@ def _per_column(
     return out
 
 
-#: How drivers spell units in a header's brackets, beyond the names of :data:`UNITS`.
-_ALIASES = {
-    "sec": "s",
-    "msec": "ms",
-    "usec": "us",
-    "µs": "us",
-    "nsec": "ns",
-    "degree": "deg",
-    "degrees": "deg",
-    "°": "deg",
-    "deg/sec": "deg/s",
-    "°/s": "deg/s",
-    "rad/sec": "rad/s",
-}
-
-
-def _header_unit(name: str) -> str | None:
-    """The unit of :data:`UNITS` a column's name ends with in brackets (``j1_vel [deg/s]``, ``t (ns)``), else None.
-
-    Example:
-        >>> _header_unit("j1_vel [deg/s]"), _header_unit("stamp (ns)"), _header_unit("q[0]"), _header_unit("u [Nm]")
-        ('deg/s', 'ns', None, None)
-    """
-    found = re.search(r"[\[(]\s*([^\[\]()]+?)\s*[\])]\s*$", name)
-    if found is None:
-        return None
-    unit = _ALIASES.get(found.group(1).lower(), found.group(1).lower())
-    return unit if unit in UNITS else None
-
-
 def _number(value: Any, name: str, column: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise LogError(f"`{name}` of column {column!r} must be a finite number. Received {value!r}.")
@@ -275,26 +230,6 @@ def _table(header: list[str], used: list[int], where: str, path: str | os.PathLi
                     f"removed, not left empty). Received {row[c]!r}."
                 )
     return table
-
-
-def _time_origin(table: np.ndarray, column: int, path: str | os.PathLike[str], delimiter: str) -> str | None:
-    """Rewrites a clock that counts from the Unix epoch (|t| >= 1e9 in its own unit: seconds, or nanoseconds since
-    1970) as time since the first row, in place, and returns the first row's cell (None for any other clock).
-    Integer stamps past 2**53 (nanoseconds) are subtracted as integers: as float64 they are rounded to 256 ns, which
-    made an exact 100 Hz clock look jittery."""
-    first = float(table[0, column])
-    if not abs(first) >= 1e9:
-        return None
-    with open(path, newline="", encoding="utf-8-sig") as handle:
-        cells = [
-            row[column].strip() for row in itertools.islice(csv.reader(handle, delimiter=delimiter), 1, None) if row
-        ]
-    if len(cells) == table.shape[0] and all(re.fullmatch(r"[+-]?\d+", c) for c in cells):
-        origin = int(cells[0])
-        table[:, column] = [float(int(c) - origin) for c in cells]
-        return cells[0]
-    table[:, column] -= first
-    return cells[0] if cells else repr(first)
 
 
 def _hold_commands(
@@ -663,8 +598,18 @@ def load_csv(
         names = [header[i] for i in index["qpos"]]
         explicit = {header[i] for i in unit_of if mapped[i] == "qpos"}
         _check_degrees(arrays["qpos"], names, explicit, model, f"CSV file {where}")
-    bounds, gaps = _segments(arrays["time"], episode, dt, time_column, f"CSV file {where}")
     velocity_of = _velocity_of(model, arrays["qpos"].shape[1], arrays["qvel"].shape[1])
+    declared = {header[i] for i in (*unit_of, *scales)}
+    _check_velocity_units(
+        arrays,
+        episode,
+        velocity_of,
+        [[header[i] for i in index[k]] for k in ("qpos", "qvel")],
+        declared,
+        dt,
+        f"CSV file {where}",
+    )
+    bounds, gaps = _segments(arrays["time"], episode, dt, time_column, f"CSV file {where}")
     resampled, segment, jitter, dropped, filled = _resample(arrays, bounds, dt, velocity_of)
     name = Path(path).name
     if gaps:

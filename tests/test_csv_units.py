@@ -69,10 +69,14 @@ def test_degrees_warn_naming_the_column_and_units_convert_them(tmp_path, arm, fi
     model, _ = arm
     path = tmp_path / "robot.csv"
     _write(path, fine, _grid())
-    with pytest.warns(
-        CsvWarning,
-        match=r"column 'q\d_deg' \(qpos of hinge '\w+', range .*\) reaches \|q\| = .* > 2π: "
-        r"it looks like degrees; add units: \{q\d_deg: deg\}",
+    # the velocities in deg/s prove it: the load is refused (it used to go on with the angles as radians)
+    with (
+        pytest.warns(
+            CsvWarning,
+            match=r"column 'q\d_deg' \(qpos of hinge '\w+', range .*\) reaches \|q\| = .* > 2π: "
+            r"it looks like degrees; add units: \{q\d_deg: deg\}",
+        ),
+        pytest.raises(LogError, match=r"they look like degrees against rad/s; add units: \{q0_deg: deg\}"),
     ):
         load_csv(path, COLUMNS, meta=_meta(model), model=model, units={"t_ms": "ms", "dq*_dps": "deg/s"})
     with warnings.catch_warnings():

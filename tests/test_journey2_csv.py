@@ -183,3 +183,29 @@ def test_units_named_in_the_header_are_applied(
         LogError, match=r"`units` of column 'j0_vel \[deg/s\]' must agree with the unit its header names \('deg/s'\)"
     ):
         load_csv(path, columns, _meta(model), model, units={"j0_vel*": "rad/s"})
+
+
+def test_velocities_in_degrees_against_positions_in_radians_are_refused_naming_the_unit(
+    tmp_path: Path, arm: tuple[mujoco.MjModel, Path], truth: sysid.TrajectoryLog
+) -> None:
+    # Before: deg/s velocities with no unit said anywhere were read as rad/s; the fit went unstable and ended "not
+    # ok" without naming the cause. Now one error says which columns and what to add.
+    model, _ = arm
+    path = _write(tmp_path / "dps.csv", truth, PLAIN, qvel_scale=180 / math.pi)
+    with pytest.raises(LogError) as caught:
+        load_csv(path, PLAIN_MAP, _meta(model), model)
+    names = ", ".join(f"'dq{i}'" for i in range(N))
+    assert str(caught.value) == (
+        f"CSV file {str(path)!r}: velocity column(s) {names} hold 57.3x the rate of change of their position column(s) "
+        f"({', '.join(f'{q!r}' for q in PLAIN[1 : 1 + N])}): they look like deg/s against positions in rad; add units: "
+        "{dq0: deg/s} (a pattern may name them all)."
+    )
+    reference = load_csv(_write(tmp_path / "plain.csv", truth, PLAIN), PLAIN_MAP, _meta(model), model)
+    log = load_csv(path, PLAIN_MAP, _meta(model), model, units={"dq?": "deg/s"})  # what the error says to add
+    np.testing.assert_allclose(log.qvel, reference.qvel, rtol=1e-12, atol=1e-12)
+    # positions in degrees (within 2π, so the |q| check is silent) against velocities in rad/s
+    degrees = sysid.TrajectoryLog(
+        time=truth.time, qpos=np.degrees(truth.qpos) / 100, qvel=truth.qvel / 100, ctrl=truth.ctrl, meta=truth.meta
+    )
+    with pytest.raises(LogError, match=r"position column\(s\) 'q0', .* look like degrees against rad/s; add units: "):
+        load_csv(_write(tmp_path / "deg.csv", degrees, PLAIN), PLAIN_MAP, _meta(model), model)

@@ -1,0 +1,132 @@
+"""Units of a driver's CSV (internal to :mod:`sysid.csv_import`): the unit table, units a header names in
+brackets, clocks counted from the Unix epoch, and velocities whose unit contradicts their positions'."""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import math
+import os
+import re
+
+import numpy as np
+
+from sysid.logs import LogError
+
+__all__ = ["UNITS"]
+
+_GAP = 1.5  # a spacing over this many control steps is a gap (dropped rows)
+
+#: Unit name -> (kind, factor to SI).
+UNITS: dict[str, tuple[str, float]] = {
+    "s": ("time", 1.0),
+    "ms": ("time", 1e-3),
+    "us": ("time", 1e-6),
+    "ns": ("time", 1e-9),
+    "rad": ("position", 1.0),
+    "deg": ("position", math.pi / 180.0),
+    "m": ("position", 1.0),
+    "mm": ("position", 1e-3),
+    "rad/s": ("velocity", 1.0),
+    "deg/s": ("velocity", math.pi / 180.0),
+    "m/s": ("velocity", 1.0),
+    "mm/s": ("velocity", 1e-3),
+}
+#: How drivers spell units in a header's brackets, beyond the names of :data:`UNITS`.
+_ALIASES = {
+    "sec": "s",
+    "msec": "ms",
+    "usec": "us",
+    "µs": "us",
+    "nsec": "ns",
+    "degree": "deg",
+    "degrees": "deg",
+    "°": "deg",
+    "deg/sec": "deg/s",
+    "°/s": "deg/s",
+    "rad/sec": "rad/s",
+}
+
+
+def _header_unit(name: str) -> str | None:
+    """The unit of :data:`UNITS` a column's name ends with in brackets (``j1_vel [deg/s]``, ``t (ns)``), else None.
+
+    Example:
+        >>> _header_unit("j1_vel [deg/s]"), _header_unit("stamp (ns)"), _header_unit("q[0]"), _header_unit("u [Nm]")
+        ('deg/s', 'ns', None, None)
+    """
+    found = re.search(r"[\[(]\s*([^\[\]()]+?)\s*[\])]\s*$", name)
+    if found is None:
+        return None
+    unit = _ALIASES.get(found.group(1).lower(), found.group(1).lower())
+    return unit if unit in UNITS else None
+
+
+def _time_origin(table: np.ndarray, column: int, path: str | os.PathLike[str], delimiter: str) -> str | None:
+    """Rewrites a clock that counts from the Unix epoch (|t| >= 1e9 in its own unit: seconds, or nanoseconds since
+    1970) as time since the first row, in place, and returns the first row's cell (None for any other clock).
+    Integer stamps past 2**53 (nanoseconds) are subtracted as integers: as float64 they are rounded to 256 ns, which
+    made an exact 100 Hz clock look jittery."""
+    first = float(table[0, column])
+    if not abs(first) >= 1e9:
+        return None
+    with open(path, newline="", encoding="utf-8-sig") as handle:
+        cells = [
+            row[column].strip() for row in itertools.islice(csv.reader(handle, delimiter=delimiter), 1, None) if row
+        ]
+    if len(cells) == table.shape[0] and all(re.fullmatch(r"[+-]?\d+", c) for c in cells):
+        origin = int(cells[0])
+        table[:, column] = [float(int(c) - origin) for c in cells]
+        return cells[0]
+    table[:, column] -= first
+    return cells[0] if cells else repr(first)
+
+
+def _check_velocity_units(
+    arrays: dict[str, np.ndarray],
+    episode: np.ndarray | None,
+    velocity_of: list[int | None],
+    names: list[list[str]],
+    declared: set[str],
+    dt: float,
+    where: str,
+) -> None:
+    """Refuses velocities in deg/s against positions in rad (and positions in degrees against rad/s) when neither
+    says its unit: a hinge's logged velocity about 57.3x (or 1/57.3 of) the rate of change of its logged position.
+    Read as rad/s, deg/s velocities made the fit of a 7-DoF arm unstable and "not ok" without saying why."""
+    t, q, v = arrays["time"], arrays["qpos"], arrays["qvel"]
+    step = np.diff(t)
+    pair = (step > 0) & (step < _GAP * dt)
+    if episode is not None:
+        pair &= np.diff(episode) == 0
+    if pair.sum() < 4:
+        return
+    fast: list[tuple[str, str]] = []
+    slow: list[tuple[str, str]] = []
+    for k, d in enumerate(velocity_of):
+        if d is None:
+            continue
+        rate = np.diff(q[:, k])[pair] / step[pair]
+        mid = 0.5 * (v[:-1, d] + v[1:, d])[pair]
+        if not np.all(np.isfinite(mid)) or not float(rate @ rate) > 0 or not np.std(mid) > 0:
+            continue
+        if not float(np.corrcoef(rate, mid)[0, 1]) > 0.9:  # too little motion (or noise) to judge the unit
+            continue
+        ratio = float(mid @ rate) / float(rate @ rate)
+        position, velocity = names[0][k], names[1][d]
+        if abs(ratio * math.pi / 180 - 1) < 0.25 and velocity not in declared:
+            fast.append((velocity, position))
+        elif abs(ratio * 180 / math.pi - 1) < 0.25 and position not in declared:
+            slow.append((velocity, position))
+    if fast:
+        raise LogError(
+            f"{where}: velocity column(s) {', '.join(repr(a) for a, _ in fast)} hold 57.3x the rate of change of "
+            f"their position column(s) ({', '.join(repr(b) for _, b in fast)}): they look like deg/s against positions "
+            f"in rad; add units: {{{fast[0][0]}: deg/s}} (a pattern may name them all)."
+        )
+    if slow:
+        raise LogError(
+            f"{where}: position column(s) {', '.join(repr(b) for _, b in slow)} change 57.3x faster than their "
+            f"velocity column(s) ({', '.join(repr(a) for a, _ in slow)}) say: they look like degrees against rad/s; "
+            f"add units: {{{slow[0][1]}: deg}} (a pattern may name them all)."
+        )
