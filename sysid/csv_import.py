@@ -374,6 +374,13 @@ def _segments(
         for unit, factor in (("ms", 1e3), ("us", 1e6), ("ns", 1e9)):
             if abs(ratio / factor - 1) < _SPACING_TOLERANCE:
                 hint = f" It looks like {unit}: add units: {{{column}: {unit}}}."
+        rows = round(1 / ratio)
+        if rows >= 2 and abs(ratio * rows - 1) < 0.05:
+            hint = (
+                f" That is {rows} rows per control step: if the states are logged faster than the commands, set "
+                f"meta: {{control_timestep: {spacing:.6g}}} (in the column map; a command is held until the next "
+                f"one), or keep every {rows}th row."
+            )
         raise LogError(
             f"{where}: time column {column!r} has a median spacing of {spacing:.6g} s, but meta['control_timestep'] "
             f"is {dt:.6g} s (the log must hold one row per control step).{hint}"

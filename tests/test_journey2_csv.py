@@ -209,3 +209,26 @@ def test_velocities_in_degrees_against_positions_in_radians_are_refused_naming_t
     )
     with pytest.raises(LogError, match=r"position column\(s\) 'q0', .* look like degrees against rad/s; add units: "):
         load_csv(_write(tmp_path / "deg.csv", degrees, PLAIN), PLAIN_MAP, _meta(model), model)
+
+
+def test_states_logged_faster_than_the_control_rate_say_what_to_set(
+    tmp_path: Path, arm: tuple[mujoco.MjModel, Path]
+) -> None:
+    # Before: "median spacing of 0.002 s, but meta['control_timestep'] is 0.01 s (the log must hold one row per
+    # control step)." and nothing on what to do for a driver whose states come at 500 Hz and commands at 100 Hz.
+    model, _ = arm
+    home = model.key_qpos[0]
+    ctrl = home + 0.2 * np.sin(np.outer(np.arange(STEPS // 4), [0.3, 0.5, 0.7, 0.2, 0.4, 0.6]))
+    fine = sysid.record_log(model, np.repeat(ctrl, SUBSTEPS, axis=0), initial_qpos=home)
+    blank = tuple(k for k in range(fine.time.shape[0]) if k % SUBSTEPS)  # a command every 5th state row
+    path = _write(tmp_path / "fast.csv", fine, PLAIN, blank_ctrl=blank)
+    with pytest.raises(LogError) as caught:
+        load_csv(path, PLAIN_MAP, _meta(model), model)
+    assert str(caught.value).endswith(
+        "That is 5 rows per control step: if the states are logged faster than the commands, set meta: "
+        "{control_timestep: 0.002} (in the column map; a command is held until the next one), or keep every 5th row."
+    )
+    with pytest.warns(sysid.CsvWarning, match="hold the previous one"):
+        log = load_csv(path, PLAIN_MAP, {**_meta(model), "control_timestep": 0.002}, model)
+    np.testing.assert_array_equal(log.ctrl, fine.ctrl)  # the held commands are the ones the arm was given
+    np.testing.assert_array_equal(log.qpos, fine.qpos)
