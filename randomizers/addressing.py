@@ -24,7 +24,7 @@ from collections.abc import Sequence
 
 import mujoco
 
-__all__ = ["FRICTION_AXES", "GRAVITY_AXES", "Address", "element_names", "joint_dofs", "select"]
+__all__ = ["FRICTION_AXES", "GRAVITY_AXES", "Address", "element_names", "joint_dofs", "select", "select_massive"]
 
 #: The components of ``geom_friction``, by column: ``geom_friction[g][i]`` is ``FRICTION_AXES[i]``.
 FRICTION_AXES: tuple[str, ...] = ("sliding", "torsional", "rolling")
@@ -93,7 +93,6 @@ e.g. 'geom_friction[finger][0]'. Received 'mass of arm'.
             )
         component = match.group("component")
         return cls(match.group("field"), match.group("element"), None if component is None else int(component))
-
 
 
 _OBJ = {
@@ -168,6 +167,53 @@ def select(
         for i in hits:
             chosen[i] = names[i]
     return sorted(chosen.items())
+
+
+def select_massive(
+    model: mujoco.MjModel, patterns: Sequence[str], argument: str, effect: str, reason: str
+) -> list[tuple[int, str]]:
+    """Bodies whose names match any pattern and whose mass is above 0 (never the world body), as ``(id, name)``.
+
+    A body of mass 0 (only sites, or geoms of zero density) is left out: an effect on its mass or centre of mass
+    would be reported but change nothing physical (or write a mass with no inertia, which MuJoCo's compiler
+    refuses for a moving body). A pattern that matches massless bodies only is refused, naming them.
+
+    Args:
+        model: the compiled model.
+        patterns: fnmatch patterns of body names.
+        argument: the user-facing argument name (``"bodies"``).
+        effect: the effect's class name, for the message.
+        reason: why a massless body cannot take the effect, for the message.
+
+    Raises:
+        ValueError: a pattern matches no body, or massless bodies only.
+
+    Example:
+        >>> m = mujoco.MjModel.from_xml_string(
+        ...     '<mujoco><worldbody><body name="arm"><joint/><geom size=".1"/>'
+        ...     '<body name="tip"><site name="s"/></body></body></worldbody></mujoco>')
+        >>> select_massive(m, ["*"], "bodies", "Mass", "")
+        [(1, 'arm')]
+        >>> select_massive(m, ["tip"], "bodies", "Mass", "it has no inertia for a mass to go with.")
+        Traceback (most recent call last):
+        ...
+        ValueError: `bodies` of Mass pattern 'tip' matches massless bodies only ('tip'): it has no inertia for a \
+mass to go with. Give them mass and inertia in the MJCF (an <inertial> element with mass and diaginertia, or geoms \
+with a density) or leave them out of `bodies`. Received 'tip'.
+    """
+    out: dict[int, str] = {}
+    for pattern in patterns:
+        chosen = select(model, "body", pattern, argument, exclude=(0,))
+        massive = [(i, n) for i, n in chosen if model.body_mass[i] > 0]
+        if not massive:
+            names = ", ".join(repr(n) for _, n in chosen)
+            raise ValueError(
+                f"`{argument}` of {effect} pattern {pattern!r} matches massless bodies only ({names}): {reason} "
+                "Give them mass and inertia in the MJCF (an <inertial> element with mass and diaginertia, or geoms "
+                f"with a density) or leave them out of `{argument}`. Received {pattern!r}."
+            )
+        out.update(massive)
+    return sorted(out.items())
 
 
 def joint_dofs(model: mujoco.MjModel, joint: int) -> int:

@@ -23,7 +23,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from randomizers.addressing import GRAVITY_AXES, Address
+from randomizers.addressing import GRAVITY_AXES, Address, select_massive
 from randomizers.distributions import Distribution
 from randomizers.effects import ArrayEffect, Binding, Schedule, choose_components
 
@@ -52,7 +52,7 @@ class _ComBinding(Binding):
             raise ValueError(
                 f"BodyComOffset cannot move the centre of mass of {names}: MuJoCo compiled "
                 f"{'these bodies' if len(names) > 1 else 'this body'} as 'simple' (frames coincide, several dofs), "
-                "so the mass matrix has no entries for the coupling an offset creates. Add simple=\"false\" to the "
+                'so the mass matrix has no entries for the coupling an offset creates. Add simple="false" to the '
                 "<body> in the MJCF (MjSpec: body.simple = False) or leave it out of `bodies`. "
                 f"Received bodies={self.effect.patterns!r}."
             )
@@ -85,7 +85,8 @@ def _simple_dof_runs(body_simple: np.ndarray, dof_bodyid: np.ndarray) -> np.ndar
 
 class BodyComOffset(ArrayEffect):
     """Shifts bodies' centres of mass (``body_ipos``, body frame, metres) along ``axis``; the randomiser runs
-    ``mujoco.mj_setConst`` afterwards. Offsets may be negative. The world body is never selected.
+    ``mujoco.mj_setConst`` afterwards. Offsets may be negative. The world body and bodies of zero mass (no centre
+    of mass to move) are never selected; a pattern matching massless bodies only is refused.
 
     Args:
         scale | add | set: the operation and its distribution (``add`` is the usual one: an offset in metres).
@@ -132,8 +133,9 @@ class BodyComOffset(ArrayEffect):
     def _extra_fields(self) -> dict[str, Any]:
         return {} if self.axes == GRAVITY_AXES else {"axis": list(self.axes)}
 
-    def _excluded(self, model: mujoco.MjModel) -> tuple[int, ...]:
-        return (0,)
+    def _select(self, model: mujoco.MjModel) -> list[tuple[int, str]]:
+        why = "a body of mass 0 has no centre of mass to move (the offset would be reported and change nothing)."
+        return select_massive(model, self.patterns, self.selector, "BodyComOffset", why)
 
     def _targets(self, model: mujoco.MjModel) -> tuple[list[int], list[int] | None, list[Address]]:
         return self._component_targets(model)

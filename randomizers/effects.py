@@ -34,7 +34,7 @@ from typing import Any, ClassVar, Literal, NamedTuple
 import mujoco
 import numpy as np
 
-from randomizers.addressing import FRICTION_AXES, GRAVITY_AXES, Address, joint_dofs, select
+from randomizers.addressing import FRICTION_AXES, GRAVITY_AXES, Address, joint_dofs, select, select_massive
 from randomizers.bindings import Binding, _GainBinding, _MassBinding, _SetConstBinding
 from randomizers.distributions import Distribution, as_distribution
 
@@ -239,9 +239,13 @@ class ArrayEffect(Effect):
 
     def _targets(self, model: mujoco.MjModel) -> tuple[list[int], list[int] | None, list[Address]]:
         """Flat (rows, cols, addresses) of every scalar this effect writes."""
-        chosen = select(model, self.kind, self.patterns, self.selector, exclude=self._excluded(model))
+        chosen = self._select(model)
         rows = [i for i, _ in chosen]
         return rows, None, [Address(self.field, n) for _, n in chosen]
+
+    def _select(self, model: mujoco.MjModel) -> list[tuple[int, str]]:
+        """The selected elements, ``(id, name)`` in model order."""
+        return select(model, self.kind, self.patterns, self.selector, exclude=self._excluded(model))
 
     def _excluded(self, model: mujoco.MjModel) -> tuple[int, ...]:
         return ()
@@ -251,7 +255,7 @@ class ArrayEffect(Effect):
         assert self.components is not None
         names = self.components[1]
         rows, cols, addresses = [], [], []
-        for eid, ename in select(model, self.kind, self.patterns, self.selector, exclude=self._excluded(model)):
+        for eid, ename in self._select(model):
             for axis in self.axes:  # type: ignore[attr-defined]
                 rows.append(eid)
                 cols.append(names.index(axis))
@@ -345,10 +349,12 @@ Received Uniform(low=-0.5, high=1.5) with support [-0.5, 1.5].
 
 class Mass(ArrayEffect):
     """Body masses (``body_mass``) with the inertia tensor scaled by the same ratio; the randomiser
-    runs ``mujoco.mj_setConst`` afterwards so derived quantities stay consistent. The world body is
-    never selected; a body of zero mass keeps its (zero) inertia. Zero mass is singular, so ``scale``
-    and ``set`` must be > 0 over their whole support and ``add`` must keep every body that has mass
-    above 0 (checked when bound); fields ``mj_setConst`` derives are restored with the masses.
+    runs ``mujoco.mj_setConst`` afterwards so derived quantities stay consistent. The world body and
+    bodies of zero mass (only sites, or zero-density geoms) are never selected: such a body has no inertia
+    to scale, a mass set on it would have none (MuJoCo's compiler refuses that on a moving body) and a scale
+    would leave it at 0; a pattern matching massless bodies only is refused. Zero mass is singular, so
+    ``scale`` and ``set`` must be > 0 over their whole support and ``add`` must keep every body above 0
+    (checked when bound); fields ``mj_setConst`` derives are restored with the masses.
 
     Example:
         >>> from randomizers import Mass, Uniform
@@ -381,8 +387,9 @@ Received Uniform(low=0.0, high=2.0) with support [0.0, 2.0].
         super().__init__(scale=scale, add=add, set=set, select=bodies, shared=shared, schedule=schedule, name=name)
         self._frozen = True
 
-    def _excluded(self, model: mujoco.MjModel) -> tuple[int, ...]:
-        return (0,)
+    def _select(self, model: mujoco.MjModel) -> list[tuple[int, str]]:
+        why = "a body of mass 0 has no inertia for a new mass to go with, and a scaled 0 stays 0."
+        return select_massive(model, self.patterns, self.selector, "Mass", why)
 
 
 class _DofEffect(ArrayEffect):
