@@ -85,3 +85,82 @@ def test_mujoco_instability_warnings_during_a_fit_are_counted_not_printed(
     assert code == 0, err
     assert "MuJoCo reported an unstable simulation 3 time(s) during the search" in err
     assert seen == ["something else"]  # other warnings still pass
+
+
+USER_ENV = '''
+import os, tempfile
+import numpy as np
+from gymnasium import spaces
+from gymnasium.envs.mujoco import MujocoEnv
+
+XML = """<mujoco model="arm2">
+  <compiler angle="radian"/>
+  <option timestep="0.0025"/>
+  <worldbody>
+    <body name="b1" pos="0 0 0.2">
+      <joint name="s" axis="0 1 0" range="-2 2" damping="0.8"/>
+      <geom type="capsule" fromto="0 0 0 0.25 0 0" size="0.03" mass="1.2"/>
+      <body name="b2" pos="0.25 0 0">
+        <joint name="e" axis="0 1 0" range="-2.5 2.5" damping="0.4"/>
+        <geom type="capsule" fromto="0 0 0 0.2 0 0" size="0.025" mass="0.7"/>
+      </body>
+    </body>
+  </worldbody>
+  <actuator><motor joint="s" ctrlrange="-8 8"/><motor joint="e" ctrlrange="-4 4"/></actuator>
+  <sensor><jointvel joint="e"/></sensor>
+</mujoco>"""
+
+
+class Arm2(MujocoEnv):
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 100}
+
+    def __init__(self):
+        path = os.path.join(tempfile.mkdtemp(), "arm2.xml")
+        open(path, "w").write(XML)
+        space = spaces.Box(-np.inf, np.inf, shape=(5,), dtype=np.float64)
+        super().__init__(path, frame_skip=4, observation_space=space)
+
+    def _get_obs(self):
+        return np.concatenate([self.data.qpos, self.data.qvel, self.data.sensordata]).copy()
+
+    def step(self, action):
+        self.do_simulation(action, self.frame_skip)
+        cost = 1e-3 * float(np.sum(np.square(action)))
+        return self._get_obs(), -float(np.sum(self.data.qpos ** 2)) - cost, False, False, {}
+
+    def reset_model(self):
+        self.set_state(self.init_qpos, self.init_qvel)
+        return self._get_obs()
+
+
+def make():
+    from gymnasium.wrappers import TimeLimit
+    return TimeLimit(Arm2(), max_episode_steps=20)
+'''
+
+
+def test_a_latency_sweep_on_a_frame_skip_env_is_labelled_in_the_time_it_applies(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Before: ActionLatency.steps counts physics steps, but the report labelled the sweep 'action latency (control
+    # steps)', so on a MujocoEnv with frame_skip=4 (100 Hz, 2.5 ms physics) the points 0, 4, 8 read as 0-80 ms of
+    # latency when 0-20 ms were applied.
+    (tmp_path / "journey2_user_env.py").write_text(USER_ENV)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    spec = tmp_path / "eval.yaml"
+    spec.write_text(
+        "env: journey2_user_env:make\nepisodes: 2\nmax_steps: 5\nbatch: 2\n"
+        "policies: {hold: {constant: [0.0, 0.0]}}\n"
+        "real: {params: {\"dof_damping[s]\": 1.2}}\n"
+        "sweeps: [{type: ActionLatency, steps: 0, field: steps, values: [0, 4, 8]}]\n"
+    )
+    code, _, err = _run(["evaluate", "--config", str(spec), "--out", str(tmp_path / "rep"), "--backend", "serial",
+                         "--quiet"])  # fmt: skip
+    assert code == 0, err
+    md = (tmp_path / "rep" / "report.md").read_text()
+    assert "action latency (ms)" in md and "action latency (control steps)" not in md
+    data = __import__("json").loads((tmp_path / "rep" / "report.json").read_text())
+    assert (data["control_timestep"], data["substeps"]) == (0.01, 4)
+    from sim2real.report.labels import axis_label
+
+    assert axis_label("ActionLatency.steps", 0.01, substeps=4).factor == 2.5  # 4 physics steps = 10 ms

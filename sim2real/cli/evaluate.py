@@ -61,6 +61,9 @@ def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
     except RenderingUnavailable as err:  # the report still has every number; say why the images are missing
         sheet = None
         notes.append(f"no contact sheet of the visual effects: {err}")
+    control_timestep, substeps = _clock(spec.task)
+    options.setdefault("control_timestep", control_timestep)  # a timing sweep's steps are shown in ms
+    options.setdefault("substeps", substeps)
     report = GapReport.build(evaluation, fit=fit, contact_sheet=sheet, rng=spec.seed, notes=tuple(notes), **options)
     table = None if limits is None else SafetyTable.build(evaluation, limits, substeps=_substeps(spec.task))
     if table is not None:
@@ -87,6 +90,30 @@ def _substeps(task: Any) -> int | None:
     env = make(task)
     try:
         return physics_substeps(env)
+    finally:
+        env.close()
+
+
+def _clock(task: Any) -> tuple[float | None, int | None]:
+    """Seconds per control step and physics steps per control step of the spec's task: what the Safety section's
+    once-per-control-step sampling sees (the same reading the study makes), and what a latency sweep's ``steps``
+    (physics steps) are in milliseconds. Before, a frame_skip=4 env's sweep over ActionLatency.steps 0, 4, 8 was
+    labelled 'action latency (control steps)': four times the latency applied."""
+    from sim2real.physics import find_physics
+    from sim2real.safety import physics_substeps
+    from sim2real.tasks import make
+
+    env = make(task)
+    try:
+        substeps = physics_substeps(env)
+        handle = find_physics(env)
+        if handle is None:
+            return None, substeps
+        timestep = float(handle.model.opt.timestep)
+        period = getattr(env.unwrapped, "dt", None)  # a gymnasium MujocoEnv: timestep x frame_skip
+        if substeps is None and isinstance(period, (int, float)) and period > 0:
+            return float(period), max(1, round(float(period) / timestep))
+        return (None, None) if substeps is None else (timestep * substeps, substeps)
     finally:
         env.close()
 

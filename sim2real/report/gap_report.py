@@ -90,6 +90,7 @@ class GapReport:
         training: ``(policy, condition)``: the sim each policy was trained in; its robustness radii keep a fraction
             of the policy's return there.
         control_timestep: seconds per control step (latencies are shown in ms), or None.
+        substeps: physics steps per control step (a timing model's ``steps`` count them), or None (one).
         policy_labels: ``(policy, label)`` shown in tables and figures (``"policy: <name>"`` by default).
         condition_labels: ``(condition, label)`` shown in tables and figures (``"sim: nominal"``, ``"real twin"``).
         lead: the caller's opening paragraph (e.g. the study's), shown first in the summary; see :meth:`with_lead`.
@@ -139,6 +140,7 @@ class GapReport:
     predictions: tuple[Prediction, ...] = ()
     training: tuple[tuple[str, str], ...] = ()
     control_timestep: float | None = None
+    substeps: int | None = None
     policy_labels: tuple[tuple[str, str], ...] = ()
     condition_labels: tuple[tuple[str, str], ...] = ()
     lead: str = ""
@@ -170,6 +172,7 @@ class GapReport:
         notes: Sequence[str] | str = (),
         training: Mapping[str, str] | None = None,
         control_timestep: float | None = None,
+        substeps: int | None = None,
         policy_labels: Mapping[str, str] | None = None,
         condition_labels: Mapping[str, str] | None = None,
         lead: str = "",
@@ -197,7 +200,10 @@ class GapReport:
             notes: free-text notes shown in the report (a string is one note).
             training: policy -> the simulated condition it was trained in (default: ``reference`` for every
                 policy); a robustness radius keeps ``fraction`` of the policy's return there.
-            control_timestep: seconds per control step, to show latencies in ms (None: in control steps).
+            control_timestep: seconds per control step, to show latencies in ms (None: a timing model's ``steps``
+                in physics steps).
+            substeps: physics steps per control step, which a timing model's ``steps`` count on a MuJoCo env
+                (None: one, as on a suite task).
             policy_labels: policy -> display name (default ``"policy: <name>"``).
             condition_labels: condition -> display name (default by kind: ``"sim: nominal"``, ``"real twin"``).
             lead: an opening paragraph for the summary (e.g. the study's).
@@ -228,6 +234,7 @@ class GapReport:
                 notes=notes,
                 training=training,
                 control_timestep=control_timestep,
+                substeps=substeps,
                 policy_labels=policy_labels,
                 condition_labels=condition_labels,
                 lead=lead,
@@ -268,7 +275,7 @@ class GapReport:
         in ms) and observation unit (sensor noise)."""
         from sim2real.report.labels import axis_label
 
-        return axis_label(axis, self.control_timestep, observation_unit=self.observation_unit)
+        return axis_label(axis, self.control_timestep, observation_unit=self.observation_unit, substeps=self.substeps)
 
     def label(self, name: str, role: str = "policy") -> str:
         """The display name of a policy (``role="policy"``) or a condition (``role="condition"``)."""

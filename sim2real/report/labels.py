@@ -68,7 +68,8 @@ _EFFECTS = {
     "ObservationNoise": "sensor noise",
     "ActionNoise": "actuator noise",
 }
-_TIME_FIELDS = {"steps": "control_steps", "seconds": "seconds", "physics_steps": "physics_steps"}
+# ``steps`` of a timing model (ActionLatency, ObservationLatency, SampleAndHold) counts physics steps on a MuJoCo env
+_TIME_FIELDS = {"steps": "physics_steps", "seconds": "seconds", "physics_steps": "physics_steps"}
 
 # address field prefix -> SI unit of the model field (hinge joints; slides would be m / N·s/m)
 _PARAMETER_UNITS = (
@@ -85,21 +86,32 @@ _PARAMETER_UNITS = (
 _CHANNEL_UNITS = (("qpos", "rad"), ("qvel", "rad/s"), ("qacc", "rad/s²"), ("ctrl", "ctrl units"))
 
 
-def axis_label(axis: str, control_timestep: float | None = None, *, observation_unit: str | None = None) -> AxisLabel:
+def axis_label(
+    axis: str,
+    control_timestep: float | None = None,
+    *,
+    observation_unit: str | None = None,
+    substeps: int | None = None,
+) -> AxisLabel:
     """The human label of a sweep axis ``"<Effect>.<field path>"`` (``Condition.axes``).
 
     Args:
         axis: the axis as the conditions name it, e.g. ``"Damping.scale"``.
-        control_timestep: seconds per control step; latencies in steps are then shown in ms.
+        control_timestep: seconds per control step; latencies in steps are then shown in ms (a step is a control
+            step divided by ``substeps``; without ``substeps``, a control step, as on a one-substep task).
         observation_unit: the unit of the observation channels (:func:`observation_unit`), for sensor noise; None
             says "observation units".
+        substeps: physics steps per control step of the env. A timing model's ``steps`` are physics steps; without
+            ``control_timestep`` they are shown as such.
 
     Returns:
         An :class:`AxisLabel`; an unknown axis keeps its name (with ``factor`` 1).
 
     Example:
         >>> axis_label("Damping.scale").text, axis_label("ActionLatency.steps").text
-        ('joint damping (× nominal)', 'action latency (control steps)')
+        ('joint damping (× nominal)', 'action latency (physics steps)')
+        >>> axis_label("ActionLatency.steps", 0.01, substeps=4)  # a MujocoEnv with frame_skip=4 at 100 Hz
+        AxisLabel(text='action latency (ms)', factor=2.5, unit='ms')
     """
     effect, _, field = axis.partition(".")
     what = _EFFECTS.get(effect)
@@ -110,17 +122,20 @@ def axis_label(axis: str, control_timestep: float | None = None, *, observation_
         return AxisLabel(f"{what} (× nominal)", 1.0)
     if last in _TIME_FIELDS:
         unit = _TIME_FIELDS[last]
-        if unit == "control_steps" and control_timestep is None:
-            return AxisLabel(f"{what} (control steps)", 1.0, "control steps")
-        if unit == "physics_steps":
+        # a bare ``steps`` with a control timestep but no substeps keeps the one-substep reading of a suite task
+        if unit == "physics_steps" and (control_timestep is None or (substeps is None and last == "physics_steps")):
             return AxisLabel(f"{what} (physics steps)", 1.0, "physics steps")
-        seconds = convert_time(1.0, unit, "seconds", timestep=control_timestep or 1.0, substeps=1)
+        per = 1 if substeps is None else substeps
+        step = (control_timestep or 1.0) / per
+        seconds = convert_time(1.0, unit, "seconds", timestep=step, substeps=per)
         return AxisLabel(f"{what} (ms)", round(1000.0 * seconds, 12), "ms")
     if last == "std" and "sensor" in what:
         if not observation_unit:
             return AxisLabel(f"{what} std (observation units)", 1.0, "observation units")
         single = "(" not in observation_unit  # one unit for every channel, e.g. "rad"
-        return AxisLabel(f"{what} std ({observation_unit})", 1.0, observation_unit if single else "in each channel's unit")
+        return AxisLabel(
+            f"{what} std ({observation_unit})", 1.0, observation_unit if single else "in each channel's unit"
+        )
     if last == "std":
         return AxisLabel(f"{what} std (ctrl units)", 1.0, "ctrl units")
     if last in ("offset", "add"):

@@ -48,6 +48,7 @@ def to_dict(report: GapReport) -> dict[str, Any]:
         "labels": {"policies": dict(report.policy_labels), "conditions": dict(report.condition_labels)},
         "training": dict(report.training),
         "control_timestep": report.control_timestep,
+        "substeps": report.substeps,
         "differences": [
             {
                 "condition": d.condition,
