@@ -1,7 +1,8 @@
 """Calibration: fitted parameter values written into an env's MuJoCo model as its new nominal values.
 
 It sits beside the physics handle (:mod:`sim2real.physics`) and below the task registry, so ``sim2real.make(task,
-params=fit)`` reaches it without importing recording, pixels or the wrappers.
+params=fit)`` reaches it without importing recording, pixels or the wrappers. :func:`noise_select` says where a fit's
+position and velocity noise go in an env's observation, for ``FitResult.to_effects(noise_select=...)``.
 
 Example:
     >>> import sim2real as s2r
@@ -20,7 +21,7 @@ import numpy as np
 
 from sim2real.physics import find_physics
 
-__all__ = ["calibrate"]
+__all__ = ["calibrate", "noise_select"]
 
 
 def calibrate(env: Any, params: Any) -> Any:
@@ -55,3 +56,47 @@ def calibrate(env: Any, params: Any) -> Any:
     if handle.recompiles:
         handle.on_recompile(lambda model, data: write(model))
     return env
+
+
+#: Observation part names that hold the model's ``qpos`` / ``qvel`` (checked by size too).
+_PARTS = {"qpos": ("qpos", "position"), "qvel": ("qvel", "velocity")}
+
+
+def noise_select(env: Any) -> dict[str, Any] | None:
+    """Where a fit's ``qpos`` and ``qvel`` channels sit in ``env``'s observation, for
+    :meth:`sysid.FitResult.to_effects` (``noise_select=``), or None when that is not known (the export then
+    falls back to one noise level for the whole observation).
+
+    Known: a :class:`~sim2real.mjcf_env.MjcfEnv` (``qpos`` then ``qvel``: index lists), and observations with named
+    parts (dict spaces, dm-control's flattened parts) called ``qpos``/``position`` of the model's ``nq`` values or
+    ``qvel``/``velocity`` of its ``nv``; wrappers must keep the base env's observation space.
+
+    Example:
+        >>> import sim2real as s2r
+        >>> noise_select(s2r.make("dmc/reacher-easy"))
+        {'qpos': 'position', 'qvel': 'velocity'}
+        >>> noise_select(s2r.make("dmc/manipulator-bring_ball")) is None  # sines and cosines, not qpos
+        True
+    """
+    import gymnasium as gym
+
+    handle = find_physics(env)
+    base = getattr(env, "unwrapped", None)
+    if handle is None or not isinstance(base, gym.Env) or env.observation_space != base.observation_space:
+        return None
+    nq, nv = int(handle.model.nq), int(handle.model.nv)
+    from sim2real.mjcf_env import MjcfEnv
+
+    if isinstance(base, MjcfEnv):
+        return {"qpos": list(range(nq)), "qvel": list(range(nq, nq + nv))}
+    space = base.observation_space
+    if isinstance(space, gym.spaces.Dict):
+        parts = [(k, int(np.prod(sub.shape))) for k, sub in space.spaces.items() if sub.shape is not None]
+    else:
+        parts = [(k, sl.stop - sl.start) for k, sl, _ in getattr(base, "observation_layout", ())]
+    out = {}
+    for signal, size in (("qpos", nq), ("qvel", nv)):
+        hits = [k for k, n in parts if k in _PARTS[signal] and n == size]
+        if len(hits) == 1:
+            out[signal] = hits[0]
+    return out or None

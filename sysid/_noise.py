@@ -38,14 +38,16 @@ def difference_sigma(problem: Problem) -> np.ndarray:
 
 def residual_sigma(
     problem: Problem, values: np.ndarray, delay: int, obs_delay: int, x0: np.ndarray, unknowns: int
-) -> np.ndarray:
-    """Noise level per channel from the residuals at ``values``, degrees of freedom shared out by row count."""
+) -> tuple[np.ndarray, np.ndarray]:
+    """Noise level per channel from the residuals at ``values``, degrees of freedom shared out by row count; and
+    those degrees of freedom (``sigma² · dof / σ²`` is chi-square with ``dof`` when the model is right)."""
     pred, sens = problem.simulate(values, delay, x0)
     errors = problem.channel_errors(*problem.raw_residuals(pred, sens, obs_delay))
     total = sum(e.size for e in errors)
-    out = []
+    out, dofs = [], []
     for e, y in zip(errors, problem.channel_measurements(), strict=True):
         dof = max(1.0, e.size * (1.0 - unknowns / max(total, 1)))
         sigma = math.sqrt(float(np.sum(e**2)) / dof)
         out.append(max(sigma, 1e-9 * (float(np.std(y)) + 1e-9), 1e-12))
-    return np.asarray(out)
+        dofs.append(dof)
+    return np.asarray(out), np.asarray(dofs)

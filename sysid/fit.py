@@ -353,9 +353,12 @@ def fit(
     unknown_names = sorted(set(known) - set(every_channel))
     if unknown_names:
         raise ValueError(f"`noise_std` keys must be channel names {every_channel}. Received unknown {unknown_names}.")
+    # Degrees of freedom behind each level: NaN for the model-free start (no chi-square behind it), inf for a given one.
+    noise_dof = np.full(len(final.channels), math.nan)
     for c, name in enumerate(final.channels):
         if name in known:
             sigma[c] = float(known[name])
+            noise_dof[c] = math.inf
     final.weights = 1.0 / sigma
     lower, upper = space.lower, space.upper
 
@@ -443,10 +446,10 @@ def fit(
         for _ in range(2):
             if all(name in known for name in final.channels):
                 break
-            new_sigma = residual_sigma(final, st.theta, st.delay, st.obs, st.x0, unknowns)
+            new_sigma, new_dof = residual_sigma(final, st.theta, st.delay, st.obs, st.x0, unknowns)
             for c, name in enumerate(final.channels):
                 if name not in known:
-                    sigma[c] = new_sigma[c]
+                    sigma[c], noise_dof[c] = new_sigma[c], new_dof[c]
             change = float(np.max(np.abs(np.log(final.weights * sigma))))
             old_weights, final.weights = final.weights, 1.0 / sigma
             # Residuals and Jacobians scale per channel with the weights: rescaled, not rolled out again (a whole
@@ -523,6 +526,7 @@ def fit(
 
     # ---- held-out validation
     noise = {name: float(sigma[c]) for c, name in enumerate(final.channels)}
+    noise_dof_by_channel = {name: float(noise_dof[c]) for c, name in enumerate(final.channels)}
     trace_problem, trace_x0, source = final, st.x0, "fit"
     val_unknowns = 0
     # Judged as the fit shoots and where it fits: contact rows out, each piece from its own estimated state.
@@ -619,6 +623,7 @@ def fit(
         timestep=timestep,
         control_timestep=timestep * n_sub,
         noise_std=noise,
+        noise_dof=noise_dof_by_channel,
         fit_percent=fit_percent,
         whiteness_pvalue=whiteness,
         warnings=tuple(warns),

@@ -40,7 +40,7 @@ __all__ = ["FitResult"]
 
 _ARRAYS = ("estimates", "stderr", "ci95", "crlb_sd", "covariance", "correlation", "bounds")
 _TRACES = ("trace_time", "trace_measured", "trace_predicted")
-_MAPPINGS = ("latency", "noise_std", "fit_percent", "whiteness_pvalue")
+_MAPPINGS = ("latency", "noise_std", "fit_percent", "whiteness_pvalue", "noise_dof")
 _LATENCY_MODELS = {"action": ActionLatency, "obs": ObservationLatency}
 
 
@@ -115,6 +115,9 @@ class FitResult:
         timestep: seconds per physics step of the fitted model (NaN when unknown).
         control_timestep: seconds per control step of the log (NaN when unknown).
         noise_std: ``{channel: sigma}`` estimated (or given) measurement noise, in the channel's units.
+        noise_dof: ``{channel: dof}`` degrees of freedom of the residuals behind each ``noise_std`` (``σ̂² dof / σ²``
+            is chi-square with ``dof`` when the model is right): ``inf`` for a given level, NaN for one not
+            re-estimated from residuals; :meth:`noise_level` pools channels with them.
         fit_percent: ``{channel: percent}`` NRMSE fit ``100 (1 - ‖y-ŷ‖/‖y-ȳ‖)`` on held-out data.
         whiteness_pvalue: ``{channel: p}`` Ljung–Box p-value of the held-out residuals (small = not white).
         warnings: identifiability and validation warnings, each naming the parameters involved.
@@ -147,6 +150,7 @@ class FitResult:
     timestep: float = math.nan
     control_timestep: float = math.nan
     noise_std: Mapping[str, float] = field(default_factory=dict)
+    noise_dof: Mapping[str, float] = field(default_factory=dict)
     fit_percent: Mapping[str, float] = field(default_factory=dict)
     whiteness_pvalue: Mapping[str, float] = field(default_factory=dict)
     warnings: tuple[str, ...] = ()
@@ -386,6 +390,7 @@ class FitResult:
         digits: int | None = None,
         latency: bool = True,
         noise: bool = True,
+        noise_select: Mapping[str, Any] | None = None,
         force: bool = False,
     ) -> list[Any]:
         """The randomised simulator this fit calls for: effects for the fitted parameters, then the fitted
@@ -402,8 +407,13 @@ class FitResult:
           (and at 0 where a quantity must stay non-negative); ``width`` and ``min_relative_width`` do not apply.
 
         Latencies become ``ActionLatency``/``ObservationLatency`` in **seconds**, rounded to whole physics steps
-        of the model when its timestep is known; the noise becomes Gaussian ``ObservationNoise`` at the mean
-        fitted level (one significant digit).
+        of the model when its timestep is known. The sensor noise becomes Gaussian ``ObservationNoise``: without
+        ``noise_select``, one level for the whole observation, the mean of the fitted channels' levels (one
+        significant digit); with it (where each signal sits in the target env's observation, e.g.
+        ``{"qpos": [0, 1, 2], "qvel": [3, 4, 5]}`` or ``{"qpos": "position", "qvel": "velocity"}``; for an env
+        ``sim2real.calibration.noise_select(env)`` finds it), one ``Gaussian`` per entry, its ``std`` drawn per
+        episode from ``Uniform`` over :meth:`noise_level` ``± max(min_relative_width * level, width * stderr)``
+        (at least 0): position and velocity sensors keep their own levels.
 
         Example:
             >>> fit = FitResult.from_estimates({"dof_damping[shoulder]": (0.0299, 0.0001)})
@@ -416,7 +426,8 @@ class FitResult:
         A fit that is not :attr:`ok` (the model cannot reproduce the log) is refused unless ``force=True``.
 
         Raises:
-            ValueError: a width that is not a finite number >= 0 (``width`` > 0), or an unknown ``kind``.
+            ValueError: a width that is not a finite number >= 0 (``width`` > 0), an unknown ``kind``, or a
+                ``noise_select`` signal no fitted channel belongs to.
             NotOkError: (a ValueError) the fit is not ok and ``force`` is False; the message lists the reasons.
         """
         self._require_ok(force)
@@ -437,11 +448,7 @@ class FitResult:
                 e for e in (self._effect(i, width, min_relative_width, digits) for i in range(len(self.addresses))) if e
             ]
         if noise:
-            levels = [float(v) for v in self.noise_std.values() if math.isfinite(v)]
-            if levels:
-                from noise_models import Gaussian, ObservationNoise
-
-                out.append(ObservationNoise(Gaussian(std=_round_sig(float(np.mean(levels)), 1))))
+            out.extend(self._noise_models(noise_select, width, min_relative_width, digits))
         if latency:
             physics = self.latency_physics_steps
             for name, seconds in self.latency.items():
@@ -450,6 +457,68 @@ class FitResult:
                 if seconds > 0:
                     out.append(_LATENCY_MODELS[name](seconds=seconds))
         return out
+
+    def noise_level(self, signal: str) -> tuple[float, float]:
+        """The fitted sensor noise of ``signal`` and its standard error, ``(sigma, stderr)``, in its units.
+
+        Args:
+            signal: a channel name (``"qpos[elbow]"``, a sensor) or what channel names start with before a ``[``:
+                ``"qpos"``, ``"qvel"``, ``"qpos[puck_free]"``, a multi-dimensional sensor's name.
+
+        Returns:
+            ``sigma`` pools the channels' residual variances by their degrees of freedom,
+            ``sqrt(sum(dof_c sigma_c²) / sum(dof_c))``; ``stderr = sigma / sqrt(2 sum(dof_c))`` (chi-square).
+            Given levels have stderr 0; levels not estimated from residuals (no fit iterations, or a result saved
+            before :attr:`noise_dof` existed) are pooled equally with stderr NaN.
+
+        Raises:
+            ValueError: no fitted channel belongs to ``signal`` (the channels are listed).
+
+        Example:
+            >>> fit = FitResult.from_estimates({})
+            >>> fit = FitResult(**{**{f.name: getattr(fit, f.name) for f in fields(fit)},
+            ...     "noise_std": {"qpos[a]": 0.001, "qpos[b]": 0.001, "qvel[a]": 0.005}, "noise_dof": {
+            ...     "qpos[a]": 200.0, "qpos[b]": 200.0, "qvel[a]": 200.0}})
+            >>> [round(v, 6) for v in fit.noise_level("qpos")], round(fit.noise_level("qvel")[0], 6)
+            ([0.001, 3.5e-05], 0.005)
+        """
+        chosen = [c for c in self.noise_std if c == signal or c.startswith(signal + "[")]
+        if not chosen:
+            raise ValueError(
+                f"`signal` must be a fitted channel or the start of some ('qpos', 'qvel', a sensor name): the fit has "
+                f"{list(self.noise_std)}. Received {signal!r}."
+            )
+        levels = np.array([self.noise_std[c] for c in chosen])
+        dofs = np.array([self.noise_dof.get(c, math.nan) for c in chosen])
+        if np.isfinite(dofs).all():
+            sigma = math.sqrt(float(np.sum(dofs * levels**2) / np.sum(dofs)))
+            return sigma, sigma / math.sqrt(2.0 * float(np.sum(dofs)))
+        sigma = math.sqrt(float(np.mean(levels**2)))
+        return sigma, 0.0 if np.isposinf(dofs).all() else math.nan
+
+    def _noise_models(
+        self, noise_select: Mapping[str, Any] | None, width: float, min_relative: float, digits: int | None
+    ) -> list[Any]:
+        from noise_models import Gaussian, ObservationNoise
+
+        if noise_select is None:  # the target's observation layout is unknown: one level for all of it
+            levels = [float(v) for v in self.noise_std.values() if math.isfinite(v)]
+            return [ObservationNoise(Gaussian(std=_round_sig(float(np.mean(levels)), 1)))] if levels else []
+        if not isinstance(noise_select, Mapping):
+            raise TypeError(
+                "`noise_select` must be a mapping {signal: where in the observation} such as "
+                f"{{'qpos': [0, 1], 'qvel': [2, 3]}}, or None. Received {noise_select!r}."
+            )
+        processes = []
+        for signal, where in noise_select.items():
+            sigma, se = self.noise_level(signal)
+            if not math.isfinite(sigma):
+                continue
+            est = _round_sig(sigma, digits)
+            half = _round_sig(max(min_relative * sigma, width * se if math.isfinite(se) else 0.0), digits)
+            std: Any = est if half <= 0 else Uniform(round(max(est - half, 0.0), 12), round(est + half, 12))
+            processes.append(Gaussian(std=std, select=where))
+        return [ObservationNoise(*processes)] if processes else []
 
     def _nonnegative(self, i: int) -> bool:
         owner = EFFECT_FIELDS.get(Address.parse(self.addresses[i]).field)
@@ -500,15 +569,17 @@ class FitResult:
         *,
         min_relative_width: float = 0.1,
         kind: Literal["uniform", "posterior"] = "uniform",
+        noise_select: Mapping[str, Any] | None = None,
         force: bool = False,
     ) -> str:
         """A randomiser YAML config (``randomizers.load_config`` reads it) of :meth:`to_effects`.
 
         Args:
-            width, min_relative_width, kind, force: as for :meth:`to_effects` (a fit that is not ok is refused).
+            width, min_relative_width, kind, noise_select, force: as for :meth:`to_effects` (a fit that is not ok is
+                refused).
             path: when given, the YAML is also written there atomically.
         """
-        effects = self.to_effects(width, min_relative_width, kind, force=force)
+        effects = self.to_effects(width, min_relative_width, kind, noise_select=noise_select, force=force)
         text = dump_config(effects)
         covered = {a for e in effects if isinstance(e, Correlated) for a in e.addresses}
         notes = [
