@@ -198,3 +198,43 @@ def test_a_calibrated_gymnasium_task_keeps_its_spec_and_the_calibration() -> Non
     assert (
         getattr(s2r.make("gym/Reacher-v5").spec, "entry_point", None) == "gymnasium.envs.mujoco.reacher_v5:ReacherEnv"
     )
+
+
+ARM_XML = """<mujoco><option timestep="0.005"/><worldbody><body name="upper">
+<joint name="shoulder" axis="0 1 0" range="-1.5 1.5" damping="0.3"/>
+<geom type="capsule" fromto="0 0 0 0.2 0 0" size="0.03" mass="1"/></body></worldbody>
+<actuator><motor joint="shoulder" ctrlrange="-1 1"/></actuator></mujoco>"""
+
+FACTORIES = """
+from dm_control import suite
+
+
+def dm_reacher():
+    return suite.load("reacher", "easy")
+"""
+
+
+def test_user_models_and_factories_get_a_spec_that_recreates_them(tmp_path: Any, monkeypatch: Any) -> None:
+    import gymnasium as gym
+
+    import sim2real as s2r
+    from randomizers import Damping, Uniform
+
+    path = tmp_path / "my arm-v2.xml"
+    path.write_text(ARM_XML)
+    (tmp_path / "loose_end_factories.py").write_text(FACTORIES)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    cases = [
+        (f"model:{path}", {}, "sim2real/model-my_arm_v2"),
+        ("env:loose_end_factories:dm_reacher", {}, "sim2real/env-dm_reacher"),
+    ]
+    for task_id, options, spec_id in cases:
+        env: Any = s2r.wrap(s2r.make(task_id, **options), Damping(scale=Uniform(0.5, 2.0)), seed=1)
+        assert env.spec is not None and env.spec.id == spec_id  # None before: gym.make(env.spec) raised
+        twin: Any = gym.make(env.spec)
+        assert type(twin.unwrapped) is type(env.unwrapped)
+        first, info = env.reset(seed=2)
+        again, twin_info = twin.reset(seed=2)
+        assert first.tobytes() == again.tobytes() and info["sim2real"] == twin_info["sim2real"]
+        action = np.full(env.action_space.shape or (), 0.2, np.float32)
+        assert env.step(action)[0].tobytes() == twin.step(action)[0].tobytes()

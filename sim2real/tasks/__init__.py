@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import copy
 import difflib
+import os
+import re
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -252,14 +254,17 @@ def make(task_id: str, *, pixels: bool = False, params: Any = None, **options: A
 
 
 def _give_spec(env: gym.Env, task_id: str, kwargs: dict[str, Any]) -> None:
-    """Gives a registered task's env the ``EnvSpec`` that recreates it (``gymnasium.make(env.spec)``, and so
-    the spec of every wrapper recording its arguments around it): entry point :func:`make`, ``kwargs`` its
-    arguments. Its flags are those ``gymnasium.make`` stamps on the env it builds from the spec (no checker,
-    order or time-limit wrapper added), so the remade env's spec equals this one. ``gym/*`` envs keep
-    gymnasium's own spec, with a ``params`` calibration added to it (:func:`calibrated_gym`); user models and
-    factories (``model:``/``env:``) keep theirs, if any: their ids are paths, not gymnasium ids."""
+    """Gives the env of ``task_id`` the ``EnvSpec`` that recreates it (``gymnasium.make(env.spec)``, and so the
+    spec of every wrapper recording its arguments around it): entry point :func:`make`, ``kwargs`` its arguments.
+    Its flags are those ``gymnasium.make`` stamps on the env it builds from the spec (no checker, order or
+    time-limit wrapper added), so the remade env's spec equals this one. The id is the task id, or for a user
+    model or factory (whose id is a path) ``sim2real/model-<file stem>`` / ``sim2real/env-<factory>``. An env that
+    has a spec already (``gym/*``, a factory calling ``gymnasium.make``) keeps it, with a ``params`` calibration
+    added to it (:func:`calibrated_gym`)."""
     base = env.unwrapped
-    if base.spec is not None and "params" in kwargs and task_id.startswith("gym/"):
+    if base.spec is not None:
+        if "params" not in kwargs:
+            return
         spec = copy.copy(base.spec)
         spec.kwargs = {"entry_point": spec.entry_point, "params": kwargs["params"], **spec.kwargs}
         spec.entry_point = "sim2real.tasks:calibrated_gym"
@@ -269,16 +274,29 @@ def _give_spec(env: gym.Env, task_id: str, kwargs: dict[str, Any]) -> None:
             layer._cached_spec = None
             layer = layer.env
         return
-    if task_id not in TASKS or base.spec is not None:
-        return
     env.unwrapped.spec = gym.envs.registration.EnvSpec(
-        id=task_id,
+        id=_spec_id(task_id),
         entry_point="sim2real.tasks:make",
         max_episode_steps=None,
         order_enforce=False,
         disable_env_checker=True,
         kwargs=kwargs,
     )
+
+
+def _spec_id(task_id: str) -> str:
+    """A gymnasium id for ``task_id``: itself for a registered task; for ``model:<path>`` and
+    ``env:<module>:<factory>`` (not gymnasium ids) ``sim2real/model-<stem>`` and ``sim2real/env-<factory>``.
+
+    Example:
+        >>> _spec_id("model:/robots/my arm-v2.xml"), _spec_id("env:pkg.envs:make_arm")
+        ('sim2real/model-my_arm_v2', 'sim2real/env-make_arm')
+    """
+    if task_id in TASKS:
+        return task_id
+    kind, _, rest = task_id.partition(":")
+    name = os.path.splitext(os.path.basename(rest))[0] if kind == "model" else rest.rsplit(":", 1)[-1]
+    return f"sim2real/{kind}-{re.sub(r'[^A-Za-z0-9_.]', '_', name) or kind}"
 
 
 def _make(task_id: str, **options: Any) -> gym.Env:
