@@ -224,7 +224,7 @@ def test_user_models_and_factories_get_a_spec_that_recreates_them(tmp_path: Any,
     path.write_text(ARM_XML)
     (tmp_path / "loose_end_factories.py").write_text(FACTORIES)
     monkeypatch.syspath_prepend(str(tmp_path))
-    cases = [
+    cases: list[tuple[str, dict[str, Any], str]] = [
         (f"model:{path}", {}, "sim2real/model-my_arm_v2"),
         ("env:loose_end_factories:dm_reacher", {}, "sim2real/env-dm_reacher"),
     ]
