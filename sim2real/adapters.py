@@ -46,6 +46,33 @@ def _random_state(env: Any) -> np.random.RandomState | None:
 _RANDOM_SOURCES = (np.random.Generator, np.random.RandomState, np.random.BitGenerator, random.Random)
 
 
+def _inner_random_state(
+    env: Any, path: str = "env", depth: int = 0
+) -> tuple[np.random.RandomState | None, list[tuple[str, Any]]]:
+    """The dm-control RandomState of ``env`` or of a dm_env it wraps (a user's wrapper that does not forward
+    ``task``/``random_state``), and the wrappers above the env that owns it, outermost first, with their
+    attribute paths (``"env"``, ``"env._env"``)."""
+    state = _random_state(env)
+    if state is not None or depth > 8:
+        return state, []
+    for name, value in getattr(env, "__dict__", {}).items():
+        if isinstance(value, dm_env.Environment) and value is not env:
+            state, above = _inner_random_state(value, f"{path}.{name}", depth + 1)
+            if state is not None:
+                return state, [(path, env), *above]
+    return None, []
+
+
+def _own_generator(wrapper: Any) -> str | None:
+    """The first random generator kept directly on ``wrapper`` (``"_rng (numpy.random.Generator)"``), if any."""
+    for name, value in getattr(wrapper, "__dict__", {}).items():
+        if isinstance(value, _RANDOM_SOURCES):
+            kind = type(value)
+            module = "numpy.random" if kind.__module__.startswith("numpy.random") else kind.__module__
+            return f"{name} ({module}.{kind.__name__})"
+    return None
+
+
 def _unseedable_randomness(env: Any) -> str | None:
     """Where a dm_env without a dm-control RandomState keeps a random generator (``"env._rng
     (numpy.random.Generator)"``), or None when none is visible: the attributes of the env, of its ``task``
@@ -61,11 +88,10 @@ def _unseedable_randomness(env: Any) -> str | None:
             attributes = vars(obj)
         except TypeError:  # no __dict__ (slots, builtins)
             continue
+        own = _own_generator(obj)
+        if own is not None:
+            return f"{path}.{own}"
         for name, value in attributes.items():
-            if isinstance(value, _RANDOM_SOURCES):
-                kind = type(value)
-                module = "numpy.random" if kind.__module__.startswith("numpy.random") else kind.__module__
-                return f"{path}.{name} ({module}.{kind.__name__})"
             if isinstance(value, dm_env.Environment) or name in ("task", "_task"):
                 stack.append((f"{path}.{name}", value))
     return None
@@ -190,6 +216,8 @@ class DmEnvToGym(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
         """Starts an episode; a ``seed`` re-seeds the task's RandomState in place first.
 
+        The RandomState of a suite or composer env wrapped in a user's dm_env wrapper (one that does not forward
+        ``task``) is found and re-seeded too, unless the wrapper keeps a generator of its own.
         A dm_env with no random generator among its attributes (nor its ``task``'s, nor those of the dm_envs it
         wraps) is taken as deterministic: it accepts a seed, which only seeds ``self.np_random`` (there is
         nothing else to re-seed), so ``gymnasium``'s ``check_env`` runs on it. One that keeps a generator
@@ -203,11 +231,14 @@ class DmEnvToGym(gym.Env):
         if options:
             raise ValueError(f"`options` is not supported by dm-control environments. Received {options!r}.")
         if seed is not None:
-            state = _random_state(self.dm_env)
-            if state is not None:
+            state, wrappers = _inner_random_state(self.dm_env)
+            # A wrapper's own generator would go unseeded beside the wrapped task's RandomState.
+            owns = [f"{path}.{own}" for path, wrapper in wrappers if (own := _own_generator(wrapper)) is not None]
+            hidden = owns[0] if owns else None
+            if state is not None and hidden is None:
                 state.seed(int(np.random.SeedSequence(seed).generate_state(1)[0]))
             else:
-                hidden = _unseedable_randomness(self.dm_env)
+                hidden = hidden or _unseedable_randomness(self.dm_env)
                 if hidden is not None:
                     raise ValueError(
                         f"`seed` cannot be honoured: {type(self.dm_env).__name__} draws from {hidden}, which "

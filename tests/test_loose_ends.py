@@ -238,3 +238,38 @@ def test_user_models_and_factories_get_a_spec_that_recreates_them(tmp_path: Any,
         assert first.tobytes() == again.tobytes() and info["sim2real"] == twin_info["sim2real"]
         action = np.full(env.action_space.shape or (), 0.2, np.float32)
         assert env.step(action)[0].tobytes() == twin.step(action)[0].tobytes()
+
+
+class _Repeat(dm_env.Environment):
+    """A user's dm_env wrapper that does not forward ``task`` (action repeat 2), optionally with its own rng."""
+
+    def __init__(self, env: dm_env.Environment, rng: Any = None) -> None:
+        self._env = env
+        if rng is not None:
+            self._rng = rng
+
+    def reset(self) -> dm_env.TimeStep:
+        return self._env.reset()
+
+    def step(self, action: Any) -> dm_env.TimeStep:
+        self._env.step(action)
+        return self._env.step(action)
+
+    def observation_spec(self) -> Any:
+        return self._env.observation_spec()
+
+    def action_spec(self) -> Any:
+        return self._env.action_spec()
+
+
+def test_a_suite_env_inside_a_users_dm_env_wrapper_is_reseeded() -> None:
+    from dm_control import suite
+
+    env = DmEnvToGym(_Repeat(suite.load("reacher", "easy")))
+    first, _ = env.reset(seed=11)  # refused before: env._env._task._random was taken for randomness out of reach
+    other, _ = env.reset(seed=12)
+    again, _ = env.reset(seed=11)
+    assert first.tobytes() == again.tobytes() and first.tobytes() != other.tobytes()
+    noisy = DmEnvToGym(_Repeat(suite.load("reacher", "easy"), np.random.default_rng(0)))
+    with pytest.raises(ValueError, match=r"draws from env\._rng \(numpy\.random\.Generator\), which DmEnvToGym"):
+        noisy.reset(seed=1)
