@@ -20,6 +20,26 @@ __all__ = ["ARM_REACH", "build_parser", "join_negative_values"]
 NEGATIVE_VALUES = ("--home",)
 
 
+def _horizon(text: str) -> str | int | None:
+    """``--horizon``: ``auto``, ``episode`` (None: whole episodes) or a number of control steps >= 1.
+
+    Example:
+        >>> _horizon("auto"), _horizon("episode"), _horizon("40")
+        ('auto', None, 40)
+    """
+    if text in ("auto", "episode"):
+        return "auto" if text == "auto" else None
+    try:
+        steps = int(text)
+    except ValueError:
+        steps = 0
+    if steps < 1:
+        raise argparse.ArgumentTypeError(
+            f"must be 'auto', 'episode' or a number of control steps >= 1. Received {text!r}"
+        )
+    return steps
+
+
 def join_negative_values(argv: list[str]) -> list[str]:
     """``--home -0.4,1.2`` as ``--home=-0.4,1.2``: argparse takes a value that starts with ``-`` and is not a plain
     number for an option, so an arm's home pose of negative angles could only be given with ``=``.
@@ -205,6 +225,16 @@ def build_parser() -> argparse.ArgumentParser:
         type=int_at_least(1),
         metavar="N",
         help="estimate the latencies over 0-N control steps (implies --latency; the fit warns when its estimate is N)",
+    )
+    fit.add_argument(
+        "--horizon",
+        type=_horizon,
+        default="auto",
+        metavar="auto|episode|N",
+        help=(
+            "shooting-segment length: 'auto' (default: from how fast the open-loop prediction leaves the log), "
+            "'episode' (whole episodes) or N control steps; each segment's initial state is fitted"
+        ),
     )
     fit.add_argument("--out", default="result.json", help="JSON output (default: %(default)s)")
     fit.add_argument("--report", help="also write an HTML page with the summary and the fit figure")

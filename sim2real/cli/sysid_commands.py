@@ -202,7 +202,13 @@ def cmd_sysid(args: argparse.Namespace, out: TextIO) -> int:
         params = [p.strip() for p in args.params.split(",") if p.strip()]
         with _quiet_instability() as unstable:
             result = sysid.fit(
-                log, handle.model, params, latency=_latency(args), seed=args.seed, progress=not args.quiet
+                log,
+                handle.model,
+                params,
+                latency=_latency(args),
+                seed=args.seed,
+                progress=not args.quiet,
+                horizon=getattr(args, "horizon", "auto"),
             )
         if unstable.count:
             print(
@@ -246,5 +252,14 @@ def cmd_sysid(args: argparse.Namespace, out: TextIO) -> int:
             else (f"; {args.export} was not written (pass --force to export it anyway)" if args.export else "")
         )
         print(f"sim2real sysid fit: the fit is not ok: {reasons}{forced}", file=sys.stderr)
+        short = int(getattr(getattr(result, "quality", None), "horizon", 0) or 0)
+        if getattr(args, "horizon", "auto") == "auto" and short:
+            # A stiff servo amplifies the sensor noise of a logged start state, so the automatic length is often
+            # the shortest; coupled joints (a tendon-driven gripper) then leave short segments' residuals coloured.
+            print(
+                f"sim2real sysid fit: hint: the fit used shooting segments of {short} control steps (--horizon auto); "
+                "if the model is right, refit with --horizon episode or a longer --horizon N",
+                file=sys.stderr,
+            )
         return 0 if effects is not None else EXIT_FIT_NOT_OK
     return 0
