@@ -135,3 +135,19 @@ def test_close_restores_the_setting_of_a_composer_envs_current_physics() -> None
     env.transform.close()  # the env closing first frees its physics: nothing is left to restore then
     assert current._warnings_cause_exception is True  # dm-control's default, as the env built it
     env.close()  # and closing the env after its physics is freed is fine
+
+
+@pytest.mark.parametrize("fused", [False, True], ids=["physics", "physics+signals"])
+def test_close_takes_the_set_seed_relay_off_the_base_env(fused: bool) -> None:
+    from noise_models import Gaussian, ObservationNoise
+    from randomizers import Mass, Uniform
+
+    base = torchrl_envs.DMControlEnv("reacher", "easy")
+    assert "_set_seed" not in base.__dict__
+    effects = [Mass(scale=Uniform(0.8, 1.2))] + ([ObservationNoise(Gaussian(std=0.01))] if fused else [])
+    env = s2r.wrap(base, *effects, seed=0)
+    env.set_seed(3)
+    env.rollout(2)
+    assert "_set_seed" in base.__dict__  # set_seed reaches the transforms while they are on the env
+    env.close()
+    assert "_set_seed" not in base.__dict__  # stayed after close before, holding the closed transforms

@@ -83,9 +83,34 @@ class _SeedRelay:
 
 
 def _follow_set_seed(parent: Any, owner: Transform) -> None:
-    """Makes ``set_seed`` on ``parent``'s env reach ``owner`` (see :class:`_SeedRelay`)."""
+    """Makes ``set_seed`` on ``parent``'s env reach ``owner`` (see :class:`_SeedRelay`); :func:`_unfollow_set_seed`
+    undoes it when ``owner`` closes."""
     base = parent.base_env
-    base._set_seed = _SeedRelay(base, owner)  # an instance attribute: EnvBase.set_seed calls self._set_seed
+    relay = _SeedRelay(base, owner)
+    base._set_seed = relay  # an instance attribute: EnvBase.set_seed calls self._set_seed
+    owner.__dict__["_relay"] = relay
+
+
+def _unfollow_set_seed(owner: Transform) -> None:
+    """Takes ``owner``'s relay out of its base env's ``set_seed`` chain, so the base env is left as it was found
+    (no instance ``_set_seed`` when no other transform installed one). A clone sharing the relay leaves it alone."""
+    relay = owner.__dict__.get("_relay")
+    if not isinstance(relay, _SeedRelay) or relay.owner is not owner:
+        return
+    owner.__dict__.pop("_relay")
+    base = relay.base
+    current = base.__dict__.get("_set_seed")
+    if current is relay:
+        if relay.previous is None:
+            del base.__dict__["_set_seed"]
+        else:
+            base.__dict__["_set_seed"] = relay.previous
+        return
+    while isinstance(current, _SeedRelay):  # a later transform's relay calls this one: skip it in the chain
+        if current.previous is relay:
+            current.previous = relay.previous
+            return
+        current = current.previous
 
 
 class RandomizePhysicsTransform(Transform):
@@ -225,8 +250,8 @@ class RandomizePhysicsTransform(Transform):
         self.randomizer.restore_nominal()
 
     def close(self) -> None:
-        """Restores the nominal model, unhooks recompiles and gives dm-control physics back its own
-        ``_warnings_cause_exception`` setting."""
+        """Restores the nominal model, unhooks recompiles, gives dm-control physics back its own
+        ``_warnings_cause_exception`` setting and takes the ``set_seed`` relay off the base env."""
         self.restore_nominal()
         if self._hook is not None and self._handle is not None:
             self._handle.remove_hook(self._hook)
@@ -236,6 +261,7 @@ class RandomizePhysicsTransform(Transform):
             with contextlib.suppress(ReferenceError):
                 physics._warnings_cause_exception = setting
         self._exceptions_saved.clear()
+        _unfollow_set_seed(self)
         super().close() if hasattr(super(), "close") else None
 
 
@@ -474,6 +500,7 @@ class CorruptSignalsTransform(NoCopy, Transform):
         if self._clock is not None:
             self._clock.close()
             self._clock = None
+        _unfollow_set_seed(self)
         super().close() if hasattr(super(), "close") else None
 
 
