@@ -233,15 +233,16 @@ def _table(header: list[str], used: list[int], where: str, path: str | os.PathLi
 
 
 def _hold_commands(
-    table: np.ndarray, header: list[str], index: dict[str, list[int]], where: str
+    table: np.ndarray, header: list[str], index: dict[str, list[int]], dt: float, where: str
 ) -> tuple[np.ndarray, int, int, int]:
-    """Commands logged at another rate than the states: an empty command cell holds the previous command (the
-    driver sent none that step), a row of commands alone (every state cell empty) is merged into the rows after it,
-    and rows before each command column's first value are dropped (nothing says what was sent). Any other empty
-    cell is an error naming its row and column.
+    """Commands logged at another rate than the states: an empty command cell holds the previous command of its
+    segment (the driver sent none that step), a row of commands alone (every state cell empty) is merged into the
+    rows after it, and state rows before their segment's first command are dropped: nothing says what was sent
+    there (a hold never crosses a gap of dropped rows or an episode boundary). Any other empty cell is an error
+    naming its row and column. ``table`` is in SI units (time in seconds).
 
     Returns:
-        The table of state rows, and the counts of held cells' rows, merged command rows and dropped leading rows.
+        The table of state rows, and the counts of held cells' rows, merged command rows and dropped rows.
     """
     ctrl = index["ctrl"]
     state = [i for key in _STATE_KEYS if key in index for i in index[key]]
@@ -259,16 +260,24 @@ def _hold_commands(
         )
     if not blank[:, ctrl].any():
         return table, 0, 0, 0
-    held = int((blank[:, ctrl].any(axis=1) & ~commands_only).sum())
     rows = np.arange(table.shape[0])
+    # segment starts among the state rows (a gap or a new episode); a command row belongs to the next state row
+    states = np.flatnonzero(~commands_only)
+    t = table[states, index["time"][0]]
+    new = np.concatenate([[True], np.diff(t) > _GAP * dt])
+    if "episode" in index:
+        new[1:] |= np.diff(table[states, index["episode"][0]]) != 0
+    at = np.searchsorted(states, states[new])  # each segment's first state row, as an index into `states`
+    opens = np.where(at > 0, states[np.maximum(at - 1, 0)] + 1, 0)  # its first file row (its command rows too)
+    start = opens[np.searchsorted(opens, rows, side="right") - 1]
     for c in ctrl:
         last = np.maximum.accumulate(np.where(blank[:, c], -1, rows))
-        table[:, c] = np.where(last >= 0, table[np.maximum(last, 0), c], np.nan)
+        table[:, c] = np.where(last >= start, table[np.maximum(last, 0), c], np.nan)
     keep = ~commands_only & ~np.isnan(table[:, ctrl]).any(axis=1)
-    first = int(np.flatnonzero(keep)[0]) if keep.any() else table.shape[0]
-    if keep[first:].sum() < 2:
+    held = int((blank[:, ctrl].any(axis=1) & keep).sum())
+    if keep.sum() < 2:
         raise LogError(f"`path` {where} must hold at least 2 rows of states with every command column logged.")
-    return table[keep], held, int(commands_only.sum()), first - int(commands_only[:first].sum())
+    return table[keep], held, int(commands_only.sum()), int((~commands_only & ~keep).sum())
 
 
 def _check_degrees(qpos: np.ndarray, names: list[str], explicit: set[str], model: mujoco.MjModel, where: str) -> None:
@@ -556,7 +565,6 @@ def load_csv(
                 )
     table = _table(header, sorted(mapped), where, path, delimiter)
     origin = _time_origin(table, index["time"][0], path, delimiter)
-    table, held, merged, leading = _hold_commands(table, header, index, where)
     unit_of = _per_column(units, "units", header, mapped, f"CSV file {where}")
     for i in mapped:
         said = _header_unit(header[i])
@@ -589,6 +597,7 @@ def load_csv(
         table[:, i] *= value
     for i, value in offsets.items():
         table[:, i] += value
+    table, held, merged, leading = _hold_commands(table, header, index, float(meta["control_timestep"]), where)
     arrays = {key: table[:, idx[0]] if key in ("time", "episode") else table[:, idx] for key, idx in index.items()}
     dt = float(meta["control_timestep"])
     time_column = header[index["time"][0]]
@@ -633,7 +642,7 @@ def load_csv(
         warnings.warn(
             f"{name!r}: commands logged at another rate than the states: {held} row(s) without a command hold the "
             f"previous one, {merged} row(s) of commands alone were merged into the rows after them"
-            + (f", {leading} row(s) before the first command were dropped" if leading else ""),
+            + (f", {leading} row(s) before their segment's first command were dropped" if leading else ""),
             CsvWarning,
             stacklevel=2,
         )
