@@ -97,6 +97,70 @@ def test_gym_fused_is_bitwise_the_two_layers(task: str, stack: str) -> None:
     layered.close()
 
 
+def _finger() -> Any:
+    from dm_control import suite
+
+    from sim2real.adapters import DmEnvToGym
+
+    return DmEnvToGym(suite.load("finger", "spin", task_kwargs={"random": 0}))
+
+
+@pytest.mark.parametrize("noise", [True, False])
+def test_gym_fused_delays_a_suite_env_actions_itself_as_the_hook_would(noise: bool) -> None:
+    # finger-spin: 2 physics substeps per control step, 2 actuators. A whole-control-step latency on a suite env
+    # is delayed by the fused layer itself (a ring of actions; SignalClock.ring_actions): the same commands reach
+    # the same physics steps as through the physics-step hook the two layers use. Without action noise the caller's
+    # action is copied into the ring: this caller writes its buffer again after every step.
+    signals = (ObservationNoise(Gaussian(std=0.01)), ActionLatency(seconds=0.04))
+    signals += (ActionNoise(Gaussian(std=0.05)),) if noise else ()
+    fused = s2r.wrap(_finger(), *PHYSICS, *signals, seed=5)
+    layered = s2r.wrap(s2r.wrap(_finger(), *PHYSICS, seed=5), *signals, seed=5)
+    space = fused.action_space
+    actions = np.random.default_rng(1).uniform(space.low, space.high, (40, *space.shape)).astype(space.dtype)
+    buffer = np.zeros(space.shape, space.dtype)
+    ctrl_a, ctrl_b = s2r.find_physics(fused).data.ctrl, s2r.find_physics(layered).data.ctrl  # type: ignore[union-attr]
+    for seed in (2, None, 9):
+        (oa, ia), (ob, ib) = fused.reset(seed=seed), layered.reset(seed=seed)
+        assert fused._action_ring is not None and len(fused._action_ring) == 3  # 40 ms = 2 control steps
+        assert layered.clock._ring is not None  # the two layers: the hook's ring of ctrl rows
+        np.testing.assert_array_equal(oa, ob, strict=True)
+        _assert_same_info(ia, ib)
+        for a in actions:
+            buffer[:] = a
+            ra, rb = fused.step(buffer), layered.step(buffer.copy())
+            np.testing.assert_array_equal(ra[0], rb[0], strict=True)
+            assert ra[1:4] == rb[1:4]
+            _assert_same_info(ra[4], rb[4])
+            np.testing.assert_array_equal(ctrl_a, ctrl_b, strict=True)  # the delayed command, bitwise
+            buffer[:] = 0.5  # the caller reuses its buffer
+    assert ia["sim2real"]["params"]["action_latency_steps"] == 4  # physics steps
+    fused.close()
+    layered.close()
+
+
+def test_gym_fused_leaves_the_delay_to_the_hook_where_the_action_is_not_the_command() -> None:
+    # A task whose before_step scales the action, and a recorder hooked on the physics step after the fused layer
+    # (it reads the command the env wrote, before the delay): the hook's ring of ctrl rows applies the latency.
+    from sim2real.recording import RecordTrajectory
+
+    env = s2r.make("dmc/reacher-easy")
+    task = env.dm_env.task
+    task.before_step = lambda action, physics: physics.set_control(2.0 * np.asarray(action))
+    fused = s2r.wrap(env, *PHYSICS, ActionLatency(seconds=0.04), seed=1)
+    fused.reset(seed=0)
+    assert fused._action_ring is None and fused.clock._ring is not None
+    ctrl = s2r.find_physics(fused).data.ctrl  # type: ignore[union-attr]
+    sent = [np.array([0.3, -0.2]), np.array([0.1, 0.4]), np.array([-0.5, 0.5])]
+    for k, a in enumerate(sent):
+        fused.step(a)
+        np.testing.assert_array_equal(ctrl, 2.0 * sent[k - 2] if k >= 2 else np.zeros(2), strict=True)
+    fused.close()
+    recorded = RecordTrajectory(s2r.wrap(s2r.make("dmc/reacher-easy"), *PHYSICS, ActionLatency(seconds=0.04), seed=1))
+    recorded.reset(seed=0)
+    assert recorded.env._action_ring is None
+    recorded.close()
+
+
 def test_gym_fused_keeps_the_reports_of_a_diverged_reset_and_step() -> None:
     """A reset that diverges under an extreme draw: the next step ends the episode, in both, identically."""
     physics = (s2r.Stiffness(set=1e12),)

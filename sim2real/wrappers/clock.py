@@ -113,6 +113,7 @@ class SignalClock(NoCopy):
         )
         self._remove: Any = None
         self._hook: Any = None
+        self._direct_step: Any = None  # the function installed as dm-control's Physics.step (see _direct)
         if handle is not None and handle.recompiles:
             self._hook = handle.on_recompile(lambda model, data: None)  # keeps handle.data current
         if corruptor.needs_physics_hook:
@@ -188,6 +189,27 @@ class SignalClock(NoCopy):
                 self._ctrl = memoryview(data.ctrl)
                 self._sent = 0
 
+    def ring_actions(self, env: Any) -> list[Any] | None:
+        """Right after :meth:`begin_episode`: this episode's latency of whole control steps as a ring of actions the
+        caller delays itself, or None (the physics-step hook's ring of ``ctrl`` rows applies it).
+
+        Only where the two are the same: ``env`` is sim2real's adapter around a dm-control suite env whose task
+        copies the action into ``data.ctrl`` as it is (``Task.before_step``, ``Physics.set_control``; every suite
+        task) in float64. The ring holds ``lag + 1`` references to the reset command at first; the caller stores
+        the action of control step ``k`` (counted from 0) at ``k % len(ring)`` and sends ``ring[(k + 1) %
+        len(ring)]``: the command of ``lag`` steps before, as the hook would write it. The hook then lets this
+        episode's physics steps through (the caller leaves ``_in_step`` False). Not when another hook sits on the
+        physics step (a recorder reading the command the env wrote: it would read the delayed one).
+        """
+        if self._ring is None or not _action_is_ctrl(env, self.handle):
+            return None
+        if vars(self.handle.owner.physics).get("step") is not self._direct_step:  # type: ignore[union-attr]
+            return None  # another hook on the physics step (a recorder) reads ctrl as the env wrote it
+        self._ring = None
+        lag = self.corruptor.command_lag
+        assert lag is not None  # _ring implies a whole-step lag
+        return [np.array(self.handle.data.ctrl)] * (lag + 1)  # type: ignore[union-attr]  # _ring implies a handle
+
     def begin_step(self) -> None:
         self._control += 1
         self._passed = 0
@@ -200,8 +222,11 @@ class SignalClock(NoCopy):
         stepper = self._stepper
 
         def step(nstep: int = 1) -> None:
+            if not self._in_step:  # outside a control step, or the wrapper delays the actions (ring_actions)
+                run(nstep)
+                return
             ring = self._ring
-            if ring is None or not self._in_step:
+            if ring is None:
                 stepper(run, nstep, runner)
                 return
             if self._passed == 0:  # as in _stepper
@@ -216,6 +241,7 @@ class SignalClock(NoCopy):
             self._passed += nstep
             run(nstep)
 
+        self._direct_step = step
         return step
 
     def _stepper(self, run: Any, nstep: int, runner: Any = None) -> None:
@@ -283,6 +309,31 @@ class SignalClock(NoCopy):
         if self._hook is not None and self.handle is not None:
             self.handle.remove_hook(self._hook)
             self._hook = None
+
+
+def _action_is_ctrl(env: Any, handle: PhysicsHandle | None) -> bool:
+    """Whether ``env``'s action reaches ``data.ctrl`` as it is, bitwise: sim2real's adapter (float64 actions)
+    directly around a dm-control suite ``control.Environment`` whose task and physics set the control with the
+    library's own ``Task.before_step`` and ``Physics.set_control`` (a copy), the physics the one ``handle`` holds."""
+    from dm_control.mujoco import Physics
+    from dm_control.rl.control import Environment
+    from dm_control.suite.base import Task
+
+    from sim2real.adapters import DmEnvToGym
+
+    if type(env) is not DmEnvToGym or handle is None or env._action_dtype != np.float64:
+        return False
+    inner = env.dm_env
+    if type(inner) is not Environment:
+        return False
+    task, physics = inner.task, inner.physics
+    return (
+        physics is handle.owner.physics
+        and getattr(type(task), "before_step", None) is Task.before_step
+        and "before_step" not in vars(task)
+        and getattr(type(physics), "set_control", None) is Physics.set_control
+        and "set_control" not in vars(physics)
+    )
 
 
 def action_delay_path(model: Any, action: Layout | None) -> str:

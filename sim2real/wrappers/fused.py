@@ -88,6 +88,9 @@ class RandomizeAndCorrupt(CorruptSignals):
         self._hot = False  # this episode steps through step's hot path (decided at reset)
         self._hot_act: Any = None
         self._hot_observe: Any = None
+        # This episode's action ring when the wrapper delays the actions itself (SignalClock.ring_actions).
+        self._action_ring: list[Any] | None = None
+        self._actions_sent = 0
 
     @property
     def current_params(self) -> dict[str, float]:
@@ -169,6 +172,11 @@ class RandomizeAndCorrupt(CorruptSignals):
             self._read_warnings and self._handle.diverged()
         )
         self.clock.begin_episode()
+        self._action_ring = self.clock.ring_actions(self.env)
+        self._actions_sent = 0
+        if self._action_ring is not None:
+            # A suite env steps its physics through the hook's owner (the first-step check has nothing to find).
+            self.__dict__.pop("step", None)
         self._needs_now = c.episode_reads_time
         if self._has_obs:
             obs = self._obs_out(c.first_observation(self._obs_in(obs)), obs)
@@ -213,12 +221,21 @@ class RandomizeAndCorrupt(CorruptSignals):
                 action = np.asarray(action, dtype=self.corruptor.action_dtype)
             if action.shape != self._act_shape:
                 raise ValueError(wrong_action_shape(action.shape, self._act_shape))
-            action = self._hot_act(action)
+            sent = self._hot_act(action)
             clock._control += 1
-            clock._passed = 0
-            clock._in_step = True
-            obs, reward, terminated, truncated, info = self.env.step(action)
-            clock._in_step = False
+            ring = self._action_ring
+            if ring is None:
+                action = sent
+                clock._passed = 0
+                clock._in_step = True
+                obs, reward, terminated, truncated, info = self.env.step(action)
+                clock._in_step = False
+            else:  # the episode's whole-step latency, delayed here (see SignalClock.ring_actions)
+                k = self._actions_sent
+                self._actions_sent = k + 1
+                size = len(ring)
+                ring[k % size] = sent.copy() if sent is action else sent  # the caller may reuse its buffer
+                obs, reward, terminated, truncated, info = self.env.step(ring[(k + 1) % size])
             if (info and ("diverged" in info or "sim2real" in info)) or (
                 self._read_warnings and self._handle.diverged()
             ):
@@ -236,6 +253,7 @@ class RandomizeAndCorrupt(CorruptSignals):
             info["sim2real"] = report
             return self._hot_observe(obs, 0), reward, terminated, truncated, info
         c = self.corruptor
+        given = action
         if self._has_action:
             if type(action) is not np.ndarray:
                 action = np.asarray(action, dtype=c.action_dtype)
@@ -245,12 +263,20 @@ class RandomizeAndCorrupt(CorruptSignals):
             action = c.hot_act(action) if codec is None else c.hot_act(action.reshape(-1)).reshape(codec)
         clock._control += 1
         clock._passed = 0
-        clock._in_step = True
         if self._reset_diverged:  # nothing to step: the reset diverged
-            clock._in_step = False
             return self._step_end(self._last_obs, 0.0, False, True, {}, False)
         if self._step_effects:
             self.randomizer.step()
+        ring = self._action_ring
+        if ring is not None:  # the episode's whole-step latency, delayed here (see SignalClock.ring_actions)
+            k = self._actions_sent
+            self._actions_sent = k + 1
+            size = len(ring)
+            # A copy where the action is (a view of) the caller's, which the caller may write again.
+            ring[k % size] = np.array(action) if np.may_share_memory(action, given) else action
+            obs, reward, terminated, truncated, info = self.env.step(ring[(k + 1) % size])
+            return self._step_end(obs, reward, terminated, truncated, info, True)
+        clock._in_step = True
         obs, reward, terminated, truncated, info = self.env.step(action)
         clock._in_step = False
         return self._step_end(obs, reward, terminated, truncated, info, True)
