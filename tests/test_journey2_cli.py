@@ -202,3 +202,23 @@ def test_sysid_fit_takes_a_horizon_and_a_short_automatic_one_gets_a_hint(
     assert asked[-1] == 40
     code, _, err = _run([*base, "--horizon", "0"])
     assert code == 2 and "argument --horizon: must be 'auto', 'episode' or a number of control steps >= 1" in err
+
+
+def test_an_empty_or_unreadable_log_says_what_it_is(tmp_path: Path, arm: Path) -> None:
+    # Before: an empty driver CSV with --columns was "--columns applies to CSV logs; 'empty.csv' is a .npz log."
+    columns = tmp_path / "map.yaml"
+    columns.write_text("columns: {time: t, qpos: 'q*', qvel: 'dq*', ctrl: 'u*'}\n")
+    empty = tmp_path / "empty.csv"
+    empty.write_text("")
+    binary = tmp_path / "log.bin"
+    binary.write_bytes(bytes(range(256)))
+    base = ["--model", str(arm), "--params", "dof_damping[*]", "--quiet", "--out", str(tmp_path / "f.json")]
+    code, _, err = _run(["sysid", "fit", str(empty), "--columns", str(columns), *base])
+    assert code == 2
+    assert err == (
+        f"sim2real sysid: error: `log` {str(empty)!r} must be a .npz log from `sim2real record` or a driver's CSV (a "
+        "header row with ',', ';' or tabs). Received a file that is empty.\n"
+    )
+    code, _, err = _run(["sysid", "fit", str(binary), *base])
+    assert code == 2 and err.endswith("Received a file that starts with neither a zip header nor a CSV header row.\n")
+    assert not (tmp_path / "f.json").exists()

@@ -95,6 +95,12 @@ def _load(path: str, columns: str | None, model: Any, substeps: int | None) -> A
     import sysid
 
     kind = sysid.log_format(path)
+    if kind == "unknown":  # before: an empty CSV was "a .npz log" to --columns and failed as one without it
+        what = "is empty" if Path(path).stat().st_size == 0 else "starts with neither a zip header nor a CSV header row"
+        raise UsageError(
+            f"`log` {path!r} must be a .npz log from `sim2real record` or a driver's CSV (a header row with ',', ';' "
+            f"or tabs). Received a file that {what}."
+        )
     if kind == "csv":
         if columns is None:
             raise UsageError(
