@@ -221,8 +221,15 @@ def _table(header: list[str], used: list[int], where: str, path: str | os.PathLi
             try:
                 table[r, c] = float(cell) if cell else math.nan
             except ValueError:
+                date = re.match(r"\d{4}-\d{2}-\d{2}[T ]\d", cell) is not None
+                hint = (
+                    " A date and time is not read: write the time as a number of s, ms, us or ns (e.g. nanoseconds "
+                    "since the Unix epoch) and name its unit in `units`."
+                    if date
+                    else ""
+                )
                 raise LogError(
-                    f"`path` {where} row {r + 2}, column {header[c]!r} must hold a number. Received {row[c]!r}."
+                    f"`path` {where} row {r + 2}, column {header[c]!r} must hold a number. Received {row[c]!r}.{hint}"
                 ) from None
             if cell and not math.isfinite(table[r, c]):  # empty cells are judged by _hold_commands
                 raise LogError(

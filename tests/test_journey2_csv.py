@@ -260,3 +260,18 @@ def test_a_held_command_never_crosses_a_gap(
     np.testing.assert_array_equal(log.ctrl, held[kept])
     np.testing.assert_array_equal(log.qpos, truth.qpos[kept])
     assert log.meta["csv"]["segments"] == 2
+
+
+def test_a_date_and_time_column_says_to_write_a_number_with_a_unit(
+    tmp_path: Path, arm: tuple[mujoco.MjModel, Path], truth: sysid.TrajectoryLog
+) -> None:
+    # Before: "row 2, column 't' must hold a number. Received '2025-11-27T00:00:00.000'." and no word on what to do.
+    model, _ = arm
+    stamps = [f"2025-11-27T00:00:{t:06.3f}" for t in truth.time]
+    path = _write(tmp_path / "iso.csv", truth, PLAIN, time=stamps)
+    with pytest.raises(LogError) as caught:
+        load_csv(path, PLAIN_MAP, _meta(model), model)
+    assert str(caught.value).endswith(
+        "row 2, column 't' must hold a number. Received '2025-11-27T00:00:00.000'. A date and time is not read: write "
+        "the time as a number of s, ms, us or ns (e.g. nanoseconds since the Unix epoch) and name its unit in `units`."
+    )
