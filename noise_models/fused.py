@@ -263,19 +263,65 @@ def next_blocks(
     first = stages[0]
     n = len(stages)
     G = np.ones((n, first.size))
+    additive = True
     for j, part in enumerate(first.parts):
         if part.kind == "gain":  # a scalar or one value per selected entry: (n, 1) or (n, k), as each refill has it
             G[:, part.sel] *= np.stack([s.parts[j].gain for s in stages]).reshape(n, -1)  # type: ignore[attr-defined]
+            additive = False
     if out is None:
         out = (np.empty((n, BLOCK, first.size), first.dtype), np.empty((n, first.size), first.dtype), np.empty(n, bool))
     offsets, gains, unit = out
-    F = np.empty((BLOCK, first.size))
-    for i, (stage, pipe) in enumerate(zip(stages, pipes, strict=True)):
-        compose(stage.parts, pipe.block, F)
-        offsets[i] = F  # astype's cast
+    if additive:
+        _compose_additive(stages, pipes, offsets)
+    else:
+        F = np.empty((BLOCK, first.size))
+        for i, (stage, pipe) in enumerate(zip(stages, pipes, strict=True)):
+            compose(stage.parts, pipe.block, F)
+            offsets[i] = F  # astype's cast
     np.copyto(gains, G)
     np.all(G == 1.0, axis=1, out=unit)
     return out
+
+
+#: Bytes of float64 offsets :func:`_compose_additive` composes before casting them: a few pipelines' blocks, small
+#: enough to stay in cache from their draws to their cast.
+_CHUNK_BYTES = 1 << 16
+
+
+def _compose_additive(stages: Sequence[_Affine], pipes: Sequence[Pipeline], offsets: np.ndarray) -> None:
+    """:func:`compose` of stages without gain parts, then the cast into ``offsets`` (``(P, BLOCK, size)``), a few
+    pipelines at a time: each pipeline's draws and sums in its own ``(BLOCK, size)`` slice of a float64 scratch
+    array, then one ``+ 0.0`` that casts them all into ``offsets``.
+
+    :func:`compose` adds ``0.0`` to a first process's draws before the other parts' sums; here it comes after them:
+    the same floats, since ``(x + 0.0) + b == (x + b) + 0.0`` for all finite ``x`` and ``b`` (adding ``0.0`` only
+    turns ``-0.0`` into ``0.0``, and ``x + b`` is ``-0.0`` only when both are). A gain part breaks this (the sign of
+    ``0.0 * g``), so stages with one take :func:`compose` (``next_blocks``).
+    """
+    size = offsets.shape[2]
+    head = stages[0].parts[0]
+    drawn = head.kind == "block" and getattr(head, "draw_into", None) is not None
+    drawn = drawn and isinstance(head.sel, slice) and head.sel == slice(0, size)
+    chunk = max(1, _CHUNK_BYTES // (BLOCK * size * 8))
+    n = len(stages)
+    scratch = np.empty((min(chunk, n), BLOCK, size))
+    for start in range(0, n, chunk):
+        stop = min(start + chunk, n)
+        F = scratch[: stop - start]
+        if not drawn:
+            F.fill(0.0)
+        for f, stage, pipe in zip(F, stages[start:stop], pipes[start:stop], strict=True):
+            parts = stage.parts
+            b = pipe.block
+            if drawn:
+                parts[0].draw_into(b, f)  # type: ignore[attr-defined]
+                parts = parts[1:]
+            for part in parts:
+                if part.kind == "add":
+                    f[:, part.sel] += part.rows()  # type: ignore[attr-defined]
+                else:
+                    f[:, part.sel] += part.block(b)  # type: ignore[attr-defined]
+        np.add(F, 0.0, out=offsets[start:stop])  # compose's + 0.0, then astype's cast
 
 
 def compose(parts: Sequence[Part], block: int, F: np.ndarray) -> None:

@@ -205,3 +205,47 @@ def test_next_noise_blocks_keep_the_sign_of_zero_noise_bitwise() -> None:
         block = twin.next_noise_block("action", 0)
         assert np.array_equal(offsets[i].view(np.uint32), block.offsets.view(np.uint32))
     assert not np.signbit(offsets).any()
+
+
+@pytest.mark.parametrize("head", ["gaussian", "uniform"])
+def test_next_noise_blocks_of_additive_pipelines_are_bitwise_their_own_blocks_across_chunks(head: str) -> None:
+    # Pipelines without a gain are composed a few at a time with the + 0.0 moved after the sums: 13 pipelines of 5
+    # entries are three chunks here, written into a transposed (BLOCK, P, size) buffer as the engine's. A first
+    # process that draws every entry (Gaussian: drawn straight into the scratch) or not (UniformNoise), per-world
+    # drawn scales and biases, a selection, and the sign of zero noise (std 0 plus a bias of -0.0: 0.0 either way).
+    from noise_models import Bias, Drift, UniformNoise
+    from noise_models.fused import _CHUNK_BYTES
+    from randomizers import Uniform
+
+    first = Gaussian(std=Uniform(0.01, 0.1)) if head == "gaussian" else UniformNoise(half_width=Uniform(0.01, 0.1))
+    cases = [
+        [
+            ObservationNoise(
+                first, Bias(Uniform(-0.1, 0.1)), Drift(std=0.01, select=[1, 4]), Gaussian(std=0.02, name="noise2")
+            )
+        ],
+        [ObservationNoise(Gaussian(std=0.0) if head == "gaussian" else UniformNoise(half_width=0.0), Bias(-0.0))],
+    ]
+    num, size = 13, 5
+    assert _CHUNK_BYTES // (BLOCK * size * 8) < num  # more than one chunk
+    for models in cases:
+
+        def corruptor(i: int, models: list[Any] = models) -> SignalCorruptor:
+            c = SignalCorruptor(models, seed=(7, i))
+            c.bind(obs=Layout(size), action=None, timestep=0.01, substeps=1, obs_dtype=np.float32)
+            c.begin_episode()
+            return c
+
+        ours = [corruptor(i) for i in range(num)]
+        twins = [corruptor(i) for i in range(num)]
+        store = np.full((BLOCK, num, size), np.nan, np.float32)
+        out = (store.transpose(1, 0, 2), np.zeros((num, size), np.float32), np.zeros(num, bool))
+        for _ in range(2):
+            offsets, gains, unit = SignalCorruptor.next_noise_blocks(ours, "observation", 0, out)
+            assert offsets.base is store or offsets.base is store.base
+            for i, twin in enumerate(twins):
+                block = twin.next_noise_block("observation", 0)
+                assert np.array_equal(offsets[i].view(np.uint32), block.offsets.view(np.uint32)), i
+                assert block.gain is None and unit[i] and (gains[i] == 1.0).all()
+        if models is cases[1]:
+            assert not np.signbit(store).any() and not store.any()
