@@ -222,3 +222,64 @@ def test_an_empty_or_unreadable_log_says_what_it_is(tmp_path: Path, arm: Path) -
     code, _, err = _run(["sysid", "fit", str(binary), *base])
     assert code == 2 and err.endswith("Received a file that starts with neither a zip header nor a CSV header row.\n")
     assert not (tmp_path / "f.json").exists()
+
+
+GRIPPER = """<mujoco model="wrist_gripper">
+  <compiler angle="radian"/>
+  <option timestep="0.002"/>
+  <worldbody>
+    <body name="hand" pos="0 0 0.3">
+      <joint name="wrist" axis="0 0 1" range="-2 2" damping="0.3"/>
+      <geom type="box" size="0.03 0.03 0.02" mass="0.5"/>
+      <body name="left" pos="0.03 0.02 0">
+        <joint name="left" type="slide" axis="0 1 0" range="0 0.04" damping="0.5"/>
+        <geom type="box" size="0.02 0.005 0.01" mass="0.05"/>
+      </body>
+      <body name="right" pos="0.03 -0.02 0">
+        <joint name="right" type="slide" axis="0 -1 0" range="0 0.04" damping="0.5"/>
+        <geom type="box" size="0.02 0.005 0.01" mass="0.05"/>
+      </body>
+    </body>
+  </worldbody>
+  <tendon><fixed name="grip"><joint joint="left" coef="0.5"/><joint joint="right" coef="0.5"/></fixed></tendon>
+  <actuator>
+    <position name="turn" joint="wrist" kp="5" kv="0.3" ctrlrange="-2 2"/>
+    <position name="squeeze" tendon="grip" kp="40" kv="2" ctrlrange="0 0.04"/>
+  </actuator>
+  <keyframe><key name="home" qpos="0 0.02 0.02"/></keyframe>
+</mujoco>
+"""
+
+
+def test_slide_fingers_are_reported_in_linear_units(tmp_path: Path) -> None:
+    # Before: the report's System identification table gave a gripper finger's (slide joint) damping in N·m·s/rad
+    # and its gain in N·m per ctrl unit, and the fit figure its position in rad: every parameter and channel was
+    # taken for a hinge. Now evaluate reads the model: N·s/m, N per ctrl unit, m.
+    model = tmp_path / "gripper.xml"
+    model.write_text(GRIPPER)
+    log, fit = tmp_path / "log.npz", tmp_path / "fit.json"
+    code, _, err = _run(
+        ["record", "--model", str(model), "--set", "dof_damping[left]=*2", "--episodes", "1", "--steps", "60",
+         "--quiet", "--out", str(log)]
+    )  # fmt: skip
+    assert code == 0, err
+    code, _, err = _run(
+        ["sysid", "fit", str(log), "--model", str(model), "--params", "dof_damping[left],actuator_gain[squeeze]",
+         "--horizon", "episode", "--quiet", "--force", "--out", str(fit)]
+    )  # fmt: skip
+    assert code in (0, 4), err
+    spec = tmp_path / "eval.yaml"
+    spec.write_text(
+        f"model: {model}\nepisodes: 2\nmax_steps: 5\nbatch: 2\npolicies: {{hold: {{constant: [0.0, 0.02]}}}}\n"
+        f"real: {{params: {{'dof_damping[left]': 1.0}}}}\nreport: {{fit: {fit}}}\n"
+    )
+    code, _, err = _run(["evaluate", "--config", str(spec), "--out", str(tmp_path / "rep"), "--backend", "serial",
+                         "--quiet"])  # fmt: skip
+    assert code == 0, err
+    md = (tmp_path / "rep" / "report.md").read_text()
+    assert "| dof\\_damping\\[left\\] | N·s/m |" in md, md
+    assert "| actuator\\_gain\\[squeeze\\] | N per ctrl unit |" in md
+    from sim2real.report.labels import channel_unit
+
+    assert (channel_unit("qpos[left]", ("left",)), channel_unit("qvel[left]", ("left",))) == ("m", "m/s")
+    assert channel_unit("qpos[wrist]", ("left",)) == "rad"

@@ -61,9 +61,10 @@ def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
     except RenderingUnavailable as err:  # the report still has every number; say why the images are missing
         sheet = None
         notes.append(f"no contact sheet of the visual effects: {err}")
-    control_timestep, substeps = _clock(spec.task)
+    control_timestep, substeps, linear = _clock(spec.task)
     options.setdefault("control_timestep", control_timestep)  # a timing sweep's steps are shown in ms
     options.setdefault("substeps", substeps)
+    options.setdefault("linear", linear)  # a gripper's slide fingers: N·s/m and m, not N·m·s/rad and rad
     report = GapReport.build(evaluation, fit=fit, contact_sheet=sheet, rng=spec.seed, notes=tuple(notes), **options)
     table = None if limits is None else SafetyTable.build(evaluation, limits, substeps=_substeps(spec.task))
     if table is not None:
@@ -94,7 +95,7 @@ def _substeps(task: Any) -> int | None:
         env.close()
 
 
-def _clock(task: Any) -> tuple[float | None, int | None]:
+def _clock(task: Any) -> tuple[float | None, int | None, tuple[str, ...]]:
     """Seconds per control step and physics steps per control step of the spec's task: what the Safety section's
     once-per-control-step sampling sees (the same reading the study makes), and what a latency sweep's ``steps``
     (physics steps) are in milliseconds. Before, a frame_skip=4 env's sweep over ActionLatency.steps 0, 4, 8 was
@@ -108,14 +109,39 @@ def _clock(task: Any) -> tuple[float | None, int | None]:
         substeps = physics_substeps(env)
         handle = find_physics(env)
         if handle is None:
-            return None, substeps
+            return None, substeps, ()
+        linear = _linear_names(handle.model)
         timestep = float(handle.model.opt.timestep)
         period = getattr(env.unwrapped, "dt", None)  # a gymnasium MujocoEnv: timestep x frame_skip
         if substeps is None and isinstance(period, (int, float)) and period > 0:
-            return float(period), max(1, round(float(period) / timestep))
-        return (None, None) if substeps is None else (timestep * substeps, substeps)
+            return float(period), max(1, round(float(period) / timestep)), linear
+        return (None, None, linear) if substeps is None else (timestep * substeps, substeps, linear)
     finally:
         env.close()
+
+
+def _linear_names(model: Any) -> tuple[str, ...]:
+    """Names of the model's slide joints and of the actuators that push along slides only (directly or through a
+    fixed tendon of slides): their parameters and channels are lengths and forces, not angles and torques."""
+    import mujoco
+
+    obj = mujoco.mjtObj
+    slide = {j for j in range(model.njnt) if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_SLIDE}
+    names = [mujoco.mj_id2name(model, obj.mjOBJ_JOINT, j) for j in sorted(slide)]
+    for a in range(model.nu):
+        target, kind = int(model.actuator_trnid[a, 0]), model.actuator_trntype[a]
+        if kind == mujoco.mjtTrn.mjTRN_JOINT:
+            pushes = target in slide
+        elif kind == mujoco.mjtTrn.mjTRN_TENDON:
+            wraps = range(int(model.tendon_adr[target]), int(model.tendon_adr[target] + model.tendon_num[target]))
+            pushes = all(
+                model.wrap_type[w] == mujoco.mjtWrap.mjWRAP_JOINT and int(model.wrap_objid[w]) in slide for w in wraps
+            )
+        else:
+            pushes = False
+        if pushes:
+            names.append(mujoco.mj_id2name(model, obj.mjOBJ_ACTUATOR, a))
+    return tuple(n for n in names if n)
 
 
 def _limits(path: str | None) -> Any:

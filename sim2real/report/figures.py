@@ -72,7 +72,7 @@ def render(report: GapReport) -> Mapping[str, bytes]:
             out[name] = _png(_heatmap_figure(report, key))
         elif kind == "sysid_fit":
             assert report.fit is not None
-            out[name] = _png(_sysid_figure(report.fit, int(key)))
+            out[name] = _png(_sysid_figure(report.fit, int(key), report.linear))
         else:
             assert report.contact_sheet is not None
             out[name] = _image_png(report.contact_sheet)
@@ -197,7 +197,7 @@ def _heatmap_figure(report: GapReport, grid: str) -> Any:
     return fig
 
 
-def _sysid_figure(fit: Any, page: int) -> Any:
+def _sysid_figure(fit: Any, page: int, linear: tuple[str, ...] = ()) -> Any:
     """Page ``page`` of the fit's channels (in the fit's order): measured vs simulated, and the residual with its
     ±2σ noise band, each axis in the channel's unit; the legend sits above the plots, not on the data."""
     from matplotlib.figure import Figure
@@ -213,7 +213,7 @@ def _sysid_figure(fit: Any, page: int) -> Any:
     t = np.asarray(fit.trace_time)
     for row, c in enumerate(chosen):
         name = fit.channels[c]
-        unit = channel_unit(name) or "channel units"
+        unit = channel_unit(name, linear) or "channel units"
         measured, predicted = fit.trace_measured[:, c], fit.trace_predicted[:, c]
         ok = np.isfinite(measured)
         ax = axes[row, 0]

@@ -91,6 +91,7 @@ class GapReport:
             of the policy's return there.
         control_timestep: seconds per control step (latencies are shown in ms), or None.
         substeps: physics steps per control step (a timing model's ``steps`` count them), or None (one).
+        linear: names of slide joints (and actuators along them), whose units are lengths.
         policy_labels: ``(policy, label)`` shown in tables and figures (``"policy: <name>"`` by default).
         condition_labels: ``(condition, label)`` shown in tables and figures (``"sim: nominal"``, ``"real twin"``).
         lead: the caller's opening paragraph (e.g. the study's), shown first in the summary; see :meth:`with_lead`.
@@ -141,6 +142,7 @@ class GapReport:
     training: tuple[tuple[str, str], ...] = ()
     control_timestep: float | None = None
     substeps: int | None = None
+    linear: tuple[str, ...] = ()
     policy_labels: tuple[tuple[str, str], ...] = ()
     condition_labels: tuple[tuple[str, str], ...] = ()
     lead: str = ""
@@ -173,6 +175,7 @@ class GapReport:
         training: Mapping[str, str] | None = None,
         control_timestep: float | None = None,
         substeps: int | None = None,
+        linear: Sequence[str] = (),
         policy_labels: Mapping[str, str] | None = None,
         condition_labels: Mapping[str, str] | None = None,
         lead: str = "",
@@ -204,6 +207,8 @@ class GapReport:
                 in physics steps).
             substeps: physics steps per control step, which a timing model's ``steps`` count on a MuJoCo env
                 (None: one, as on a suite task).
+            linear: names of slide joints and of actuators that push along them: their parameters and channels are
+                shown in N·s/m, m, m/s (default: every joint a hinge, as on the suite tasks).
             policy_labels: policy -> display name (default ``"policy: <name>"``).
             condition_labels: condition -> display name (default by kind: ``"sim: nominal"``, ``"real twin"``).
             lead: an opening paragraph for the summary (e.g. the study's).
@@ -235,6 +240,7 @@ class GapReport:
                 training=training,
                 control_timestep=control_timestep,
                 substeps=substeps,
+                linear=linear,
                 policy_labels=policy_labels,
                 condition_labels=condition_labels,
                 lead=lead,

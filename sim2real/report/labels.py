@@ -24,6 +24,7 @@ Example:
 from __future__ import annotations
 
 import re
+from collections.abc import Collection
 from dataclasses import dataclass
 
 from noise_models.timing import convert_time
@@ -84,6 +85,25 @@ _PARAMETER_UNITS = (
     ("action_latency", "s"),
 )
 _CHANNEL_UNITS = (("qpos", "rad"), ("qvel", "rad/s"), ("qacc", "rad/s²"), ("ctrl", "ctrl units"))
+# the same fields on a slide joint (or an actuator that pushes along one): lengths, not angles
+_LINEAR_UNITS = {
+    "dof_damping": "N·s/m",
+    "dof_frictionloss": "N",
+    "dof_armature": "kg",
+    "actuator_gain": "N per ctrl unit",
+    "actuator_gear": "N per ctrl unit",
+    "qpos": "m",
+    "qvel": "m/s",
+    "qacc": "m/s²",
+}
+
+
+def _linear(field: str, address: str, linear: Collection[str]) -> str | None:
+    """The linear unit of ``field`` when the element ``address`` names is in ``linear``, else None."""
+    named = re.match(r"[^\[]*\[([^\]]*)\]", address)
+    if named is None or named.group(1) not in linear:
+        return None
+    return _LINEAR_UNITS.get(field)
 
 
 def axis_label(
@@ -225,18 +245,31 @@ def condition_label(name: str, kind: str, *, simulated: bool) -> str:
     return name
 
 
-def parameter_unit(address: str) -> str:
+def parameter_unit(address: str, linear: Collection[str] = ()) -> str:
     """The SI unit of an addressed parameter's field (``""`` when unknown), e.g. ``N·m·s/rad`` for
-    ``dof_damping[...]``."""
+    ``dof_damping[...]``; ``N·s/m`` when the element is among ``linear`` (slide joints, and actuators that push
+    along them).
+
+    Example:
+        >>> parameter_unit("dof_damping[elbow]"), parameter_unit("dof_damping[finger]", linear=("finger",))
+        ('N·m·s/rad', 'N·s/m')
+    """
+    found = _linear(address.split("[", 1)[0], address, linear)
+    if found is not None:
+        return found
     for prefix, unit in _PARAMETER_UNITS:
         if address.startswith(prefix):
             return unit
     return ""
 
 
-def channel_unit(channel: str) -> str:
-    """The unit of a logged channel (``qpos[...]`` rad, ``qvel[...]`` rad/s, ...); ``""`` when unknown."""
+def channel_unit(channel: str, linear: Collection[str] = ()) -> str:
+    """The unit of a logged channel (``qpos[...]`` rad, ``qvel[...]`` rad/s, ...; m and m/s for a joint among
+    ``linear``); ``""`` when unknown."""
     head = re.split(r"[\[.]", channel, maxsplit=1)[0]
+    found = _linear(head, channel, linear)
+    if found is not None:
+        return found
     for prefix, unit in _CHANNEL_UNITS:
         if head == prefix:
             return unit

@@ -65,6 +65,7 @@ def report_fields(
     training: Mapping[str, str] | None = None,
     control_timestep: float | None = None,
     substeps: int | None = None,
+    linear: Sequence[str] = (),
     policy_labels: Mapping[str, str] | None = None,
     condition_labels: Mapping[str, str] | None = None,
     lead: str = "",
@@ -119,6 +120,8 @@ def report_fields(
         raise ValueError(f"`control_timestep` must be a number of seconds > 0 or None. Received {control_timestep!r}.")
     if substeps is not None and (isinstance(substeps, bool) or not isinstance(substeps, int) or substeps < 1):
         raise ValueError(f"`substeps` must be an int >= 1 or None. Received {substeps!r}.")
+    if isinstance(linear, str) or not all(isinstance(n, str) for n in linear):
+        raise ValueError(f"`linear` must be a sequence of element names. Received {linear!r}.")
     if observation_unit is not None and (not isinstance(observation_unit, str) or not observation_unit):
         raise ValueError(f"`observation_unit` must be a non-empty string or None. Received {observation_unit!r}.")
     if not isinstance(lead, str):
@@ -176,6 +179,7 @@ def report_fields(
         training=tuple(trained.items()),
         control_timestep=None if control_timestep is None else float(control_timestep),
         substeps=substeps,
+        linear=tuple(linear),
         policy_labels=tuple(plabels.items()),
         condition_labels=tuple(clabels.items()),
         lead=lead,
