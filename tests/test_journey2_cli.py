@@ -283,3 +283,22 @@ def test_slide_fingers_are_reported_in_linear_units(tmp_path: Path) -> None:
 
     assert (channel_unit("qpos[left]", ("left",)), channel_unit("qvel[left]", ("left",))) == ("m", "m/s")
     assert channel_unit("qpos[wrist]", ("left",)) == "rad"
+
+
+def test_demo_holds_a_servo_arm_at_home_and_gives_a_torque_arm_zero(tmp_path: Path, arm: Path) -> None:
+    # Before: `demo --model` on a servo arm ran "zero action", which sends every servo to 0 rad: the 7-DoF arm's
+    # nominal return was -385 for an env that scores holding the home pose, so the demo compared nominal and
+    # randomised physics under a policy that left home at once (now -4.5 nominal, -24.9 randomised).
+    code, out, err = _run(["demo", "--model", str(arm), "--episodes", "1", "--quiet"])
+    assert code == 0, err
+    assert (
+        "policy: hold the home pose (position servos at their home set points; no scripted controller for arm.xml)"
+        in out
+    )
+    nominal = float(next(line for line in out.splitlines() if line.startswith("nominal")).split()[1])
+    assert nominal > -5.0  # the servos hold the two-link arm near home (-1.3; zero action: -64.5)
+    torque = tmp_path / "torque.xml"
+    torque.write_text(ARM.replace('<position name="servo_shoulder" joint="shoulder" kp="30" kv="1"', '<motor name="m1" joint="shoulder"').replace('<position name="servo_elbow" joint="elbow" kp="10" kv="0.5"', '<motor name="m2" joint="elbow"'))  # fmt: skip
+    code, out, err = _run(["demo", "--model", str(torque), "--episodes", "1", "--quiet"])
+    assert code == 0, err
+    assert "policy: zero action (no scripted controller for torque.xml" in out

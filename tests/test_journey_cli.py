@@ -70,7 +70,7 @@ def test_demo_takes_a_model_file_and_applies_the_exported_signals(tmp_path: Path
     code, out, err = _run(["demo", "--model", str(arm), "--config", str(config), "--episodes", "1", "--quiet"])
     assert (code, err) == (0, "")
     assert out.startswith("sim2real demo: my arm.xml, 1 episode(s) per condition")
-    assert "zero action (no scripted controller for my arm.xml" in out
+    assert "hold the home pose (position servos at their home set points; no scripted controller for my arm.xml)" in out
     for model in ("Damping(set=Uniform(low=0.45, high=0.55), joints='shoulder')", "ActionLatency(seconds=0.032)"):
         assert f"  {model}\n" in out
     assert "ObservationNoise(Gaussian(std=0.001))" in out

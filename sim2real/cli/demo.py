@@ -82,6 +82,31 @@ def _zero_policy(env: Any) -> Policy:
     return lambda obs: zero
 
 
+def _hold_policy(env: Any) -> Policy | None:
+    """An MJCF's position servos held at their set points of the home pose (other actuators at 0), or None when
+    the model has no servo: a zero action sends every servo to 0 rad, far from the home pose the bare env scores."""
+    import mujoco
+
+    from sim2real.home import _servo_mask
+    from sim2real.mjcf_env import MjcfEnv, home_key
+
+    base = getattr(env, "unwrapped", env)
+    if not isinstance(base, MjcfEnv):
+        return None
+    model = base.model
+    servo = _servo_mask(model)
+    if not servo.any():
+        return None
+    data = mujoco.MjData(model)
+    key = home_key(model)
+    if key is not None:
+        mujoco.mj_resetDataKeyframe(model, data, key)
+    mujoco.mj_forward(model, data)
+    low, high = env.action_space.low, env.action_space.high
+    hold = np.where(servo, np.clip(data.actuator_length, low, high), 0.0).astype(env.action_space.dtype)
+    return lambda obs: hold
+
+
 def _run_episode(env: Any, policy: Policy, seed: int) -> _Episode:
     obs, info = env.reset(seed=seed)
     params = dict(info.get("sim2real", {}).get("params", {}))
@@ -161,6 +186,11 @@ def cmd_demo(args: argparse.Namespace, out: TextIO) -> int:
     policy: Policy
     if source.id == ARM_REACH:
         policy_name, policy = ARM_REACH_POLICY, _arm_reach_policy
+    elif (hold := _hold_policy(nominal)) is not None:
+        policy_name = (
+            f"hold the home pose (position servos at their home set points; no scripted controller for {source.label})"
+        )
+        policy = hold
     else:
         policy_name = f"zero action (no scripted controller for {source.label}; only {ARM_REACH} has one)"
         policy = _zero_policy(nominal)
