@@ -37,6 +37,7 @@ from noise_models.corruptor import ActionNoise, ObservationNoise
 from noise_models.timing import TimeModel
 from randomizers import ADR, EFFECT_TYPES, Effect, Texture
 from randomizers.seeding import SeedLike, normalize_seed
+from sim2real.wrappers.gym import RandomizePhysics, merge_report
 
 __all__ = ["make_vec", "wrap"]
 
@@ -96,6 +97,11 @@ def wrap(env: Any, *effects: Any, adr: ADR | None = None, seed: SeedLike = None)
         TypeError: unsupported env kind, or physics effects on an env without MuJoCo.
         ValueError: more than one ADR controller.
     """
+    return _wrap(env, effects, adr, seed)
+
+
+def _wrap(env: Any, effects: Iterable[Any], adr: ADR | None, seed: SeedLike, physics: type | None = None) -> Any:
+    """:func:`wrap`; ``physics``: the class of a gymnasium env's physics-only layer (None: ``RandomizePhysics``)."""
     items = _flatten(effects)
     controllers = [e for e in items if isinstance(e, ADR)] + ([] if adr is None else [adr])
     if adr is not None and not isinstance(adr, ADR):
@@ -121,7 +127,6 @@ def wrap(env: Any, *effects: Any, adr: ADR | None = None, seed: SeedLike = None)
             "`sim2real.make_vec(task_id, num_envs, *effects, seed=...)`."
         )
     if isinstance(env, gym.Env):
-        from sim2real.wrappers.gym import RandomizePhysics
         from sim2real.wrappers.signals import CorruptSignals
 
         if adr is not None:
@@ -133,7 +138,7 @@ def wrap(env: Any, *effects: Any, adr: ADR | None = None, seed: SeedLike = None)
 
             return RandomizeAndCorrupt(env, flat, signals, seed)
         elif flat or not signals:
-            env = RandomizePhysics(env, flat, seed)
+            env = (physics or RandomizePhysics)(env, flat, seed)
         return CorruptSignals(env, signals, seed) if signals else env
     if _is_torchrl_env(env):
         from torchrl.envs import Compose, TransformedEnv
@@ -244,10 +249,15 @@ def make_vec(
         )
     root = 0 if seed is None else seed
     every_step = _reports_every_step([*effects, *(adr.effects if adr is not None else ())])
+    # Physics effects only (or none): their one layer reports at reset itself, no second layer on every step.
+    physics_only = adr is None and all(isinstance(e, Effect) for e in _flatten(effects))
 
     def build(i: int) -> gym.Env:
-        env = wrap(make(task_id, **options), *effects, adr=adr, seed=(root, i))
-        return env if every_step else _ReportAtReset(env)
+        if every_step:
+            return wrap(make(task_id, **options), *effects, adr=adr, seed=(root, i))
+        if physics_only:
+            return _wrap(make(task_id, **options), effects, None, (root, i), _PhysicsReportedAtReset)
+        return _ReportAtReset(wrap(make(task_id, **options), *effects, adr=adr, seed=(root, i)))
 
     fns = [(lambda i=i: build(i)) for i in range(num_envs)]
     if vectorization == "sync":
@@ -280,4 +290,25 @@ class _ReportAtReset(gym.Wrapper, gym.utils.RecordConstructorArgs):
         report = info.get("sim2real")
         if report is not None and not report["diverged"]:
             del info["sim2real"]
+        return obs, reward, terminated, truncated, info
+
+
+class _PhysicsReportedAtReset(RandomizePhysics):
+    """A :func:`make_vec` sub-env's physics layer when it is the only one: ``RandomizePhysics`` whose
+    ``info["sim2real"]`` comes with resets and with steps whose physics diverged only (as :class:`_ReportAtReset`
+    around it, without building a report on every step for the layer above to delete, nor that layer's step).
+    Its step is ``RandomizePhysics.step`` without the report: a make_vec env without step effects (pushes, interval
+    schedules; see :func:`_reports_every_step`) has none to run."""
+
+    def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
+        if self._reset_diverged or self._step_effects:
+            obs, reward, terminated, truncated, info = super().step(action)
+            if not info["sim2real"]["diverged"]:
+                del info["sim2real"]
+            return obs, reward, terminated, truncated, info
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        if info.get("diverged", False) or (self._read_warnings and self._handle.diverged()):  # as RandomizePhysics
+            obs, truncated, self._diverged = self._last_obs, True, True
+            merge_report(info, self._info())
+        self._last_obs = obs
         return obs, reward, terminated, truncated, info
