@@ -3,6 +3,7 @@ env's at 1 and 2 threads, ``datas[i]`` holding the batch's whole state, and dive
 
 from __future__ import annotations
 
+import io
 import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -84,13 +85,49 @@ def test_a_world_diverges_again_in_its_next_episode() -> None:
 
 def test_threads_default_to_the_idle_cores_and_never_more_than_the_worlds(monkeypatch: pytest.MonkeyPatch) -> None:
     from sim2real.batched import worlds
+    from sim2real.batched.worlds import CpuReadings, busy_cores, default_threads
 
-    cores = os.cpu_count() or 1
-    monkeypatch.setattr(worlds.os, "getloadavg", lambda: (0.9, 0.0, 0.0))  # only this process
-    assert worlds.default_threads(64) == cores
-    monkeypatch.setattr(worlds.os, "getloadavg", lambda: (cores + 1.5, 0.0, 0.0))  # every core busy
-    assert worlds.default_threads(64) == 1
-    monkeypatch.setattr(worlds.os, "getloadavg", lambda: (1.0, 0.0, 0.0))
+    # Only this thread runnable: every core, whatever the (lagging) load average says.
+    idle = CpuReadings(cores=2, running=(1, 1, 1, 1), load=None)
+    assert busy_cores(idle) == 0 and default_threads(64, idle) == 2
+    # A task on the other core at every reading (a busy loop started seconds ago, load average still below 2).
+    other = CpuReadings(cores=2, running=(2, 2, 3, 2), load=None)
+    assert busy_cores(other) == 1 and default_threads(64, other) == 1
+    # A burst over by one reading is not a busy core.
+    burst = CpuReadings(cores=2, running=(2, 1, 2, 2), load=None)
+    assert busy_cores(burst) == 0 and default_threads(64, burst) == 2
+    # More busy than cores: 1; fewer worlds than idle cores: one thread per world.
+    crowded = CpuReadings(cores=8, running=(12, 11, 13, 12), load=None)
+    assert busy_cores(crowded) == 10 and default_threads(64, crowded) == 1
+    half = CpuReadings(cores=8, running=(5, 5, 6, 5), load=None)
+    assert default_threads(64, half) == 4 and default_threads(3, half) == 3 and default_threads(1, half) == 1
+    # Without /proc/loadavg: the one-minute load above 1 (this process), rounded down; without either: every core.
+    assert busy_cores(CpuReadings(cores=4, running=(), load=2.7)) == 1
+    assert default_threads(64, CpuReadings(cores=4, running=(), load=2.7)) == 3
+    assert default_threads(64, CpuReadings(cores=4, running=(), load=None)) == 4
+
+    # read_cpu parses /proc/loadavg's runnable count at each of its readings, and falls back to the load average.
+    lines = iter([b"0.52 0.58 0.59 2/345 6789\n", b"1.10 0.58 0.59 3/345 6790\n"] * worlds.SAMPLES)
+
+    class Loadavg(io.BytesIO):
+        def __init__(self, *_: object) -> None:
+            super().__init__(next(lines))
+
+    monkeypatch.setattr(worlds, "open", Loadavg, raising=False)
+    got = worlds.read_cpu()
+    assert got.running == (2, 3, 2, 3)[: worlds.SAMPLES] and got.load is None and got.cores >= 1
+    assert busy_cores(got) == 1
+
+    def missing(*_: object) -> None:
+        raise FileNotFoundError("/proc/loadavg")
+
+    monkeypatch.setattr(worlds, "open", missing, raising=False)
+    monkeypatch.setattr(worlds.os, "getloadavg", lambda: (2.5, 0.0, 0.0))
+    assert worlds.read_cpu() == CpuReadings(cores=got.cores, running=(), load=2.5)
+
+    # make_batched asks default_threads when given no count.
+    cores = got.cores
+    monkeypatch.setattr(worlds, "read_cpu", lambda: CpuReadings(cores=cores, running=(1,), load=None))
     many = make_batched("dmc/reacher-easy", 5, seed=0)
     assert many.threads == min(cores, 5)
     one = make_batched("dmc/reacher-easy", 1, seed=0)

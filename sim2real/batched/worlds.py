@@ -42,12 +42,13 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 from mujoco import batch as mjbatch
 
-__all__ = ["BatchedPhysics", "default_threads"]
+__all__ = ["BatchedPhysics", "CpuReadings", "busy_cores", "default_threads", "read_cpu"]
 
 _NONE = int(mujoco.mjtStage.mjSTAGE_NONE)
 _VEL = int(mujoco.mjtStage.mjSTAGE_VEL)
@@ -55,26 +56,98 @@ _ACC = int(mujoco.mjtStage.mjSTAGE_ACC)
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 
 
-def default_threads(num_envs: int) -> int:
-    """The batch's threads when the caller gives none: the cores other work leaves idle, at most ``num_envs``.
+@dataclass(frozen=True)
+class CpuReadings:
+    """What :func:`default_threads` decides from: the cores this process may use and how many of them other work
+    keeps busy now.
 
-    ``min(os.cpu_count(), num_envs)`` less one core per unit of the one-minute load average above 1 (this process),
-    at least 1. A batch call returns when its slowest thread has finished, so a thread that waits for a busy core
-    holds every world up: on the 2-core box at load 6-7, 2 threads stepped 64 reacher worlds at 0.71 and 64
-    manipulator worlds at 0.65 of 1 thread (``benchmarks/bench_eval.py --before``). Results do not depend on it.
+    Attributes:
+        cores: cores this process may run on (``os.sched_getaffinity``; ``os.cpu_count()`` where there is none).
+        running: tasks runnable in the whole system at a few instants a fraction of a millisecond apart (the 4th
+            field of ``/proc/loadavg``), each count including the thread that reads it; empty where there is no
+            ``/proc/loadavg``.
+        load: the one-minute load average (``os.getloadavg()``), None where there is none: read only without
+            ``running``.
+    """
+
+    cores: int
+    running: tuple[int, ...]
+    load: float | None
+
+
+#: Readings of the runnable-task count :func:`read_cpu` takes (a task busy on another core is runnable in every one;
+#: one that merely woke up for an instant is not): about 0.1 ms in all.
+SAMPLES = 4
+
+
+def read_cpu(samples: int = SAMPLES) -> CpuReadings:
+    """This machine's :class:`CpuReadings` now (< 1 ms)."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - no affinity on this platform
+        cores = os.cpu_count() or 1
+    running: list[int] = []
+    try:
+        for _ in range(samples):
+            with open("/proc/loadavg", "rb") as f:  # "0.52 0.58 0.59 2/345 6789": runnable/total tasks in field 4
+                running.append(int(f.read().split()[3].split(b"/")[0]))
+    except (OSError, IndexError, ValueError):  # no /proc (macOS, Windows) or an unexpected format
+        running = []
+    load: float | None = None
+    if not running:
+        try:
+            load = os.getloadavg()[0]
+        except (AttributeError, OSError):  # no load average on this platform
+            load = None
+    return CpuReadings(max(1, cores), tuple(running), load)
+
+
+def busy_cores(readings: CpuReadings) -> int:
+    """Cores other work keeps busy: the fewest tasks runnable at any reading, less the reading thread itself (a
+    task that runs on another core the whole time counts; a burst that was over by the next reading does not).
+    Without those counts, the one-minute load average above 1 (this process), rounded down; with neither, 0.
 
     Example:
-        >>> 1 <= default_threads(64) <= (os.cpu_count() or 1)
-        True
+        >>> busy_cores(CpuReadings(cores=2, running=(2, 3, 2, 2), load=None))  # one task on the other core
+        1
+        >>> busy_cores(CpuReadings(cores=2, running=(1, 2, 1, 1), load=None))  # a burst: idle
+        0
+    """
+    if readings.running:
+        return max(0, min(readings.running) - 1)
+    if readings.load is not None:
+        return max(0, math.floor(readings.load - 1.0))
+    return 0
+
+
+def default_threads(num_envs: int, readings: CpuReadings | None = None) -> int:
+    """The batch's threads when the caller gives none: the cores other work leaves idle now, at most ``num_envs``.
+
+    The cores this process may use, less those other tasks keep busy at this moment (:func:`busy_cores` of
+    :func:`read_cpu`: the runnable tasks of the whole system, sampled a few times over about 0.1 ms; a runnable
+    thread of this process's own, e.g. a spinning OpenMP worker, counts as busy too), at least 1 and at most
+    ``num_envs``.
+    A batch call returns when its slowest thread has finished, so a thread that waits for a busy core holds every
+    world up: on the 2-core box at load 6-7, 2 threads stepped 64 reacher worlds at 0.71 and 64 manipulator worlds
+    at 0.65 of 1 thread (``benchmarks/bench_eval.py --before``). The one-minute load average the choice used to
+    come from lags: a task that had kept the other core busy for less than about a minute left it below 2, so 2
+    threads were chosen and ran 64 reacher worlds ~1.25x slower than 1 (``benchmarks/bench_threads.py``).
+    Results do not depend on it.
+
+    Args:
+        num_envs: the worlds.
+        readings: the machine's readings (None: :func:`read_cpu` now).
+
+    Example:
+        >>> default_threads(64, CpuReadings(cores=2, running=(1, 1, 1, 1), load=None))
+        2
+        >>> default_threads(64, CpuReadings(cores=2, running=(2, 2, 3, 2), load=None))
+        1
         >>> default_threads(1)
         1
     """
-    cores = min(os.cpu_count() or 1, int(num_envs))
-    try:
-        busy = max(0, math.floor(os.getloadavg()[0] - 1.0))
-    except (AttributeError, OSError):  # no load average on this platform: every core
-        busy = 0
-    return max(1, cores - busy)
+    r = read_cpu() if readings is None else readings
+    return max(1, min(int(num_envs), r.cores - busy_cores(r)))
 
 
 class BatchedPhysics:
