@@ -302,3 +302,19 @@ def test_demo_holds_a_servo_arm_at_home_and_gives_a_torque_arm_zero(tmp_path: Pa
     code, out, err = _run(["demo", "--model", str(torque), "--episodes", "1", "--quiet"])
     assert code == 0, err
     assert "policy: zero action (no scripted controller for torque.xml" in out
+
+
+def test_record_prints_the_true_latency_it_applied(tmp_path: Path, arm: Path) -> None:
+    # Before: `record --latency 2` printed "true params {}" and nothing about the 20 ms it applied (the log's meta
+    # had it), so the line a user checks a fit against left the latency out.
+    log = tmp_path / "log.npz"
+    code, out, err = _run(
+        ["record", "--model", str(arm), "--episodes", "1", "--steps", "30", "--latency", "2", "--quiet", "--out", str(log)]
+    )  # fmt: skip
+    assert code == 0, err
+    assert "true latency (s): action=0.02\n" in out
+    assert sysid.load_log(log).meta["true_latency_seconds"] == {"action": 0.02, "obs": 0.0}
+    code, out, _ = _run(
+        ["record", "--model", str(arm), "--episodes", "1", "--steps", "30", "--quiet", "--out", str(log)]
+    )
+    assert code == 0 and "true latency" not in out

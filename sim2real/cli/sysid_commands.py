@@ -77,6 +77,9 @@ def cmd_record(args: argparse.Namespace, out: TextIO) -> int:
         f"true params {log.meta.get('true_params', {})}",
         file=out,
     )
+    latency = {k: v for k, v in log.meta.get("true_latency_seconds", {}).items() if v}
+    if latency:  # --latency/--obs-latency are ground truth too: the fit's latency is checked against them
+        print("true latency (s): " + ", ".join(f"{k}={v:g}" for k, v in sorted(latency.items())), file=out)
     for note in excitation.get("notes", ()):
         print(f"note: {note}", file=out)
     return 0
