@@ -81,8 +81,15 @@ def resolve_home(home: str | Sequence[float], model: mujoco.MjModel) -> np.ndarr
         return home_pose(model)
     q = np.asarray(home, dtype=np.float64)
     if q.shape != (model.nq,):
-        raise ValueError(
-            f"`--home` must give {model.nq} joint positions (the model's nq). Received {q.shape[0] if q.ndim else 1}."
+        width = {int(mujoco.mjtJoint.mjJNT_FREE): 7, int(mujoco.mjtJoint.mjJNT_BALL): 4}
+        order = [
+            (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or f"#{j}")
+            + (f" x{width[int(model.jnt_type[j])]}" if int(model.jnt_type[j]) in width else "")
+            for j in range(model.njnt)
+        ]
+        raise ValueError(  # a gripper's fingers or a free object count too: name them, in qpos order
+            f"`--home` must give {model.nq} joint positions (the model's nq, in qpos order: {', '.join(order)}). "
+            f"Received {q.shape[0] if q.ndim else 1}."
         )
     return q
 

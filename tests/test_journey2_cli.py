@@ -9,6 +9,7 @@ import logging
 from pathlib import Path
 from typing import Any
 
+import mujoco
 import pytest
 
 import sysid
@@ -318,3 +319,23 @@ def test_record_prints_the_true_latency_it_applied(tmp_path: Path, arm: Path) ->
         ["record", "--model", str(arm), "--episodes", "1", "--steps", "30", "--quiet", "--out", str(log)]
     )
     assert code == 0 and "true latency" not in out
+
+
+def test_a_home_pose_of_the_wrong_length_names_the_joints_in_qpos_order(tmp_path: Path) -> None:
+    # Before: "--home must give 3 joint positions (the model's nq). Received 1." for a wrist with two slide
+    # fingers: the user of a 7-DoF arm gave its 7 angles and was not told the 8th and 9th are the fingers.
+    model = tmp_path / "gripper.xml"
+    model.write_text(GRIPPER)
+    code, _, err = _run(["record", "--model", str(model), "--home", "0.2", "--quiet", "--out", str(tmp_path / "x.npz")])
+    assert code == 2
+    assert err == (
+        "sim2real record: error: `--home` must give 3 joint positions (the model's nq, in qpos order: wrist, left, "
+        "right). Received 1.\n"
+    )
+    from sim2real.home import resolve_home
+
+    free = mujoco.MjModel.from_xml_string(
+        "<mujoco><worldbody><body name='puck'><freejoint name='puck'/><geom size='0.1'/></body></worldbody></mujoco>"
+    )
+    with pytest.raises(ValueError, match=r"7 joint positions \(the model's nq, in qpos order: puck x7\)"):
+        resolve_home((0.0,), free)

@@ -234,7 +234,8 @@ def test_home_gravity_comp_and_joint_limits(workdir: Path, capsys: pytest.Captur
     assert np.all(swing < 0.5 * model.actuator_ctrlrange[:, 1])
     assert main([*base, "--home", "0.1,0.2", "--out", "x.npz"]) == 2
     assert capsys.readouterr().err == (
-        "sim2real record: error: `--home` must give 6 joint positions (the model's nq). Received 2.\n"
+        "sim2real record: error: `--home` must give 6 joint positions (the model's nq, in qpos order: base_yaw, "
+        "shoulder, elbow, wrist_roll, wrist_pitch, flange). Received 2.\n"
     )
     assert main([*base, "--home", "0,0.6,1.0,0,0,0", "--steps", "20", "--out", "q.npz"]) == 0
     np.testing.assert_allclose(sysid.load_log("q.npz").qpos[0], [0, 0.6, 1.0, 0, 0, 0])
