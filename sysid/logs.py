@@ -338,8 +338,14 @@ def _layout(model: mujoco.MjModel, key: str) -> str:
             name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or f"#{j}"
             kind = "free" if dofs == 6 else "ball"
             parts.append(f"{kind} joint {name!r} ({dofs + 1 if key == 'qpos' else dofs})")
-    if key not in ("qpos", "qvel") or not parts:
+    if key not in ("qpos", "qvel"):
         return ""
+    if not parts:  # e.g. a gripper's two finger slides beside a 7-DoF arm: name them so the missing ones show
+        names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or f"#{j}" for j in range(model.njnt)]
+        return (
+            f" (its joints in order: {', '.join(names)}; a log must carry every joint's state, or be fitted on a "
+            "copy of the MJCF without the joints it lacks)"
+        )
     return (
         f" (it holds every joint, {', '.join(parts)} included: a log must carry those bodies' state too, or be "
         "fitted on a copy of the MJCF without them)"

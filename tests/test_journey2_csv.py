@@ -275,3 +275,21 @@ def test_a_date_and_time_column_says_to_write_a_number_with_a_unit(
         "row 2, column 't' must hold a number. Received '2025-11-27T00:00:00.000'. A date and time is not read: write "
         "the time as a number of s, ms, us or ns (e.g. nanoseconds since the Unix epoch) and name its unit in `units`."
     )
+
+
+def test_a_csv_short_of_some_joints_names_the_models_joints(
+    tmp_path: Path, arm: tuple[mujoco.MjModel, Path], truth: sysid.TrajectoryLog
+) -> None:
+    # Before: "`qpos` must have nq=9 columns to match the model. Received 7 columns" for a 7-DoF arm whose driver
+    # logs no gripper fingers: nothing said which two joints the log lacks.
+    model, _ = arm
+    path = _write(tmp_path / "plain.csv", truth, PLAIN)
+    five = {**PLAIN_MAP, "qpos": [f"q{i}" for i in range(N - 1)]}
+    with pytest.raises(LogError) as caught:
+        load_csv(path, five, _meta(model), model)
+    names = ", ".join(mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(model.njnt))
+    assert str(caught.value) == (
+        f"CSV file {str(path)!r}: `qpos` must have nq={N} columns to match the model (its joints in order: {names}; "
+        "a log must carry every joint's state, or be fitted on a copy of the MJCF without the joints it lacks). "
+        f"Received {N - 1} columns (shape ({STEPS}, {N - 1}))."
+    )

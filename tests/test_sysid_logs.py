@@ -71,8 +71,14 @@ def test_record_matches_python_step_loop(model: mujoco.MjModel) -> None:
     assert log.meta["control_timestep"] == pytest.approx(0.015)
     assert log.meta["true_latency_seconds"] == {"action": pytest.approx(0.03), "obs": pytest.approx(0.015)}
     legacy = TrajectoryLog(
-        time=log.time, qpos=log.qpos, qvel=log.qvel, ctrl=log.ctrl, meta={**{k: v for k, v in log.meta.items() if k != "true_latency_seconds"},
-              "true_latency_steps": {"action": 2, "obs": 1}},
+        time=log.time,
+        qpos=log.qpos,
+        qvel=log.qvel,
+        ctrl=log.ctrl,
+        meta={
+            **{k: v for k, v in log.meta.items() if k != "true_latency_seconds"},
+            "true_latency_steps": {"action": 2, "obs": 1},
+        },
     )  # an older log: latency in control steps, read as seconds
     assert legacy.meta["true_latency_seconds"] == {"action": pytest.approx(0.03), "obs": pytest.approx(0.015)}
 
@@ -150,7 +156,12 @@ def test_model_mismatch(tmp_path, log: TrajectoryLog) -> None:
         )
     )
     with pytest.raises(
-        LogError, match=re.escape("`qpos` must have nq=3 columns to match the model. Received 2 columns")
+        LogError,
+        match=re.escape(
+            "`qpos` must have nq=3 columns to match the model (its joints in order: shoulder, elbow, extra; a log "
+            "must carry every joint's state, or be fitted on a copy of the MJCF without the joints it lacks). "
+            "Received 2 columns"
+        ),
     ):
         validate_log(log, three)
 
