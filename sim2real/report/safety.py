@@ -60,9 +60,7 @@ def _sampling(substeps: int | None) -> str:
         return "Sampled once per control step (a peak between two samples, inside the physics substeps, is not seen)."
     if substeps == 1:
         return "Sampled once per control step, which is every physics step here (1 physics step per control step)."
-    return (
-        f"Sampled once per control step, every {substeps} physics steps: a peak inside the substeps is not seen."
-    )
+    return f"Sampled once per control step, every {substeps} physics steps: a peak inside the substeps is not seen."
 
 
 def safety_blocks(table: SafetyTable) -> list[dict[str, Any]]:
