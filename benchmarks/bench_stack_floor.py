@@ -6,6 +6,8 @@ On ``--worlds`` reacher worlds (threads=1), this process's CPU time:
 * **raw / stack**: ``make_batched`` without effects and with ``bench_eval.stack()`` (the three physics effects,
   observation Gaussian noise and bias, action Gaussian noise, observation latency), stepped in alternating chunks
   of 25 control steps by the numpy MLP policy (as ``bench_eval._p4_interleaved``): the cost of a step of every world;
+* **in place**: the stack's refills timed inside its own steps (per control step: the steps between refills amortise
+  them), where the physics of every world has just been through the caches;
 * **normals**: what the keyed-stream promise makes every step draw, timed alone: each world's observation and action
   Gaussian blocks (``BLOCK`` rows of 6 and 2 normals) from a Philox generator put at its block's counter, as the
   engine's refill does, per control step;
@@ -28,6 +30,7 @@ import platform
 import statistics
 import sys
 import time
+from typing import Any
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -48,12 +51,26 @@ _clock = time.process_time
 TASK = "dmc/reacher-easy"
 
 
-def _interleaved(num: int, steps: int) -> tuple[float, float]:
-    """Seconds per control step of every world: (raw, stack), alternating chunks of 25 steps."""
+def _interleaved(num: int, steps: int) -> tuple[float, float, float]:
+    """Seconds per control step of every world: (raw, stack, the stack's refills in place), alternating chunks of 25
+    steps. The refills are timed inside the stack's own steps (a timer around each pipeline's refill), where the
+    physics of 64 worlds has just run through the caches."""
     arms = {
         "raw": make_batched(TASK, num, seed=0, threads=1),
         "stack": make_batched(TASK, num, *stack(), seed=0, threads=1),
     }
+    signals = arms["stack"]._signals
+    assert signals is not None
+    in_place = [0.0]
+    for pipes in (*signals._obs, *signals._act):
+        refill = pipes._refill
+
+        def timed(worlds: list[int], refill: Any = refill) -> None:
+            start = _clock()
+            refill(worlds)
+            in_place[0] += _clock() - start
+
+        pipes._refill = timed  # type: ignore[method-assign]
     policy = NumpyMLP(arms["raw"].observation_dim, arms["raw"].action_dim)
     obs = {arm: worlds.reset(seed=0)[0] for arm, worlds in arms.items()}
     spent = dict.fromkeys(arms, 0.0)
@@ -67,7 +84,7 @@ def _interleaved(num: int, steps: int) -> tuple[float, float]:
             obs[arm] = o
     for worlds in arms.values():
         worlds.close()
-    return spent["raw"] / steps, spent["stack"] / steps
+    return spent["raw"] / steps, spent["stack"] / steps, in_place[0] / steps
 
 
 def _normals(num: int, sizes: tuple[int, ...], blocks: int = 8) -> float:
@@ -140,17 +157,20 @@ def main(argv: list[str] | None = None) -> None:
     print(f"# bench_stack_floor  python {platform.python_version()}  numpy {np.__version__}  {os.cpu_count()} CPUs; "
           f"{TASK}, {n} worlds, threads=1, {args.repeats} repeats; clock: process CPU time; us per control step "
           f"of every world")  # fmt: skip
-    rows: dict[str, list[float]] = {k: [] for k in ("raw", "stack", "normals", "refill", "signals", "numpy")}
+    rows: dict[str, list[float]] = {
+        k: [] for k in ("raw", "stack", "in_place", "normals", "refill", "signals", "numpy")
+    }
     for _ in range(args.repeats):
-        raw, full = _interleaved(n, args.steps)
+        raw, full, in_place = _interleaved(n, args.steps)
         refill, calls, bare = _refill_and_signals(n)
-        for key, value in (("raw", raw), ("stack", full), ("normals", _normals(n, (6, 2))), ("refill", refill),
+        for key, value in (("raw", raw), ("stack", full), ("in_place", in_place), ("normals", _normals(n, (6, 2))), ("refill", refill),
                            ("signals", calls), ("numpy", bare)):  # fmt: skip
             rows[key].append(1e6 * value)
     med = {k: statistics.median(v) for k, v in rows.items()}
     labels = {
         "raw": "batched raw step",
         "stack": "batched full stack step",
+        "in_place": "  its refills, timed in place",
         "normals": "  the normals alone (Philox standard_normal)",
         "refill": "  refill of every block (normals included)",
         "signals": "  act + observe between refills",
