@@ -130,9 +130,9 @@ def default_threads(num_envs: int, readings: CpuReadings | None = None) -> int:
     A batch call returns when its slowest thread has finished, so a thread that waits for a busy core holds every
     world up: on the 2-core box at load 6-7, 2 threads stepped 64 reacher worlds at 0.71 and 64 manipulator worlds
     at 0.65 of 1 thread (``benchmarks/bench_eval.py --before``). The one-minute load average the choice used to
-    come from lags: a task that had kept the other core busy for less than about a minute left it below 2, so 2
-    threads were chosen and ran 64 reacher worlds ~1.25x slower than 1 (``benchmarks/bench_threads.py``).
-    Results do not depend on it.
+    come from lags both ways (``benchmarks/bench_threads.py``, 64 reacher worlds, wall time): at a load of 1.76 with
+    two other tasks runnable it still chose 2 threads, 81 ms against 54 ms for 1; on a box gone idle with the load
+    still at 2.18 it chose 1 thread, 56 ms against 35 ms for 2. Results do not depend on it.
 
     Args:
         num_envs: the worlds.
