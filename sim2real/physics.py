@@ -300,8 +300,11 @@ def _dm_handle(env: Any) -> PhysicsHandle | None:
     except ImportError:  # pragma: no cover - dm_control is a dependency
         return None
     if isinstance(env, composer.Environment):
-        physics = env.physics
-        return PhysicsHandle(physics.model.ptr, physics.data.ptr, "dm_control.composer", env)
+        try:
+            physics = env.physics
+            return PhysicsHandle(physics.model.ptr, physics.data.ptr, "dm_control.composer", env)
+        except ReferenceError:  # a closed composer env: its physics (behind a weak proxy) is freed
+            return None
     if isinstance(env, control.Environment):
         physics = env.physics
         return PhysicsHandle(physics.model.ptr, physics.data.ptr, "dm_control.suite", env)

@@ -133,7 +133,9 @@ effects:
         (
             "effects:\n  - type: Fiction\n    scale: 1.0\n",
             # the registry, not a list kept here: a new effect is one class plus one registry line
-            "{f}: effects[0].type must be one of " + str(sorted(EFFECT_TYPES)).replace("{", "{{") + ". Received 'Fiction'.",
+            "{f}: effects[0].type must be one of "
+            + str(sorted(EFFECT_TYPES)).replace("{", "{{")
+            + ". Received 'Fiction'.",
         ),
         (
             "effects:\n  - type: Mass\n    scale: [-1.0, 2.0]\n",
@@ -289,3 +291,12 @@ def test_effects_are_immutable_values() -> None:
         a.shared = True  # type: ignore[misc]
     with pytest.raises(Exception, match="cannot assign to field"):
         s2r.Uniform(0, 1).low = 2  # type: ignore[misc]
+
+
+def test_find_physics_of_a_closed_composer_env_is_none() -> None:
+    # A closed composer env frees its physics behind a weak proxy: reading it raised ReferenceError, which broke
+    # every later texture upload (the pixel layer looks up the physics of each env it still holds).
+    env = s2r.make("dmc/jaco-reach_site")
+    assert s2r.find_physics(env) is not None
+    env.close()
+    assert s2r.find_physics(env) is None
