@@ -515,16 +515,17 @@ class SignalCorruptor:
         after the reset observation's first block) and a fixed lag, as one function: what ``hot_pipe(pipe)``
         and the ring do, with one Python call per step instead of two."""
         size = lag + 1
+        k = self._obs_samples  # counted here for the episode (nothing else reads it while this path runs)
 
         def observe(obs: np.ndarray, now: int = 0) -> np.ndarray:
+            nonlocal k
             r = pipe.r
             if r == BLOCK:
                 sample = pipe(obs)  # draws the next block (simple stays 1: the gain is per episode)
             else:
                 pipe.r = r + 1
                 sample = obs + pipe.rows[r]
-            k = self._obs_samples + 1
-            self._obs_samples = k
+            k += 1
             ring[k % size] = sample
             if k > lag:
                 return ring[(k - lag) % size]

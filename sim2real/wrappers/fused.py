@@ -25,7 +25,7 @@ Example:
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import dm_env
@@ -85,9 +85,8 @@ class RandomizeAndCorrupt(CorruptSignals):
         # Steps whose report is the episode's template plus the params (no inner report, per-step substeps or
         # events): the common case, and the hot path.
         self._templated = not (self._jitter or self._step_effects)
-        self._hot = False  # this episode steps through step's hot path (decided at reset)
-        self._hot_act: Any = None
-        self._hot_observe: Any = None
+        # This episode's hot step (decided at reset, see _make_hot_step), or None: the general path.
+        self._hot_step: Callable[[Any], tuple[Any, Any, bool, bool, dict[str, Any]]] | None = None
         # This episode's action ring when the wrapper delays the actions itself (SignalClock.ring_actions).
         self._action_ring: list[Any] | None = None
         self._actions_sent = 0
@@ -185,17 +184,86 @@ class RandomizeAndCorrupt(CorruptSignals):
         self._hot = False
         if self._templated and not self._reset_diverged:
             self._template = self._report_template()
-            self._hot = (
+            if (
                 self._has_action
                 and self._has_obs
                 and self._act_codec is None
                 and self._obs_codec is None
                 and not self._needs_now
-            )
-            # The corruptor's hot paths of this episode (built by its begin_episode / first_observation).
-            self._hot_act = c.hot_act
-            self._hot_observe = c.hot_observe
+            ):
+                self._hot_step = self._make_hot_step()
+                if "step" not in self.__dict__:  # (the first-step check, while pending, runs the class's step)
+                    self.step = self._hot_step  # type: ignore[method-assign,assignment]  # env.step calls it
         return obs, info
+
+    def __copy__(self) -> Any:
+        twin = super().__copy__()
+        if self._hot_step is not None:  # the hot step is bound to this wrapper: the copy takes the general path
+            if twin.__dict__.get("step") is self._hot_step:
+                del twin.__dict__["step"]
+            twin.__dict__["_hot_step"] = None
+        return twin
+
+    @property
+    def _hot(self) -> bool:
+        """Whether this episode steps through its hot step; set False to leave it (the general path then)."""
+        return self._hot_step is not None
+
+    @_hot.setter
+    def _hot(self, value: bool) -> None:
+        if value:
+            raise ValueError("`_hot` can only be turned off; reset decides when an episode has a hot step.")
+        if self._hot_step is not None and self.__dict__.get("step") is self._hot_step:
+            del self.step
+        self._hot_step = None
+
+    def _make_hot_step(self) -> Callable[[Any], tuple[Any, Any, bool, bool, dict[str, Any]]]:
+        """This episode's step for the common case (decided at reset): a flat Box action and observation, the
+        corruptor's per-episode hot paths (act, observe), no clock read, the report from the episode's template.
+        What the general path does, with the episode's constants bound once (tests/test_hot_path.py pins it);
+        installed as the instance's ``step`` so that ``env.step`` calls it directly. A physics step that diverges
+        leaves it (``_step_end``)."""
+        clock, env, ring = self.clock, self.env, self._action_ring
+        act, observe = self.corruptor.hot_act, self.corruptor.hot_observe
+        template, shape, dtype = self._template, self._act_shape, self.corruptor.action_dtype
+        randomizer, corruptor, step_end = self.randomizer, self.corruptor, self._step_end
+        diverged = self._handle.diverged if self._read_warnings else None
+        size = len(ring) if ring is not None else 0
+        ndarray, asarray = np.ndarray, np.asarray
+        assert template is not None
+
+        def step(action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
+            if type(action) is not ndarray:
+                action = asarray(action, dtype=dtype)
+            if action.shape != shape:
+                raise ValueError(wrong_action_shape(action.shape, shape))
+            sent = act(action)
+            # (clock._control only counts for envs without MuJoCo: this layer always has it.)
+            if ring is None:
+                clock._passed = 0
+                clock._in_step = True
+                obs, reward, terminated, truncated, info = env.step(sent)
+                clock._in_step = False
+            else:  # the episode's whole-step latency, delayed here (see SignalClock.ring_actions)
+                k = self._actions_sent
+                self._actions_sent = k + 1
+                ring[k % size] = sent.copy() if sent is action else sent  # the caller may reuse its buffer
+                obs, reward, terminated, truncated, info = env.step(ring[(k + 1) % size])
+            if (info and ("diverged" in info or "sim2real" in info)) or (diverged is not None and diverged()):
+                return step_end(obs, reward, terminated, truncated, info, True)
+            self._last_obs = obs
+            merged_from = self._merged_from
+            merged = (
+                self._merged
+                if merged_from[0] is randomizer.current_params and merged_from[1] is corruptor.current_params
+                else self._params()
+            )
+            report = template.copy()
+            report["params"] = merged.copy()
+            info["sim2real"] = report
+            return observe(obs, 0), reward, terminated, truncated, info
+
+        return step
 
     def _report_template(self) -> dict[str, Any]:
         """The step report of this episode with ``params`` still to fill (valid until the next reset or
@@ -213,45 +281,10 @@ class RandomizeAndCorrupt(CorruptSignals):
         return template
 
     def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
+        hot = self._hot_step
+        if hot is not None:  # (installed as the instance's step unless the first-step check is pending)
+            return hot(action)
         clock = self.clock
-        if self._hot:
-            # The common case, decided at reset (see reset): a flat Box action and observation, the
-            # corruptor's per-episode hot paths, no clock read, the report from the episode's template.
-            if type(action) is not np.ndarray:
-                action = np.asarray(action, dtype=self.corruptor.action_dtype)
-            if action.shape != self._act_shape:
-                raise ValueError(wrong_action_shape(action.shape, self._act_shape))
-            sent = self._hot_act(action)
-            clock._control += 1
-            ring = self._action_ring
-            if ring is None:
-                action = sent
-                clock._passed = 0
-                clock._in_step = True
-                obs, reward, terminated, truncated, info = self.env.step(action)
-                clock._in_step = False
-            else:  # the episode's whole-step latency, delayed here (see SignalClock.ring_actions)
-                k = self._actions_sent
-                self._actions_sent = k + 1
-                size = len(ring)
-                ring[k % size] = sent.copy() if sent is action else sent  # the caller may reuse its buffer
-                obs, reward, terminated, truncated, info = self.env.step(ring[(k + 1) % size])
-            if (info and ("diverged" in info or "sim2real" in info)) or (
-                self._read_warnings and self._handle.diverged()
-            ):
-                return self._step_end(obs, reward, terminated, truncated, info, True)
-            self._last_obs = obs
-            r = self.randomizer
-            merged_from = self._merged_from
-            merged = (
-                self._merged
-                if merged_from[0] is r.current_params and merged_from[1] is self.corruptor.current_params
-                else self._params()
-            )
-            report = self._template.copy()  # type: ignore[union-attr]  # _hot implies a template
-            report["params"] = merged.copy()
-            info["sim2real"] = report
-            return self._hot_observe(obs, 0), reward, terminated, truncated, info
         c = self.corruptor
         given = action
         if self._has_action:
