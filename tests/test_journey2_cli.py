@@ -339,3 +339,20 @@ def test_a_home_pose_of_the_wrong_length_names_the_joints_in_qpos_order(tmp_path
     )
     with pytest.raises(ValueError, match=r"7 joint positions \(the model's nq, in qpos order: puck x7\)"):
         resolve_home((0.0,), free)
+
+
+def test_a_sensor_noise_sweep_on_a_model_file_is_labelled_in_rad(tmp_path: Path, arm: Path) -> None:
+    # Before: evaluate on --model / model: labelled a sensor-noise sweep "sensor noise std (observation units)",
+    # though a bare MJCF env observes qpos and qvel of hinges: rad and rad/s.
+    spec = tmp_path / "eval.yaml"
+    spec.write_text(
+        f"model: {arm}\nepisodes: 2\nmax_steps: 5\nbatch: 2\npolicies: {{hold: {{constant: [0.3, -0.5]}}}}\n"
+        "real: {params: {'dof_damping[elbow]': 0.3}}\n"
+        "sweeps: [{type: ObservationNoise, processes: [{type: Gaussian, std: 0.0}], field: processes.0.std, "
+        "values: [0.0, 0.01]}]\n"
+    )
+    code, _, err = _run(["evaluate", "--config", str(spec), "--out", str(tmp_path / "rep"), "--backend", "serial",
+                         "--quiet"])  # fmt: skip
+    assert code == 0, err
+    md = (tmp_path / "rep" / "report.md").read_text()
+    assert "sensor noise std (rad (qpos), rad/s (qvel))" in md and "observation units" not in md

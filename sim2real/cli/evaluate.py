@@ -61,10 +61,12 @@ def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
     except RenderingUnavailable as err:  # the report still has every number; say why the images are missing
         sheet = None
         notes.append(f"no contact sheet of the visual effects: {err}")
-    control_timestep, substeps, linear = _clock(spec.task)
+    control_timestep, substeps, linear, unit = _clock(spec.task)
     options.setdefault("control_timestep", control_timestep)  # a timing sweep's steps are shown in ms
     options.setdefault("substeps", substeps)
     options.setdefault("linear", linear)  # a gripper's slide fingers: N·s/m and m, not N·m·s/rad and rad
+    if unit is not None:  # a sensor-noise sweep in rad / rad/s, not "observation units"
+        options.setdefault("observation_unit", unit)
     report = GapReport.build(evaluation, fit=fit, contact_sheet=sheet, rng=spec.seed, notes=tuple(notes), **options)
     table = None if limits is None else SafetyTable.build(evaluation, limits, substeps=_substeps(spec.task))
     if table is not None:
@@ -95,12 +97,13 @@ def _substeps(task: Any) -> int | None:
         env.close()
 
 
-def _clock(task: Any) -> tuple[float | None, int | None, tuple[str, ...]]:
+def _clock(task: Any) -> tuple[float | None, int | None, tuple[str, ...], str | None]:
     """Seconds per control step and physics steps per control step of the spec's task: what the Safety section's
     once-per-control-step sampling sees (the same reading the study makes), and what a latency sweep's ``steps``
     (physics steps) are in milliseconds. Before, a frame_skip=4 env's sweep over ActionLatency.steps 0, 4, 8 was
     labelled 'action latency (control steps)': four times the latency applied."""
     from sim2real.physics import find_physics
+    from sim2real.report.labels import observation_unit
     from sim2real.safety import physics_substeps
     from sim2real.tasks import make
 
@@ -108,14 +111,15 @@ def _clock(task: Any) -> tuple[float | None, int | None, tuple[str, ...]]:
     try:
         substeps = physics_substeps(env)
         handle = find_physics(env)
+        unit = observation_unit(env)
         if handle is None:
-            return None, substeps, ()
+            return None, substeps, (), unit
         linear = _linear_names(handle.model)
         timestep = float(handle.model.opt.timestep)
         period = getattr(env.unwrapped, "dt", None)  # a gymnasium MujocoEnv: timestep x frame_skip
         if substeps is None and isinstance(period, (int, float)) and period > 0:
-            return float(period), max(1, round(float(period) / timestep)), linear
-        return (None, None, linear) if substeps is None else (timestep * substeps, substeps, linear)
+            return float(period), max(1, round(float(period) / timestep)), linear, unit
+        return (None, None, linear, unit) if substeps is None else (timestep * substeps, substeps, linear, unit)
     finally:
         env.close()
 

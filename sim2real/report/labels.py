@@ -26,6 +26,7 @@ from __future__ import annotations
 import re
 from collections.abc import Collection
 from dataclasses import dataclass
+from typing import Any
 
 from noise_models.timing import convert_time
 
@@ -195,10 +196,21 @@ def observation_unit(keys: object, *, angular: bool = True) -> str | None:
         'rad (position), m (to_target), rad/s (velocity)'
         >>> observation_unit(("position",)), observation_unit(("position", "pixels")) is None
         ('rad', True)
+        >>> import sim2real
+        >>> from sysid.synthetic import generate_arm
+        >>> from sim2real.mjcf_env import MjcfEnv
+        >>> observation_unit(MjcfEnv(xml=generate_arm(dof=6, seed=0)))  # what `--model robot.xml` observes
+        'rad (qpos), rad/s (qvel)'
     """
     names: tuple[str, ...]
     if isinstance(keys, (list, tuple)):
         names = tuple(str(k) for k in keys)
+    elif _is_mjcf_env(keys):  # a bare MJCF env (--model): qpos then qvel
+        base: Any = getattr(keys, "unwrapped", keys)
+        kinds = {int(t) for t in base.model.jnt_type}
+        if len(kinds) != 1 or not kinds <= {_HINGE, _SLIDE}:
+            return None  # hinges beside slides (an arm with a gripper): one unit per channel is not one per key
+        return "rad (qpos), rad/s (qvel)" if kinds == {_HINGE} else "m (qpos), m/s (qvel)"
     else:
         layout = getattr(getattr(keys, "unwrapped", keys), "observation_layout", None)
         if not layout:
@@ -211,6 +223,15 @@ def observation_unit(keys: object, *, angular: bool = True) -> str | None:
     if len(set(units)) == 1:
         return units[0]
     return ", ".join(f"{u} ({n})" for u, n in zip(units, names, strict=True))
+
+
+_HINGE, _SLIDE = 3, 2  # mujoco.mjtJoint.mjJNT_HINGE / mjJNT_SLIDE
+
+
+def _is_mjcf_env(env: object) -> bool:
+    from sim2real.mjcf_env import MjcfEnv
+
+    return isinstance(getattr(env, "unwrapped", env), MjcfEnv)
 
 
 def _all_hinges(env: object) -> bool:
