@@ -426,8 +426,9 @@ class FitResult:
         A fit that is not :attr:`ok` (the model cannot reproduce the log) is refused unless ``force=True``.
 
         Raises:
-            ValueError: a width that is not a finite number >= 0 (``width`` > 0), an unknown ``kind``, or a
-                ``noise_select`` signal no fitted channel belongs to.
+            ValueError: a width that is not a finite number >= 0 (``width`` > 0), an unknown ``kind``, an empty
+                ``noise_select`` or a ``noise_select`` signal no fitted channel belongs to.
+            TypeError: a ``noise_select`` that is not a mapping (or None).
             NotOkError: (a ValueError) the fit is not ok and ``force`` is False; the message lists the reasons.
         """
         self._require_ok(force)
@@ -508,6 +509,11 @@ class FitResult:
             raise TypeError(
                 "`noise_select` must be a mapping {signal: where in the observation} such as "
                 f"{{'qpos': [0, 1], 'qvel': [2, 3]}}, or None. Received {noise_select!r}."
+            )
+        if not noise_select:  # no group named: exporting no sensor noise at all would be silent
+            raise ValueError(
+                "`noise_select` must map at least one signal ('qpos', 'qvel', a sensor) to where it sits in the "
+                f"observation, or be None (one level for the whole observation). Received {dict(noise_select)!r}."
             )
         processes = []
         for signal, where in noise_select.items():

@@ -127,3 +127,15 @@ def test_named_observation_parts_are_found_only_where_they_hold_qpos_and_qvel() 
     assert noise_select(s2r.make("dmc/reacher-easy")) == {"qpos": "position", "qvel": "velocity"}
     assert noise_select(s2r.make("dmc/manipulator-bring_ball")) is None
     assert noise_select(s2r.make("sim2real/arm-reach")) is None
+
+
+def test_an_empty_noise_select_is_refused_not_an_export_without_sensor_noise(fit: sysid.FitResult) -> None:
+    """``noise_select={}`` exported no ObservationNoise at all, silently: the calibrated sim lost its sensor noise."""
+    message = (
+        r"`noise_select` must map at least one signal \('qpos', 'qvel', a sensor\) to where it sits in the "
+        r"observation, or be None \(one level for the whole observation\). Received \{\}\."
+    )
+    with pytest.raises(ValueError, match=message):
+        fit.to_effects(noise_select={})
+    with pytest.raises(ValueError, match=message):
+        fit.to_randomizers(noise_select={})
