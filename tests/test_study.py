@@ -128,3 +128,20 @@ def test_calibrated_effects_round_and_widen() -> None:
     damping, gain = (effect_to_config(e)["set"] for e in calibrated_effects(fit))
     assert (damping["low"], damping["high"]) == (0.027, 0.033)  # 0.030 +- 10%
     assert (gain["low"], gain["high"]) == (0.59, 0.99)  # 0.79 +- 2 stderr (0.2) dominates the 10% floor
+
+
+def test_calibrated_effects_keep_one_noise_level_over_the_whole_observation() -> None:
+    """The twin corrupts every observation entry alike, so the study's calibrated sim does too (no per-group export:
+    see calibrated_effects), and its config stays the one the shipped calibrated checkpoint was trained under."""
+    from dataclasses import replace
+
+    from sysid import FitResult
+
+    fit = replace(
+        FitResult.from_estimates({"dof_damping[shoulder]": (0.03, 0.0001)}),
+        noise_std={"qpos[shoulder]": 0.001, "qpos[wrist]": 0.001, "qvel[shoulder]": 0.005, "qvel[wrist]": 0.005},
+        noise_dof={"qpos[shoulder]": 400.0, "qpos[wrist]": 400.0, "qvel[shoulder]": 400.0, "qvel[wrist]": 400.0},
+    )
+    (noise,) = [e for e in calibrated_effects(fit) if type(e).__name__ == "ObservationNoise"]
+    (gaussian,) = noise.processes
+    assert gaussian.std == 0.003 and gaussian.select is None  # the mean level, on every entry

@@ -18,6 +18,12 @@ def calibrated_effects(fit: Any, *, relative_width: float = 0.1, digits: int = 2
     ``relative_width`` and ``digits`` (each estimate drawn uniformly from ``estimate +- max(relative_width *
     |estimate|, 2 stderr)``, the fitted latencies in seconds, the fitted sensor noise), then ``keep``.
 
+    The sensor noise stays one level over the whole observation (no ``noise_select``): the study's twin corrupts
+    every observation entry alike (one ``Gaussian``, reacher's ``to_target`` included), which per-group noise on
+    ``position`` and ``velocity`` alone would leave clean; on the standard study both groups fit the same level
+    (0.0049 and 0.0050 for the twin's 0.005); and the calibrated config would no longer match the one the shipped
+    calibrated checkpoint was trained under, so every standard study would retrain that policy (~10 min).
+
     Example:
         >>> from sysid import FitResult
         >>> fit = FitResult.from_estimates({"dof_damping[shoulder]": (0.0299, 0.0001)})
