@@ -139,7 +139,11 @@ class Gaussian(Process):
             draw_into(b, w)
             return w
 
-        return _Block(ctx.idx, ctx.layout.size, block, draw_into)
+        normals = None
+        if ctx.stream is not None:
+            gen, state, episode = ctx.stream
+            normals = (gen.bit_generator, state, state["state"]["counter"], episode, gen.standard_normal, scale)
+        return _Block(ctx.idx, ctx.layout.size, block, draw_into, normals)
 
 
 class UniformNoise(Process):

@@ -249,3 +249,42 @@ def test_next_noise_blocks_of_additive_pipelines_are_bitwise_their_own_blocks_ac
                 assert block.gain is None and unit[i] and (gains[i] == 1.0).all()
         if models is cases[1]:
             assert not np.signbit(store).any() and not store.any()
+
+
+@pytest.mark.parametrize("size", [2, 6])
+@pytest.mark.parametrize("std", ["constant", "drawn", "zero"])
+def test_next_noise_blocks_of_gaussian_heads_are_bitwise_their_own_blocks(size: int, std: str) -> None:
+    # Gaussian heads of keyed streams are started and drawn inline, scaled once a chunk when every world has the same
+    # scale (constant std), per world otherwise (drawn std; std 0, whose sign of zero must not be shared); rows of
+    # two float32 (size 2) are cast into a chunk and moved as int64. 30 worlds: more than one chunk either way.
+    from noise_models import Bias
+    from noise_models.fused import _CHUNK_BYTES
+    from randomizers import Uniform
+
+    value: Any = {"constant": 0.05, "drawn": Uniform(0.01, 0.1), "zero": 0.0}[std]
+    models = [ObservationNoise(Gaussian(std=value), Bias(Uniform(-0.1, 0.1) if std != "zero" else -0.0))]
+    num = 30
+    assert _CHUNK_BYTES // (BLOCK * size * 8) < num
+
+    def corruptor(i: int) -> SignalCorruptor:
+        c = SignalCorruptor(models, seed=(3, i))
+        c.bind(obs=Layout(size), action=None, timestep=0.01, substeps=1, obs_dtype=np.float32)
+        c.begin_episode()
+        return c
+
+    ours = [corruptor(i) for i in range(num)]
+    twins = [corruptor(i) for i in range(num)]
+    store = np.full((BLOCK, num, size), np.nan, np.float32)
+    out = (store.transpose(1, 0, 2), np.zeros((num, size), np.float32), np.zeros(num, bool))
+    for _ in range(3):
+        offsets, _, _ = SignalCorruptor.next_noise_blocks(ours, "observation", 0, out)
+        fresh, _, _ = SignalCorruptor.next_noise_blocks(twins[num // 2 :], "observation", 0)  # no `out`: allocated
+        for i, twin in enumerate(twins[: num // 2]):
+            block = twin.next_noise_block("observation", 0)
+            assert np.array_equal(offsets[i].view(np.uint32), block.offsets.view(np.uint32)), i
+        for i in range(num // 2, num):
+            assert np.array_equal(offsets[i].view(np.uint32), fresh[i - num // 2].view(np.uint32)), i
+    if std == "zero":
+        assert not np.signbit(store).any() and not store.any()
+    else:
+        assert np.isfinite(store).all() and len(np.unique(store)) > BLOCK * num * size // 2
