@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import warnings
+from pathlib import Path
 from typing import Any
 
 import dm_env
@@ -273,3 +274,26 @@ def test_a_suite_env_inside_a_users_dm_env_wrapper_is_reseeded() -> None:
     noisy = DmEnvToGym(_Repeat(suite.load("reacher", "easy"), np.random.default_rng(0)))
     with pytest.raises(ValueError, match=r"draws from env\._rng \(numpy\.random\.Generator\), which DmEnvToGym"):
         noisy.reset(seed=1)
+
+
+def test_a_relative_model_path_in_a_spec_rebuilds_the_same_file_from_another_folder(
+    tmp_path: Any, monkeypatch: Any
+) -> None:
+    """``make("model:arm.xml")`` kept the relative path in its spec: ``gym.make(spec)`` from another working folder
+    built whatever ``arm.xml`` was there (here a twin with another damping), silently, or failed."""
+    import gymnasium as gym
+
+    import sim2real as s2r
+
+    ours, elsewhere = tmp_path / "ours", tmp_path / "elsewhere"
+    ours.mkdir(), elsewhere.mkdir()
+    (ours / "arm.xml").write_text(ARM_XML)
+    (elsewhere / "arm.xml").write_text(ARM_XML.replace('damping="0.3"', 'damping="9.0"'))
+    monkeypatch.chdir(ours)
+    env: Any = s2r.make("model:arm.xml")
+    assert env.spec.id == "sim2real/model-arm"
+    (key,) = env.spec.kwargs
+    assert key == "task_id" and Path(env.spec.kwargs[key].removeprefix("model:")).samefile(ours / "arm.xml")
+    monkeypatch.chdir(elsewhere)
+    twin: Any = gym.make(env.spec)
+    assert twin.unwrapped.model.dof_damping[0] == 0.3 == env.unwrapped.model.dof_damping[0]

@@ -231,8 +231,11 @@ def make(task_id: str, *, pixels: bool = False, params: Any = None, **options: A
 
     if not isinstance(pixels, bool):
         raise TypeError(f"`pixels` must be a bool. Received {pixels!r}.")
-    # What gymnasium.make(env.spec) passes back here to build the same env again.
-    recreate = {"task_id": task_id, **({"pixels": True} if pixels else {}), **options}
+    # What gymnasium.make(env.spec) passes back here to build the same env again; a model file by its absolute path
+    # (a relative one would name another file, or none, from another working folder).
+    kind, _, path = task_id.partition(":") if isinstance(task_id, str) else ("", "", "")
+    again = f"model:{os.path.abspath(path)}" if kind == "model" and path and not os.path.isabs(path) else task_id
+    recreate = {"task_id": again, **({"pixels": True} if pixels else {}), **options}
     if params is not None:
         recreate["params"] = params
     if pixels and options.get("textures", True) is not True:
