@@ -87,6 +87,9 @@ class _Pipes:
         self.side, self.k = side, k
         self.corruptors: list[Any] = [None] * n
         self.F = np.zeros((BLOCK, n, size), dtype=dtype)
+        # Row r of every world as a view made once (refills write into F in place): the step indexes a list instead
+        # of making a view of F each call.
+        self.F_rows = list(self.F)
         self.G = np.ones((n, size), dtype=dtype)
         self.unit = np.ones(n, bool)  # worlds without gain: x + F (x * 1.0 is x, so skipping it is exact)
         self.rows = np.arange(n)
@@ -173,7 +176,7 @@ class _Pipes:
                     self._refill(list(range(len(self.corruptors))))
                     row = int(self.r[0])  # 0: a fresh block's first row, for every world
                 self.common = row + 1
-                noise = self.F[row]
+                noise = self.F_rows[row]
                 if self.all_unit:
                     w = np.add(x, noise, out)
                 else:
@@ -229,6 +232,7 @@ class BatchedSignals:
         self._line_up = False  # counts may line up again (after resets or masked steps): look at the next full step
         # (slots, N, size): slot k of every world is one contiguous (N, size) array.
         self._ring = np.zeros((1, num_envs, 0), dtype=first.obs_dtype or np.float32)
+        self._slots = list(self._ring)  # the ring's slots as views made once (the lockstep step picks two a step)
         self._rows = np.arange(num_envs)
         # ActionLatency. On the "action" path (the action does not map onto ctrl: arm-reach's IK targets) each
         # world's action waits ``lag`` whole control steps in a float64 ring, zeros until the first arrives, as
@@ -300,6 +304,7 @@ class BatchedSignals:
             for d in range(old.shape[0]):  # at a reset only; the ring grows at most to the largest lag drawn
                 ring[(self._k - d) % size, rows] = old[(self._k - d) % old.shape[0], rows]
         self._ring = ring
+        self._slots = list(ring)
 
     def act(self, actions: np.ndarray, active: np.ndarray, everyone: bool | None = None) -> np.ndarray:
         """The actions the worlds' envs get (the policy's, through each world's action noise and, on the
@@ -348,7 +353,8 @@ class BatchedSignals:
             if kc is not None:  # every world at the same step of its episode: slots are views
                 kc += 1
                 self._kc = kc
-                slot = ring[kc % size]
+                slots = self._slots
+                slot = slots[kc % size]
                 last = self._obs_last
                 if last is not None and not self._obs_inner:  # one pipeline (_noisy, inline): into the slot
                     sample = last(obs, active, True, slot)
@@ -358,7 +364,7 @@ class BatchedSignals:
                     np.copyto(slot, sample)
                 if self._lagc is not None:
                     # The sample of ``lag`` control steps ago; before that, the reset sample (still in its slot).
-                    np.copyto(previous, ring[(kc - self._lagc) % size])
+                    np.copyto(previous, slots[(kc - self._lagc) % size])
                     return previous
                 return ring[(kc - self._lag) % size, self._rows]
         else:
