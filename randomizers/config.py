@@ -308,7 +308,21 @@ def dump_config(effects: Sequence[Any]) -> str:
     """YAML text with ``effects:`` and ``signals:`` lists that :func:`load_config` reads back to equal models."""
     physical = [e for e in effects if isinstance(e, Effect)]
     signals = [e.to_config() for e in effects if not isinstance(e, Effect)]
+    for item in signals:
+        _check_writable_select(item)
     doc: dict[str, Any] = {"effects": [effect_to_config(e) for e in physical]}
     if signals:
         doc["signals"] = signals
     return yaml.safe_dump(doc, sort_keys=False)
+
+
+def _check_writable_select(item: Mapping[str, Any]) -> None:
+    """Refuses a ``select`` YAML cannot hold (a slice or range: ``load_config`` has no form for one, and the list of
+    its indices would name another noise stream, so draw other values) before ``yaml`` fails on it."""
+    for part in [item, *item.get("processes", ())]:
+        select = part.get("select")
+        if isinstance(select, (slice, range)):
+            raise ValueError(
+                f"`select` of {part['type']} must be observation keys, an index or a list of indices to be written "
+                f"to YAML (a config has no slice form). Received {select!r}."
+            )
