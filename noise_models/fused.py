@@ -59,6 +59,25 @@ class _Affine:
         # to the next episode's stage by Pipeline.begin), since 256 fresh views per block cost as much as its draws.
         self._buf: np.ndarray | None = None
         self._buf_rows: list[np.ndarray] = []
+        self._plan: tuple[Any, ...] | None = None  # see normals_plan: made by Pipeline.begin
+
+    def plan(self) -> None:
+        """Sets ``_plan``, read by :func:`next_blocks`: ``(bit generator, state template, its counter, episode,
+        standard_normal, scale, bias rows or None)`` when this stage is the usual signal noise, a Gaussian of a keyed
+        stream over every entry (``_Block.normals``) then at most one offset over every entry (a Bias), drawn and
+        summed in one pass with no Python call per world; None otherwise. Called once the episode's parts are in."""
+        plan = None
+        parts, whole = self.parts, slice(0, self.size)
+        head = parts[0]
+        normals = getattr(head, "normals", None) if head.kind == "block" else None
+        if normals is not None and type(head.sel) is slice and head.sel == whole and len(parts) <= 2:
+            if len(parts) == 1:
+                plan = (*normals, None)
+            else:
+                bias = parts[1]
+                if bias.kind == "add" and type(bias.sel) is slice and bias.sel == whole:
+                    plan = (*normals, bias.rows())  # type: ignore[attr-defined]
+        self._plan = plan
 
     def refill(self, block: int, rows: bool = True) -> None:
         F = np.empty((BLOCK, self.size))
@@ -161,6 +180,9 @@ class Pipeline:
         for old, new in zip(self.stages, stages, strict=False):
             if isinstance(old, _Affine) and isinstance(new, _Affine):  # the rows' buffer outlives the episode
                 new._buf, new._buf_rows = old._buf, old._buf_rows
+        for stage in stages:
+            if isinstance(stage, _Affine):
+                stage.plan()
         self.stages = stages
         self.first_affine = isinstance(stages[0], _Affine)
         self.simple = 0  # decided after the first refill, when the gain is known (see _decide)
@@ -300,60 +322,57 @@ def _compose_additive(stages: Sequence[_Affine], pipes: Sequence[Pipeline], offs
     ``0.0 * g``), so stages with one take :func:`compose` (``next_blocks``).
     """
     size = offsets.shape[2]
-    head = stages[0].parts[0]
-    drawn = head.kind == "block" and getattr(head, "draw_into", None) is not None
-    drawn = drawn and isinstance(head.sel, slice) and head.sel == slice(0, size)
-    # Gaussian heads of keyed streams: each world's stream started and drawn inline (draw_into's values, without its
-    # two Python calls a world), and one multiply a chunk where every world has the same scalar scale.
-    normals = [s.parts[0].normals for s in stages] if drawn else []  # type: ignore[attr-defined]
-    inline = drawn and all(g is not None for g in normals)
-    scale = normals[0][5] if inline else None
-    # Exactly the same scale for every world (equal non-zero floats: 0.0 and -0.0 are equal, not the same scale).
-    common = type(scale) is float and scale != 0.0 and all(type(g[5]) is float and g[5] == scale for g in normals)
     chunk = max(1, _CHUNK_BYTES // (BLOCK * size * 8))
     n = len(stages)
     scratch = np.empty((min(chunk, n), BLOCK, size))
-    full = slice(0, size)
-    # A row of 8 bytes (two float32: actions of two actuators) whose rows lie 8-byte aligned in ``offsets``: cast
-    # contiguously into a float32 chunk, then moved as int64 (the same bits) in ``offsets``' order: numpy's cast into
-    # rows of two floats spread over the engine's (BLOCK, N, size) blocks walks them 2 at a time (2x slower).
-    paired = offsets.dtype.itemsize * size == 8 and offsets.strides[2] == offsets.dtype.itemsize
-    paired = paired and offsets.ctypes.data % 8 == 0 and offsets.strides[0] % 8 == 0 and offsets.strides[1] % 8 == 0
+    # A row of 8 contiguous bytes (two float32: actions of two actuators): cast contiguously into a float32 chunk,
+    # then moved as int64 (the same bits) in ``offsets``' order: numpy's cast into rows of two floats spread over the
+    # engine's (BLOCK, N, size) blocks walks them 2 at a time (2x slower).
+    item = offsets.dtype.itemsize
+    paired = item * size == 8 and offsets.strides[2] == item
     if paired:
         bits = offsets.view(np.int64)[:, :, 0]  # (P, BLOCK): each row's two floats as one int64
         cast = np.empty(scratch.shape, offsets.dtype)
         cast_bits = cast.view(np.int64)[:, :, 0]
+    # The usual noise (a Gaussian of a keyed stream, then a Bias: _Affine.normals_plan): each world's stream started
+    # and drawn inline, scaled and biased while its block is in cache: draw_into's and the sum's values, with no
+    # Python call a world but numpy's.
+    plans = [stage._plan for stage in stages]
+    inline = None not in plans
+    head = stages[0].parts[0]
+    drawn = head.kind == "block" and getattr(head, "draw_into", None) is not None
+    drawn = drawn and isinstance(head.sel, slice) and head.sel == slice(0, size)
+    whole = slice(0, size)
     for start in range(0, n, chunk):
         stop = min(start + chunk, n)
         F = scratch[: stop - start]
-        if not drawn:
-            F.fill(0.0)
         if inline:
-            for f, g, pipe in zip(F, normals[start:stop], pipes[start:stop], strict=True):
-                bitgen, state, counter, episode, normal, s = g
+            for f, plan, pipe in zip(F, plans[start:stop], pipes[start:stop], strict=True):
+                bitgen, state, counter, episode, normal, scale, bias = plan  # type: ignore[misc]
                 counter[2] = 1 + pipe.block  # StreamFactory.start(gen, name, episode, 1 + block)
                 counter[3] = episode
                 bitgen.state = state
                 normal(out=f)
-                if not common:
-                    f *= s
-            if common:
-                F *= scale
-        for f, stage, pipe in zip(F, stages[start:stop], pipes[start:stop], strict=True):
-            parts = stage.parts
-            b = pipe.block
-            if drawn:
-                if not inline:
+                f *= scale
+                if bias is not None:
+                    np.add(f, bias, f)
+        else:
+            if not drawn:
+                F.fill(0.0)
+            for f, stage, pipe in zip(F, stages[start:stop], pipes[start:stop], strict=True):
+                parts = stage.parts
+                b = pipe.block
+                if drawn:
                     parts[0].draw_into(b, f)  # type: ignore[attr-defined]
-                parts = parts[1:]
-            for part in parts:
-                if part.kind == "add":
-                    if type(part.sel) is slice and part.sel == full:
-                        np.add(f, part.rows(), f)  # type: ignore[attr-defined]
+                    parts = parts[1:]
+                for part in parts:
+                    if part.kind == "add":
+                        if type(part.sel) is slice and part.sel == whole:
+                            np.add(f, part.rows(), f)  # type: ignore[attr-defined]
+                        else:
+                            f[:, part.sel] += part.rows()  # type: ignore[attr-defined]
                     else:
-                        f[:, part.sel] += part.rows()  # type: ignore[attr-defined]
-                else:
-                    f[:, part.sel] += part.block(b)  # type: ignore[attr-defined]
+                        f[:, part.sel] += part.block(b)  # type: ignore[attr-defined]
         if paired:
             np.add(F, 0.0, F)  # compose's + 0.0
             m = stop - start
