@@ -257,6 +257,10 @@ class BatchedSignals:
         self.command_common: tuple[int, int] | None = None
         self.command_check = False
         self._n_sub = n_sub
+        # The step's usual shapes, for act/observe's short paths: one action pipeline and nothing else on the action
+        # side; observation latency after one noise pipeline.
+        self._one_act = len(self._act) == 1 and self.action_path != "action"
+        self._one_obs = self._latency and len(self._obs) == 1
 
     def reset_world(self, i: int, env: Any, first_obs: np.ndarray, ctrl: np.ndarray | None = None) -> None:
         """Takes world ``i``'s state after its single env's reset (draws made, reset observation delivered;
@@ -309,6 +313,8 @@ class BatchedSignals:
     def act(self, actions: np.ndarray, active: np.ndarray, everyone: bool | None = None) -> np.ndarray:
         """The actions the worlds' envs get (the policy's, through each world's action noise and, on the
         ``"action"`` path, its action latency); ``everyone``: whether every world is ``active`` (None: look)."""
+        if everyone is True and self._one_act and type(actions) is np.ndarray:  # the usual step: one add and clip
+            return self._act[0](actions, active, True)
         if not self._act and self.action_path != "action":
             return actions
         if everyone is None:
@@ -333,6 +339,20 @@ class BatchedSignals:
         """What the policy sees: each world's fresh observation through its noise and latency (the
         ``previous`` output stays for worlds not stepped; ``everyone``: whether every world is ``active``, None:
         look). The result may be ``previous`` itself, overwritten."""
+        if everyone is True and self._one_obs and not self._line_up:
+            kc, lag = self._kc, self._lagc
+            if kc is not None and lag is not None:  # the usual step (below, inline): lockstep, one lag, one pipeline
+                kc += 1
+                self._kc = kc
+                slots = self._slots
+                size = len(slots)
+                slot = slots[kc % size]
+                sample = self._obs[0](obs, active, True, slot)
+                if sample is not slot:
+                    np.copyto(slot, sample)
+                # The slot's copy by assignment: the same values and dtype, half of np.copyto's call cost.
+                previous[...] = slots[(kc - lag) % size]
+                return previous
         if everyone is None:
             everyone = bool(active.all())
         if not self._latency:
