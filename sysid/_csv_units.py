@@ -4,7 +4,6 @@ brackets, clocks counted from the Unix epoch, and velocities whose unit contradi
 from __future__ import annotations
 
 import csv
-import itertools
 import math
 import os
 import re
@@ -62,6 +61,17 @@ def _header_unit(name: str) -> str | None:
     return unit if unit in UNITS else None
 
 
+def data_rows(path: str | os.PathLike[str], delimiter: str) -> list[tuple[int, list[str]]]:
+    """The CSV's data rows as ``(row number in the file, cells)``, as ``np.loadtxt`` reads them: after the header,
+    without blank rows and ``#`` comment rows (a driver's ``# firmware v2`` line)."""
+    with open(path, newline="", encoding="utf-8-sig") as handle:
+        return [
+            (number, row)
+            for number, row in enumerate(csv.reader(handle, delimiter=delimiter), 1)
+            if number > 1 and any(c.strip() for c in row) and not row[0].lstrip().startswith("#")
+        ]
+
+
 def _time_origin(table: np.ndarray, column: int, path: str | os.PathLike[str], delimiter: str) -> str | None:
     """Rewrites a clock that counts from the Unix epoch (|t| >= 1e9 in its own unit: seconds, or nanoseconds since
     1970) as time since the first row, in place, and returns the first row's cell (None for any other clock).
@@ -70,10 +80,7 @@ def _time_origin(table: np.ndarray, column: int, path: str | os.PathLike[str], d
     first = float(table[0, column])
     if not abs(first) >= 1e9:
         return None
-    with open(path, newline="", encoding="utf-8-sig") as handle:
-        cells = [
-            row[column].strip() for row in itertools.islice(csv.reader(handle, delimiter=delimiter), 1, None) if row
-        ]
+    cells = [row[column].strip() for _, row in data_rows(path, delimiter)]
     if len(cells) == table.shape[0] and all(re.fullmatch(r"[+-]?\d+", c) for c in cells):
         origin = int(cells[0])
         table[:, column] = [float(int(c) - origin) for c in cells]

@@ -58,7 +58,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from sysid._csv_units import _GAP, UNITS, _check_velocity_units, _header_unit, _time_origin
+from sysid._csv_units import _GAP, UNITS, _check_velocity_units, _header_unit, _time_origin, data_rows
 from sysid.logs import LogError, TrajectoryLog, _check_model, log_format
 
 __all__ = ["UNITS", "CsvWarning", "load_column_map", "load_csv", "log_format"]
@@ -193,29 +193,31 @@ def _number(value: Any, name: str, column: str) -> float:
     return float(value)
 
 
-def _table(header: list[str], used: list[int], where: str, path: str | os.PathLike[str], delimiter: str) -> np.ndarray:
-    """The numbers below the header (unused columns NaN): numpy parses the file in C; when it cannot, the rows are
-    read one by one to name the first bad row and column."""
+def _table(
+    header: list[str], used: list[int], where: str, path: str | os.PathLike[str], delimiter: str
+) -> tuple[np.ndarray, list[int] | None]:
+    """The numbers below the header (unused columns NaN) and, when some cells are empty, each row's number in the
+    file (None: every cell holds a number). numpy parses the file in C; when it cannot, the rows are read one by one
+    to name the first bad row and column. Blank and ``#`` comment rows are skipped either way."""
     with contextlib.suppress(ValueError):
         block = np.loadtxt(path, delimiter=delimiter, skiprows=1, usecols=used, ndmin=2, quotechar='"')
         if block.shape[0] >= 2 and np.all(np.isfinite(block)):
             table = np.full((block.shape[0], len(header)), np.nan)
             table[:, used] = block
-            return table
-    with open(path, newline="", encoding="utf-8-sig") as handle:
-        rows = list(csv.reader(handle, delimiter=delimiter))[1:]
-    if len(rows) < 2:
+            return table, None
+    numbered = data_rows(path, delimiter)
+    if len(numbered) < 2:
         raise LogError(
-            f"`path` {where} must hold a header row and at least 2 data rows. Received {len(rows) + 1} row(s)."
+            f"`path` {where} must hold a header row and at least 2 data rows. Received {len(numbered) + 1} row(s)."
         )
-    for r, row in enumerate(rows):
+    for line, row in numbered:
         if len(row) != len(header):
             raise LogError(
-                f"`path` {where} row {r + 2} must have {len(header)} fields like the header. Received {len(row)} "
+                f"`path` {where} row {line} must have {len(header)} fields like the header. Received {len(row)} "
                 "(truncated file?)."
             )
-    table = np.full((len(rows), len(header)), np.nan)
-    for r, row in enumerate(rows):
+    table = np.full((len(numbered), len(header)), np.nan)
+    for r, (line, row) in enumerate(numbered):
         for c in used:
             cell = row[c].strip()
             try:
@@ -229,24 +231,29 @@ def _table(header: list[str], used: list[int], where: str, path: str | os.PathLi
                     else ""
                 )
                 raise LogError(
-                    f"`path` {where} row {r + 2}, column {header[c]!r} must hold a number. Received {row[c]!r}.{hint}"
+                    f"`path` {where} row {line}, column {header[c]!r} must hold a number. Received {row[c]!r}.{hint}"
                 ) from None
             if cell and not math.isfinite(table[r, c]):  # empty cells are judged by _hold_commands
                 raise LogError(
-                    f"`path` {where} row {r + 2}, column {header[c]!r} must hold a finite number (dropped rows are "
+                    f"`path` {where} row {line}, column {header[c]!r} must hold a finite number (dropped rows are "
                     f"removed, not left empty). Received {row[c]!r}."
                 )
-    return table
+    return table, [line for line, _ in numbered]
 
 
 def _hold_commands(
-    table: np.ndarray, header: list[str], index: dict[str, list[int]], dt: float, where: str
+    table: np.ndarray,
+    header: list[str],
+    index: dict[str, list[int]],
+    dt: float,
+    where: str,
+    lines: list[int] | None = None,
 ) -> tuple[np.ndarray, int, int, int]:
     """Commands logged at another rate than the states: an empty command cell holds the previous command of its
     segment (the driver sent none that step), a row of commands alone (every state cell empty) is merged into the
     rows after it, and state rows before their segment's first command are dropped: nothing says what was sent
     there (a hold never crosses a gap of dropped rows or an episode boundary). Any other empty cell is an error
-    naming its row and column. ``table`` is in SI units (time in seconds).
+    naming its row (``lines``: each table row's number in the file) and column. ``table`` is in SI units.
 
     Returns:
         The table of state rows, and the counts of held cells' rows, merged command rows and dropped rows.
@@ -261,7 +268,8 @@ def _hold_commands(
         r = int(np.flatnonzero(bad)[0])
         c = next(i for i in required + state if blank[r, i])
         raise LogError(
-            f"`path` {where} row {r + 2}, column {header[c]!r} must hold a finite number (dropped rows are removed, "
+            f"`path` {where} row {r + 2 if lines is None else lines[r]}, column {header[c]!r} must hold a finite "
+            "number (dropped rows are removed, "
             "not left empty; only command columns may be empty, or every state column of a row of commands). "
             "Received ''."
         )
@@ -570,7 +578,7 @@ def load_csv(
                     f"key (only sensordata may share one; narrow the pattern, e.g. '*_deg'). Received "
                     f"columns={dict(columns)!r}."
                 )
-    table = _table(header, sorted(mapped), where, path, delimiter)
+    table, lines = _table(header, sorted(mapped), where, path, delimiter)
     origin = _time_origin(table, index["time"][0], path, delimiter)
     unit_of = _per_column(units, "units", header, mapped, f"CSV file {where}")
     for i in mapped:
@@ -604,7 +612,7 @@ def load_csv(
         table[:, i] *= value
     for i, value in offsets.items():
         table[:, i] += value
-    table, held, merged, leading = _hold_commands(table, header, index, float(meta["control_timestep"]), where)
+    table, held, merged, leading = _hold_commands(table, header, index, float(meta["control_timestep"]), where, lines)
     arrays = {key: table[:, idx[0]] if key in ("time", "episode") else table[:, idx] for key, idx in index.items()}
     dt = float(meta["control_timestep"])
     time_column = header[index["time"][0]]

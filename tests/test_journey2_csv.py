@@ -293,3 +293,29 @@ def test_a_csv_short_of_some_joints_names_the_models_joints(
         "a log must carry every joint's state, or be fitted on a copy of the MJCF without the joints it lacks). "
         f"Received {N - 1} columns (shape ({STEPS}, {N - 1}))."
     )
+
+
+def test_comment_and_blank_rows_are_skipped_alike_by_every_reader(
+    tmp_path: Path, arm: tuple[mujoco.MjModel, Path], truth: sysid.TrajectoryLog
+) -> None:
+    # Before: numpy's reader skipped a driver's '# firmware v2' line but the exact-nanosecond re-read did not, so the
+    # row counts differed and the stamps fell back to float64 (3 ns of jitter read as 0, times rounded); the row-by-row
+    # reader (empty command cells) refused the comment row and a trailing blank row as 'truncated file?'.
+    model, _ = arm
+    stamps = [str(EPOCH_NS + round(float(t) * 1e9) + (3 if k == 1 else 0)) for k, t in enumerate(truth.time)]
+    columns = {**PLAIN_MAP, "time": "stamp"}
+    for blank_ctrl in ((), (5,)):  # numpy's reader, then the row-by-row one (an empty command cell)
+        path = _write(tmp_path / "c.csv", truth, ["stamp", *PLAIN[1:]], time=stamps, blank_ctrl=blank_ctrl)
+        lines = path.read_text().splitlines()
+        path.write_text("\n".join([lines[0], "# firmware v2", *lines[1:], "", ""]) + "\n")
+        log = load_csv(path, columns, _meta(model), model, units={"stamp": "ns"})
+        assert log.time.shape == (STEPS,) and log.meta["csv"]["max_jitter_s"] == 3e-9
+        assert log.time[1] == 0.01 + 3e-9  # the stamps subtracted as integers, then scaled
+    # the row-by-row reader names rows by their number in the file, comment rows counted
+    lines = path.read_text().splitlines()
+    cells = lines[10].split(",")
+    cells[3] = ""
+    lines[10] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(LogError, match=r"row 11, column 'q2' must hold a finite number"):
+        load_csv(path, columns, _meta(model), model, units={"stamp": "ns"})
