@@ -59,11 +59,11 @@ class _Affine:
         # to the next episode's stage by Pipeline.begin), since 256 fresh views per block cost as much as its draws.
         self._buf: np.ndarray | None = None
         self._buf_rows: list[np.ndarray] = []
-        self._plan: tuple[Any, ...] | None = None  # see normals_plan: made by Pipeline.begin
+        self._plan: tuple[Any, ...] | None = None  # see plan: made by Pipeline.begin
 
     def plan(self) -> None:
-        """Sets ``_plan``, read by :func:`next_blocks`: ``(bit generator, state template, its counter, episode,
-        standard_normal, scale, bias rows or None)`` when this stage is the usual signal noise, a Gaussian of a keyed
+        """Sets ``_plan``, read by :func:`next_blocks`: ``(state template, its counter, episode, scale, bias rows or
+        None)`` when this stage is the usual signal noise, a Gaussian of a keyed
         stream over every entry (``_Block.normals``) then at most one offset over every entry (a Bias), drawn and
         summed in one pass with no Python call per world; None otherwise. Called once the episode's parts are in."""
         plan = None
@@ -131,6 +131,7 @@ class Pipeline:
         self.r = BLOCK
         self.block = -1
         self.simple = 0
+        self._scratch: np.random.Generator | None = None
         self.rows: list[np.ndarray] = []  # the single affine stage's rows when ``simple``
         clip = noise.clip and layout.low is not None
         # Bounds in the signal's dtype: mixed-dtype ufuncs take numpy's slow casting path.
@@ -149,6 +150,14 @@ class Pipeline:
                 low = high = None
         self.low, self.high = low, high
 
+    def scratch_generator(self) -> np.random.Generator:
+        """A Philox generator of this pipeline's own, made at the first call, for :func:`next_blocks` to set to each
+        world's stream state in turn (it never holds a stream of its own between calls)."""
+        gen = self._scratch
+        if gen is None:
+            gen = self._scratch = np.random.Generator(np.random.Philox(key=np.zeros(2, np.uint64)))
+        return gen
+
     def regenerate(self) -> None:
         """New generators after the streams were re-rooted (``reset(seed=...)``)."""
         self.gens = [self.owner._streams.generator(n) for n in self.names]
@@ -166,7 +175,7 @@ class Pipeline:
                 return gen
 
             prefix = name.partition("[")[0]  # reports use the plain name: obs_noise_std[3]
-            stream = (gen, streams.template(name), episode)
+            stream = (streams.template(name), episode)
             ctx = Compile(proc, prefix, self.layout, idx, gen, block_rng, report, selection_repr(select), stream)
             parts.append(proc.compile(ctx))
         stages: list[Any] = []
@@ -334,11 +343,15 @@ def _compose_additive(stages: Sequence[_Affine], pipes: Sequence[Pipeline], offs
         bits = offsets.view(np.int64)[:, :, 0]  # (P, BLOCK): each row's two floats as one int64
         cast = np.empty(scratch.shape, offsets.dtype)
         cast_bits = cast.view(np.int64)[:, :, 0]
-    # The usual noise (a Gaussian of a keyed stream, then a Bias: _Affine.normals_plan): each world's stream started
-    # and drawn inline, scaled and biased while its block is in cache: draw_into's and the sum's values, with no
-    # Python call a world but numpy's.
+    # The usual noise (a Gaussian of a keyed stream, then a Bias: _Affine.plan): each world's stream drawn inline by
+    # one generator set to its state (key and counter: the values do not depend on which generator draws them),
+    # scaled and biased while its block is in cache: draw_into's and the sum's values, with no Python call a world
+    # but numpy's, and one generator object in cache instead of one a world.
     plans = [stage._plan for stage in stages]
     inline = None not in plans
+    if inline:
+        gen = pipes[0].scratch_generator()
+        bitgen, normal = gen.bit_generator, gen.standard_normal
     head = stages[0].parts[0]
     drawn = head.kind == "block" and getattr(head, "draw_into", None) is not None
     drawn = drawn and isinstance(head.sel, slice) and head.sel == slice(0, size)
@@ -348,8 +361,8 @@ def _compose_additive(stages: Sequence[_Affine], pipes: Sequence[Pipeline], offs
         F = scratch[: stop - start]
         if inline:
             for f, plan, pipe in zip(F, plans[start:stop], pipes[start:stop], strict=True):
-                bitgen, state, counter, episode, normal, scale, bias = plan  # type: ignore[misc]
-                counter[2] = 1 + pipe.block  # StreamFactory.start(gen, name, episode, 1 + block)
+                state, counter, episode, scale, bias = plan  # type: ignore[misc]
+                counter[2] = 1 + pipe.block  # StreamFactory.start(gen, name, episode, 1 + block), on our generator
                 counter[3] = episode
                 bitgen.state = state
                 normal(out=f)

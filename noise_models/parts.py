@@ -40,13 +40,13 @@ class Compile:
         block_rng: Callable[[int], np.random.Generator],
         report: dict[str, float],
         label: str = "",
-        stream: tuple[np.random.Generator, dict[str, Any], int] | None = None,
+        stream: tuple[dict[str, Any], int] | None = None,
     ) -> None:
         self.label = label
-        #: ``(generator, state template, episode)`` of ``block_rng``'s stream, when it is a keyed Philox stream
-        #: (:meth:`noise_models.seeding.StreamFactory.start`): block ``b`` starts at the template with counter
-        #: ``[0, 0, 1 + b, episode]``. Lets code that refills many streams at once start them inline (see
-        #: :attr:`_Block.normals`).
+        #: ``(state template, episode)`` of ``block_rng``'s stream, when it is a keyed Philox stream
+        #: (:meth:`noise_models.seeding.StreamFactory.template`): block ``b`` is the draws of a Philox generator set
+        #: to the template with counter ``[0, 0, 1 + b, episode]`` (any generator: the state holds the key). Lets
+        #: code that refills many streams at once draw them inline (see :attr:`_Block.normals`).
         self.stream = stream
         self.process = process
         self.prefix = prefix
@@ -126,15 +126,15 @@ class _Block(Part):
         size: int,
         block: Callable[[int], np.ndarray],
         draw_into: Callable[[int, np.ndarray], None] | None = None,
-        normals: tuple[np.random.BitGenerator, dict[str, Any], list[int], int, Any, float | np.ndarray] | None = None,
+        normals: tuple[dict[str, Any], list[int], int, float | np.ndarray] | None = None,
     ) -> None:
         super().__init__(idx, size)
         self.block = block
         self.draw_into = draw_into
-        #: Where ``draw_into(b, out)`` is the keyed stream's standard normals times a scale: ``(bit generator, state
-        #: template, its counter, episode, standard_normal, scale)``, for :func:`noise_models.fused.next_blocks` to
-        #: draw many worlds' blocks without two Python calls per world (the same values: counter ``[0, 0, 1 + b,
-        #: episode]``, the state set, ``standard_normal(out=out)``, ``out *= scale``).
+        #: Where ``draw_into(b, out)`` is the keyed stream's standard normals times a scale: ``(state template, its
+        #: counter, episode, scale)``, for :func:`noise_models.fused.next_blocks` to draw many worlds' blocks with one
+        #: generator and no Python call per world (the same values: counter ``[0, 0, 1 + b, episode]``, a Philox
+        #: generator set to the state, ``standard_normal(out=out)``, ``out *= scale``).
         self.normals = normals
 
 

@@ -141,8 +141,8 @@ class Gaussian(Process):
 
         normals = None
         if ctx.stream is not None:
-            gen, state, episode = ctx.stream
-            normals = (gen.bit_generator, state, state["state"]["counter"], episode, gen.standard_normal, scale)
+            state, episode = ctx.stream
+            normals = (state, state["state"]["counter"], episode, scale)
         return _Block(ctx.idx, ctx.layout.size, block, draw_into, normals)
 
 
