@@ -62,8 +62,7 @@ class _Affine:
         self._plan: tuple[Any, ...] | None = None  # see plan: made by Pipeline.begin
 
     def plan(self) -> None:
-        """Sets ``_plan``, read by :func:`next_blocks`: ``(state template, its counter, episode, scale, bias rows or
-        None)`` when this stage is the usual signal noise, a Gaussian of a keyed
+        """Sets ``_plan``, read by :func:`next_blocks`: ``(Philox key, episode, scale, bias rows or None)`` when this stage is the usual signal noise, a Gaussian of a keyed
         stream over every entry (``_Block.normals``) then at most one offset over every entry (a Bias), drawn and
         summed in one pass with no Python call per world; None otherwise. Called once the episode's parts are in."""
         plan = None
@@ -175,7 +174,7 @@ class Pipeline:
                 return gen
 
             prefix = name.partition("[")[0]  # reports use the plain name: obs_noise_std[3]
-            stream = (streams.template(name), episode)
+            stream = (streams.philox_key(name), episode)
             ctx = Compile(proc, prefix, self.layout, idx, gen, block_rng, report, selection_repr(select), stream)
             parts.append(proc.compile(ctx))
         stages: list[Any] = []
@@ -352,6 +351,17 @@ def _compose_additive(stages: Sequence[_Affine], pipes: Sequence[Pipeline], offs
     if inline:
         gen = pipes[0].scratch_generator()
         bitgen, normal = gen.bit_generator, gen.standard_normal
+        # One state dict for every world (numpy copies it in): each world's key and counter written into it in turn.
+        counter = [0, 0, 0, 0]
+        inner: dict[str, list[int]] = {"counter": counter, "key": []}
+        state: dict[str, Any] = {
+            "bit_generator": "Philox",
+            "state": inner,
+            "buffer": [0, 0, 0, 0],
+            "buffer_pos": 4,
+            "has_uint32": 0,
+            "uinteger": 0,
+        }
     head = stages[0].parts[0]
     drawn = head.kind == "block" and getattr(head, "draw_into", None) is not None
     drawn = drawn and isinstance(head.sel, slice) and head.sel == slice(0, size)
@@ -361,8 +371,9 @@ def _compose_additive(stages: Sequence[_Affine], pipes: Sequence[Pipeline], offs
         F = scratch[: stop - start]
         if inline:
             for f, plan, pipe in zip(F, plans[start:stop], pipes[start:stop], strict=True):
-                state, counter, episode, scale, bias = plan  # type: ignore[misc]
-                counter[2] = 1 + pipe.block  # StreamFactory.start(gen, name, episode, 1 + block), on our generator
+                key, episode, scale, bias = plan  # type: ignore[misc]
+                inner["key"] = key  # StreamFactory.start(gen, name, episode, 1 + block), on our generator
+                counter[2] = 1 + pipe.block
                 counter[3] = episode
                 bitgen.state = state
                 normal(out=f)

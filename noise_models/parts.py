@@ -12,7 +12,7 @@ Example:
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -40,13 +40,13 @@ class Compile:
         block_rng: Callable[[int], np.random.Generator],
         report: dict[str, float],
         label: str = "",
-        stream: tuple[dict[str, Any], int] | None = None,
+        stream: tuple[list[int], int] | None = None,
     ) -> None:
         self.label = label
-        #: ``(state template, episode)`` of ``block_rng``'s stream, when it is a keyed Philox stream
-        #: (:meth:`noise_models.seeding.StreamFactory.template`): block ``b`` is the draws of a Philox generator set
-        #: to the template with counter ``[0, 0, 1 + b, episode]`` (any generator: the state holds the key). Lets
-        #: code that refills many streams at once draw them inline (see :attr:`_Block.normals`).
+        #: ``(Philox key, episode)`` of ``block_rng``'s stream, when it is a keyed Philox stream
+        #: (:meth:`noise_models.seeding.StreamFactory.philox_key`): block ``b`` is the draws of any Philox generator
+        #: set to that key, counter ``[0, 0, 1 + b, episode]`` and an empty buffer. Lets code that refills many
+        #: streams at once draw them with one generator (see :attr:`_Block.normals`).
         self.stream = stream
         self.process = process
         self.prefix = prefix
@@ -126,15 +126,15 @@ class _Block(Part):
         size: int,
         block: Callable[[int], np.ndarray],
         draw_into: Callable[[int, np.ndarray], None] | None = None,
-        normals: tuple[dict[str, Any], list[int], int, float | np.ndarray] | None = None,
+        normals: tuple[list[int], int, float | np.ndarray] | None = None,
     ) -> None:
         super().__init__(idx, size)
         self.block = block
         self.draw_into = draw_into
-        #: Where ``draw_into(b, out)`` is the keyed stream's standard normals times a scale: ``(state template, its
-        #: counter, episode, scale)``, for :func:`noise_models.fused.next_blocks` to draw many worlds' blocks with one
-        #: generator and no Python call per world (the same values: counter ``[0, 0, 1 + b, episode]``, a Philox
-        #: generator set to the state, ``standard_normal(out=out)``, ``out *= scale``).
+        #: Where ``draw_into(b, out)`` is the keyed stream's standard normals times a scale: ``(Philox key, episode,
+        #: scale)``, for :func:`noise_models.fused.next_blocks` to draw many worlds' blocks with one generator and no
+        #: Python call per world (the same values: a Philox generator set to the key, counter ``[0, 0, 1 + b,
+        #: episode]`` and an empty buffer, ``standard_normal(out=out)``, ``out *= scale``).
         self.normals = normals
 
 

@@ -141,8 +141,8 @@ class Gaussian(Process):
 
         normals = None
         if ctx.stream is not None:
-            state, episode = ctx.stream
-            normals = (state, state["state"]["counter"], episode, scale)
+            key, episode = ctx.stream
+            normals = (key, episode, scale)
         return _Block(ctx.idx, ctx.layout.size, block, draw_into, normals)
 
 

@@ -151,11 +151,11 @@ class StreamFactory:
             }
         return state
 
-    def template(self, name: str) -> dict[str, Any]:
-        """The Philox state :meth:`start` sets for ``name`` (counter ``[0, 0, resample, episode]``, empty buffer), for
-        code that starts many streams inline: write the counter's words 2 and 3, then set the state. Shared with
-        :meth:`start`: set both words before each use."""
-        return self._state(name)
+    def philox_key(self, name: str) -> list[int]:
+        """The Philox key of ``name``'s streams (two Python ints; read only): any Philox generator set to this key, counter
+        ``[0, 0, resample, episode]`` and an empty buffer draws what :meth:`start` starts, for code that draws many
+        streams with one generator."""
+        return self._state(name)["state"]["key"]
 
     def start(self, gen: np.random.Generator, name: str, episode: int, resample: int = 0) -> None:
         """Rewinds ``gen`` to the first draw of ``(episode, resample)`` for component ``name``."""

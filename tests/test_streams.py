@@ -102,3 +102,27 @@ def test_noise_models_that_would_share_a_stream_or_report_keys_are_refused() -> 
     c = SignalCorruptor([ObservationNoise(Gaussian(std=0.1)), named], seed=0)
     c.bind(obs=Layout(4), action=None, timestep=None, physics=False)
     assert c.stream_names == ("obs_noise", "obs_imu_noise[0]")
+
+
+def test_philox_key_draws_what_start_starts_on_any_generator() -> None:
+    # next_blocks draws many worlds' noise with one generator set to each world's key and counter in turn.
+    from noise_models.seeding import StreamFactory
+
+    factory = StreamFactory(seed=(4, 2))
+    own = factory.generator("obs_noise[0]")
+    factory.start(own, "obs_noise[0]", episode=3, resample=5)
+    expected = own.standard_normal(7)
+    other = np.random.Generator(np.random.Philox(key=np.zeros(2, np.uint64)))
+    other.standard_normal(3)  # a used generator: a partial buffer, another key
+    key = factory.philox_key("obs_noise[0]")
+    assert len(key) == 2 and all(type(k) is int for k in key)
+    other.bit_generator.state = {
+        "bit_generator": "Philox",
+        "state": {"counter": [0, 0, 5, 3], "key": key},
+        "buffer": [0, 0, 0, 0],
+        "buffer_pos": 4,
+        "has_uint32": 0,
+        "uinteger": 0,
+    }
+    assert np.array_equal(other.standard_normal(7), expected)
+    assert not np.array_equal(factory.philox_key("obs_noise[1]"), key)
