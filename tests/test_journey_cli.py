@@ -281,3 +281,24 @@ def test_study_on_a_model_says_which_commands_run_its_loop(tmp_path: Path, arm: 
     assert (code, stdout) == (2, "") and not out.exists()
     assert err.startswith("sim2real study: error: the study runs on tasks with a bundled profile and trained policies")
     assert err.endswith(f"(README, 'Your own robot'). Received --model {arm}.\n") and err.count("\n") == 1
+
+
+def test_sysid_export_of_a_model_file_puts_the_noise_on_qpos_and_qvel_separately(tmp_path: Path, arm: Path) -> None:
+    # Before: `sysid fit --model robot.xml --export` wrote one sensor-noise level for the whole observation, the mean
+    # of the position and velocity channels' (sysid can fit them apart: FitResult.noise_level). An MJCF robot's
+    # observation is qpos then qvel, so each group now gets its own level, where the env says which entries it is.
+    log, out, export = tmp_path / "log.npz", tmp_path / "fit.json", tmp_path / "calibrated.yaml"
+    code, _, err = _run(
+        ["record", "--model", str(arm), "--policy", "multisine", "--episodes", "2", "--steps", "150", "--seed", "3",
+         "--obs-noise", "0.002", "--out", str(log), "--quiet"]
+    )  # fmt: skip
+    assert code == 0, err
+    code, _, err = _run(
+        ["sysid", "fit", str(log), "--model", str(arm), "--params", "dof_damping[shoulder]", "--out", str(out),
+         "--export", str(export), "--quiet", "--force"]
+    )  # fmt: skip
+    assert code in (0, 4), err
+    (noise,) = [m for m in load_config(export) if type(m).__name__ == "ObservationNoise"]
+    assert [p.select for p in noise.processes] == [(0, 1), (2, 3)]  # qpos (2 hinges), then qvel
+    for process in noise.processes:
+        assert process.std.low < 0.002 < process.std.high, process

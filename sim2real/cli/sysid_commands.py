@@ -206,7 +206,14 @@ def cmd_sysid(args: argparse.Namespace, out: TextIO) -> int:
     if not Path(args.log).is_file():
         raise UsageError(f"cannot read the log: `log` {args.log!r} does not exist.")
     env, handle = _model_of(source)
+    select = None
     try:
+        if args.export:
+            from sim2real.calibration import noise_select
+
+            # Where the fitted qpos and qvel noise levels go in the env's observation (an MJCF robot: qpos then
+            # qvel); None: one level over the whole observation, as before.
+            select = noise_select(env)
         log = _load(args.log, args.columns, handle.model, handle.substeps)
         params = [p.strip() for p in args.params.split(",") if p.strip()]
         with _quiet_instability() as unstable:
@@ -240,7 +247,7 @@ def cmd_sysid(args: argparse.Namespace, out: TextIO) -> int:
     effects = None
     if args.export and (ok or args.force):
         try:
-            effects = result.to_randomizers(force=True) if args.force else result.to_randomizers()
+            effects = result.to_randomizers(noise_select=select, force=bool(args.force))
         except ValueError as err:
             raise UsageError(f"--export: {err}") from err
     writing(args.out, lambda: result.to_json(args.out))
