@@ -307,8 +307,7 @@ class _PhysicsReportedAtReset(RandomizePhysics):
                 del info["sim2real"]
             return obs, reward, terminated, truncated, info
         obs, reward, terminated, truncated, info = self.env.step(action)
-        if info.get("diverged", False) or (self._read_warnings and self._handle.diverged()):  # as RandomizePhysics
-            obs, truncated, self._diverged = self._last_obs, True, True
+        obs, truncated, diverged = self._settle_step(obs, truncated, info)
+        if diverged:
             merge_report(info, self._info())
-        self._last_obs = obs
         return obs, reward, terminated, truncated, info

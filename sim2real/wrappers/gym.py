@@ -221,14 +221,22 @@ class RandomizePhysics(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if self._step_effects:
             self.randomizer.step()
         obs, reward, terminated, truncated, info = self.env.step(action)
-        if info.get("diverged", False) or (self._read_warnings and self._handle.diverged()):  # MjcfEnv says False
-            obs, truncated, self._diverged = self._last_obs, True, True
-        self._last_obs = obs
+        obs, truncated, _ = self._settle_step(obs, truncated, info)
         if "sim2real" in info:
             merge_report(info, self._info())
         else:
             info["sim2real"] = self._info()
         return obs, reward, terminated, truncated, info
+
+    def _settle_step(self, obs: Any, truncated: bool, info: dict[str, Any]) -> tuple[Any, bool, bool]:
+        """The inner step's divergence (the adapters say it in ``info``, MjcfEnv says False; plain MuJoCo envs are
+        read from the warning counters): ``(obs, truncated, diverged)``, on divergence the last good observation
+        and ``truncated=True``. Every physics layer's step settles its divergence here."""
+        diverged = bool(info.get("diverged", False)) or (self._read_warnings and self._handle.diverged())
+        if diverged:
+            obs, truncated, self._diverged = self._last_obs, True, True
+        self._last_obs = obs
+        return obs, truncated, diverged
 
     def restore_nominal(self) -> None:
         """Writes every touched model field back to its nominal value (bitwise)."""
