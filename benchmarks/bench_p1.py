@@ -12,6 +12,8 @@ rotates and flips every repeat, timed in CPU time (``time.process_time``; the bo
   arithmetic (action noise, clip, action delay, observation noise and delay, a fresh report of as many params) and
   nothing else: the floor any Python wrapper meets on this work (its draws are not the stack's; physics DR not
   included, which costs ~1% on either task). ``fused/lean`` >= 1 means the fused layer is at that floor.
+* ``lean, no report``: the same without the per-step report (``info["sim2real"]``: a fresh dict holding a fresh copy
+  of the episode's params, as gymnasium's env checker demands of every step's info): what that contract costs.
 * manipulator only, the env as it was before its fast path: ``dmc raw`` is the adapter around dm-control's own
   ``suite.load`` (observation and reward through the named indexer), ``dmc two layers`` the two-layer stack around
   it. ``before`` = dmc two layers / dmc raw is the figure of the issue (0.91-0.93).
@@ -67,9 +69,9 @@ class LeanFloor(gym.Wrapper):  # type: ignore[type-arg]
     Nothing is checked, nothing is general, the draws are not the stack's: a reference for what the arithmetic and
     the fresh per-step dicts cost, not a feature (``lean`` arm)."""
 
-    def __init__(self, env: Any, n_params: int, action_lag: int, obs_lag: int) -> None:
+    def __init__(self, env: Any, n_params: int, action_lag: int, obs_lag: int, report: bool = True) -> None:
         super().__init__(env)
-        self.n_params, self.action_lag, self.obs_lag = n_params, action_lag, obs_lag
+        self.n_params, self.action_lag, self.obs_lag, self.report = n_params, action_lag, obs_lag, report
 
     def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
         obs, info = self.env.reset(**kwargs)
@@ -96,9 +98,10 @@ class LeanFloor(gym.Wrapper):  # type: ignore[type-arg]
         obs, reward, terminated, truncated, info = self.env.step(ring[(k - self.action_lag) % size])
         oring, osize = self._obs_ring, self.obs_lag + 1
         oring[k % osize] = obs + self._obs_rows[r]
-        report = self._template.copy()
-        report["params"] = self._params.copy()
-        info["sim2real"] = report
+        if self.report:
+            report = self._template.copy()
+            report["params"] = self._params.copy()
+            info["sim2real"] = report
         return oring[(k - self.obs_lag) % osize], reward, terminated, truncated, info
 
 
@@ -110,13 +113,14 @@ def arms_for(name: str) -> dict[str, Any]:
     fused = s2r.wrap(s2r.make(tid), *make_stack_physics(), *make_signal_models(), seed=0)
     _, info = fused.reset(seed=0)
     params = info["sim2real"]["params"]
+    # The action lag in control steps (the report's action_latency_steps counts physics steps).
+    lags = (len(params), int(params["action_latency_steps"]) // fused.clock.nominal, int(params["obs_latency_steps"]))
     arms: dict[str, Any] = {
         "raw": s2r.make(tid),
         "two layers": s2r.wrap(s2r.wrap(s2r.make(tid), *make_stack_physics(), seed=0), *make_signal_models(), seed=0),
         "fused": fused,
-        "lean": LeanFloor(
-            s2r.make(tid), len(params), int(params["action_latency_steps"]), int(params["obs_latency_steps"])
-        ),
+        "lean": LeanFloor(s2r.make(tid), *lags),
+        "lean, no report": LeanFloor(s2r.make(tid), *lags, report=False),
     }
     if name.startswith("manipulator-"):
         arms["dmc raw"] = _dm_control_env(name)
@@ -243,6 +247,7 @@ def _summary(rates: dict[str, list[float]]) -> dict[str, Any]:
     result["fused/two"] = _ratio(rates, "fused", "two layers")
     result["lean/raw"] = _ratio(rates, "lean", "raw")
     result["fused/lean"] = _ratio(rates, "fused", "lean")
+    result["lean no report/raw"] = _ratio(rates, "lean, no report", "raw")
     if "dmc raw" in rates:
         result["before"] = _ratio(rates, "dmc two layers", "dmc raw")
         result["fast raw/dmc raw"] = _ratio(rates, "raw", "dmc raw")
@@ -268,7 +273,8 @@ def report(results: dict[str, dict[str, Any]]) -> None:
         verdicts.append(f"{name} fused/raw={r['fused/raw'][0]:.3f} two/raw={r['two/raw'][0]:.3f}")
         print(
             f"{'  floor: a lean Python wrapper doing the same arithmetic (LeanFloor)':<26}\n"
-            f"    lean/raw {_fmt(r['lean/raw'])}; fused/lean {_fmt(r['fused/lean'])}"
+            f"    lean/raw {_fmt(r['lean/raw'])}; fused/lean {_fmt(r['fused/lean'])}; "
+            f"lean without the per-step report / raw {_fmt(r['lean no report/raw'])}"
         )
         verdicts.append(f"{name} lean/raw={r['lean/raw'][0]:.3f}")
         if "before" in r:
