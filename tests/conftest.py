@@ -103,3 +103,16 @@ PHYSICS = (
     sim2real.Damping(scale=randomizers.Uniform(0.5, 2.0)),
     sim2real.ActuatorGain(scale=randomizers.Uniform(0.9, 1.1)),
 )
+
+
+def run_cli(argv: list[str]) -> tuple[int, str, str]:
+    """``sim2real.cli.main(argv)`` in this process: its exit code, stdout and stderr."""
+    import contextlib
+    import io
+
+    from sim2real.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(argv)
+    return code, out.getvalue(), err.getvalue()

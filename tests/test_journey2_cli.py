@@ -3,17 +3,15 @@ gymnasium MujocoEnv. Each test pins what a user saw before a fix and sees now.""
 
 from __future__ import annotations
 
-import contextlib
-import io
 import logging
 from pathlib import Path
 from typing import Any
 
 import mujoco
 import pytest
+from conftest import run_cli as _run
 
 import sysid
-from sim2real.cli import main
 
 ARM = """<mujoco model="two_link">
   <compiler angle="radian"/>
@@ -36,13 +34,6 @@ ARM = """<mujoco model="two_link">
   <keyframe><key name="home" qpos="0.3 -0.5"/></keyframe>
 </mujoco>
 """
-
-
-def _run(argv: list[str]) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main(argv)
-    return code, out.getvalue(), err.getvalue()
 
 
 @pytest.fixture

@@ -6,15 +6,13 @@ The arm is written here (2 limited hinges, position servos, gravity); every run 
 
 from __future__ import annotations
 
-import contextlib
-import io
 from pathlib import Path
 
 import pytest
+from conftest import run_cli as _run
 
 import sim2real as s2r
 from randomizers import load_config, load_effects
-from sim2real.cli import main
 from sim2real.output_paths import OutputPathError
 
 ARM = """<mujoco model="two_link">
@@ -48,13 +46,6 @@ signals:
   - {type: Gaussian, std: 0.001}
 - {type: ActionLatency, seconds: 0.032}
 """
-
-
-def _run(argv: list[str]) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main(argv)
-    return code, out.getvalue(), err.getvalue()
 
 
 @pytest.fixture
