@@ -484,7 +484,8 @@ def main(argv: list[str] | None = None) -> None:
         print(f"building {n} worlds: {build:.2f} s (not in the engine figure)")
         print(
             f"RESULT {task} (engine = the faster of 1 and {os.cpu_count()} threads): "
-            f"batched full stack / batched raw = {med['stack'] / med['raw']:.2f} (goal >= 0.95); "
+            f"batched full stack / batched raw = {med['stack'] / med['raw']:.2f} (each repeat's adjacent pair: "
+            f"{', '.join(f'{s / r:.3f}' for s, r in zip(rates['stack'], rates['raw'], strict=True))}; goal >= 0.95); "
             f"engine/limit = {e / med['limit']:.2f} (goal >= {P4_GOALS['limit']}), "
             f"engine/sync = {e / med['sync']:.1f}x (goal >= {P4_GOALS['sync']:.0f}x), "
             f"evaluate auto/per-env (both end to end, builds included) = {med['evaluate'] / med['today']:.1f}x "
