@@ -65,6 +65,7 @@ from randomizers.parameters import (
 )
 from randomizers.randomizer import PhysicsRandomizer
 from randomizers.seeding import StreamFactory, stream
+from randomizers.tendons import TendonDamping, TendonFrictionLoss, TendonStiffness
 from randomizers.visual import (
     CameraFovy,
     CameraPose,
@@ -119,6 +120,9 @@ __all__ = [
     "Sampler",
     "Stiffness",
     "StreamFactory",
+    "TendonDamping",
+    "TendonFrictionLoss",
+    "TendonStiffness",
     "Texture",
     "TruncatedNormal",
     "Uniform",

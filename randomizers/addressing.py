@@ -105,6 +105,7 @@ _OBJ = {
     "light": mujoco.mjtObj.mjOBJ_LIGHT,
     "camera": mujoco.mjtObj.mjOBJ_CAMERA,
     "texture": mujoco.mjtObj.mjOBJ_TEXTURE,
+    "tendon": mujoco.mjtObj.mjOBJ_TENDON,
 }
 _PLURAL = {"body": "bodies"}
 _COUNT = {
@@ -117,6 +118,7 @@ _COUNT = {
     "light": "nlight",
     "camera": "ncam",
     "texture": "ntex",
+    "tendon": "ntendon",
 }
 
 
@@ -142,7 +144,7 @@ def select(
     Args:
         model: the compiled model.
         kind: ``"geom"``, ``"body"``, ``"joint"``, ``"actuator"``, ``"site"``, ``"material"``, ``"light"``,
-            ``"camera"`` or ``"texture"``.
+            ``"camera"``, ``"texture"`` or ``"tendon"``.
         patterns: one fnmatch pattern or a list of them.
         argument: the user-facing argument name, for error messages.
         exclude: ids never selected (e.g. the world body for masses).

@@ -6,8 +6,8 @@ An address reads ``field[element]`` or ``field[element][index]``, e.g. ``geom_fr
 name pattern (``dof_damping[*]``) that expands to one address per matched element. Fields a randomiser effect
 owns (:data:`EFFECT_FIELDS`, derived from the registry :data:`FIELD_EFFECTS`) are written
 *through that effect's binding*, so a gain change moves a servo's bias and a mass change scales the inertia
-exactly as randomisation does; any other numeric ``MjModel`` field of geoms, bodies, joints, dofs, actuators or
-sites (``actuator_biasprm[elbow][1]``, ``geom_solref[pad][0]``) is written directly.
+exactly as randomisation does; any other numeric ``MjModel`` field of geoms, bodies, joints, dofs, actuators,
+sites or tendons (``actuator_biasprm[elbow][1]``, ``geom_solref[pad][0]``) is written directly.
 
 sysid's ``ParameterSpace`` is a :class:`ParameterSet` plus bounds; ``sim2real record --set``, ``FitResult.to_effects``
 and the study all build their effects with :func:`effect_for`.
@@ -50,6 +50,7 @@ from randomizers.effects import (
     Mass,
     Stiffness,
 )
+from randomizers.tendons import TENDON_EFFECTS
 
 __all__ = [
     "EFFECT_FIELDS",
@@ -76,6 +77,7 @@ _RAW_KINDS = {
     "dof_": "joint",
     "actuator_": "actuator",
     "site_": "site",
+    "tendon_": "tendon",
 }
 
 
@@ -91,6 +93,7 @@ FIELD_EFFECTS: tuple[type[ArrayEffect], ...] = (
     ActuatorGain,
     Gravity,
     BodyComOffset,
+    *TENDON_EFFECTS,
 )
 #: Model fields that a randomiser effect owns, mapped to that effect class.
 EFFECT_FIELDS: dict[str, type[ArrayEffect]] = {cls.field: cls for cls in FIELD_EFFECTS}
@@ -195,7 +198,7 @@ def _raw_binding(model: mujoco.MjModel, address: Address) -> _RawBinding:
     if kind is None or not isinstance(array, np.ndarray) or array.dtype.kind != "f":
         raise ValueError(
             f"`params` entry {text!r} must address a numeric MjModel field of geoms, bodies, joints, dofs, "
-            f"actuators or sites (e.g. {', '.join(sorted(EFFECT_FIELDS))}, actuator_biasprm). "
+            f"actuators, sites or tendons (e.g. {', '.join(sorted(EFFECT_FIELDS))}, actuator_biasprm). "
             f"Received field {address.field!r}."
         )
     if array.ndim == 2 and address.component is None:
