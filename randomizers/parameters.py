@@ -181,7 +181,7 @@ class _RawBinding:
         self._targets = (rows_,) if cols is None else (rows_, np.asarray(cols, np.intp))
         self.addresses = tuple(names)
         self.nominal = self._array[self._targets].astype(np.float64).copy()
-        self.needs_set_const = field.startswith("body_") or field in ("dof_armature", "jnt_qpos0")
+        self.needs_set_const = field.startswith("body_") or field in ("dof_armature", "tendon_armature", "jnt_qpos0")
         self.set_const_inputs = frozenset((field,)) if self.needs_set_const else frozenset()
 
     def apply(self, values: np.ndarray) -> None:

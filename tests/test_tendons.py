@@ -292,3 +292,15 @@ def test_wrapped_env_contract_seed_twin_vector_env_checker_and_restore(arm_file:
     assert len(set(np.asarray(info["sim2real"]["params"]["tendon_damping[coupling]"]).tolist())) == 3
     envs.close()
     check_env(s2r.wrap(s2r.make(f"model:{arm_file}"), *effects, seed=0), skip_render_check=True)
+
+
+def test_a_raw_tendon_armature_write_refreshes_what_mj_setconst_derives(model: mujoco.MjModel) -> None:
+    # Tendon armature enters the mass matrix, so (like dof_armature) a write of it runs mj_setConst: the tendon's
+    # inverse weight must move. Stiffness, damping and friction loss derive nothing (checked: mj_setConst leaves
+    # every other field alone after them), so their effects need no mj_setConst.
+    space = ParameterSet(model, ["tendon_armature[coupling]", "tendon_damping[coupling]"])
+    assert space.bind(model).needs_set_const and space.bind(model).set_const_inputs == {"tendon_armature"}
+    assert not ParameterSet(model, ["tendon_stiffness[*]", "tendon_damping[*]"]).bind(model).needs_set_const
+    invweight = float(model.tendon_invweight0[0])
+    space.write(model, {"tendon_armature[coupling]": 0.5})
+    assert model.tendon_armature[0] == 0.5 and model.tendon_invweight0[0] < invweight / 5
