@@ -32,7 +32,7 @@ from noise_models.values import Layout, selection_repr
 if TYPE_CHECKING:
     from noise_models.corruptor import SignalCorruptor
 
-__all__ = ["NoiseBlock", "Pipeline", "compose", "hot_pipe", "next_blocks"]
+__all__ = ["NoiseBlock", "Pipeline", "compose", "hot_pipe", "next_blocks", "pipeline_of"]
 
 
 # -- compiled runtime --------------------------------------------------------------------------
@@ -260,6 +260,14 @@ class Pipeline:
             _clip(w, low, high, out=w)
             return
         np.copyto(w, _clip(w, low, high), where=(x >= low) & (x <= high))
+
+
+def pipeline_of(corruptor: SignalCorruptor, side: str, k: int) -> Pipeline:
+    """The ``k``-th ``side`` pipeline of a bound ``corruptor``, the one
+    :meth:`~noise_models.corruptor.SignalCorruptor.next_noise_blocks` refills: for code that refills the same
+    pipelines many times (the batched engine's worlds) and looks them up once, then calls :func:`next_blocks`. A
+    corruptor's pipelines are made when it is bound; look them up again after that."""
+    return corruptor._pipes(side)[k]
 
 
 def next_blocks(

@@ -37,7 +37,8 @@ from typing import Any
 
 import numpy as np
 
-from noise_models.corruptor import ActionNoise, NoiseBlock, ObservationNoise
+from noise_models.corruptor import ActionNoise, NoiseBlock, ObservationNoise, SignalCorruptor
+from noise_models.fused import next_blocks, pipeline_of
 from noise_models.processes import BLOCK, Bias, Drift, Gaussian, Outlier, Scale, UniformNoise
 from noise_models.timing import ActionLatency, ObservationLatency
 
@@ -86,6 +87,9 @@ class _Pipes:
     def __init__(self, n: int, side: str, k: int, size: int, dtype: np.dtype) -> None:
         self.side, self.k = side, k
         self.corruptors: list[Any] = [None] * n
+        # Every world's pipeline, looked up at the first refill of every world after a reset (None: look again), so
+        # a lockstep refill does not go through 64 corruptors to reach them (objects cold after the physics step).
+        self._pipelines: list[Any] | None = None
         self.F = np.zeros((BLOCK, n, size), dtype=dtype)
         # Row r of every world as a view made once (refills write into F in place): the step indexes a list instead
         # of making a view of F each call.
@@ -122,6 +126,7 @@ class _Pipes:
 
     def _hold(self, i: int, corruptor: Any, block: NoiseBlock) -> None:
         self.corruptors[i] = corruptor
+        self._pipelines = None
         self.F[:, i] = block.offsets
         self.G[i] = 1.0 if block.gain is None else block.gain
         self.unit[i] = block.gain is None
@@ -140,12 +145,20 @@ class _Pipes:
         composed for all of them at once (``SignalCorruptor.next_noise_blocks``)."""
         if not worlds:
             return
-        corruptors = [self.corruptors[i] for i in worlds]
+        corruptors = self.corruptors
         compose = type(corruptors[0]).next_noise_blocks
-        if len(worlds) == len(self.corruptors):  # every world, in order (lockstep): composed into the blocks
-            compose(corruptors, self.side, self.k, (self.F.transpose(1, 0, 2), self.G, self.unit))
+        if len(worlds) == len(corruptors):  # every world, in order (lockstep): composed into the blocks
+            out = (self.F.transpose(1, 0, 2), self.G, self.unit)
+            if compose is SignalCorruptor.next_noise_blocks:  # next_blocks of their pipelines, looked up once
+                pipelines = self._pipelines
+                if pipelines is None:
+                    pipelines = self._pipelines = [pipeline_of(c, self.side, self.k) for c in corruptors]
+                next_blocks(pipelines, out)
+            else:
+                compose(corruptors, self.side, self.k, out)
             self.r[...] = 0
         else:
+            corruptors = [corruptors[i] for i in worlds]
             offsets, gains, unit = compose(corruptors, self.side, self.k)
             self.F[:, worlds] = offsets.transpose(1, 0, 2)
             self.G[worlds] = gains
