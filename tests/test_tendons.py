@@ -304,3 +304,25 @@ def test_a_raw_tendon_armature_write_refreshes_what_mj_setconst_derives(model: m
     invweight = float(model.tendon_invweight0[0])
     space.write(model, {"tendon_armature[coupling]": 0.5})
     assert model.tendon_armature[0] == 0.5 and model.tendon_invweight0[0] < invweight / 5
+
+
+def test_a_posterior_export_draws_tendon_parameters_jointly_and_clips_them_at_zero(arm_file: Path) -> None:
+    import sim2real as s2r
+
+    fit = sysid.FitResult.from_estimates(
+        {"tendon_damping[coupling]": (1.2, 0.05), "tendon_stiffness[cable]": (6.0, 0.3)}
+    )
+    (effect,) = fit.to_effects(kind="posterior", noise=False)
+    assert isinstance(effect, randomizers.Correlated)
+    assert effect.distribution.low == (0.0, 0.0)  # both fields owned by effects that must stay non-negative
+    assert randomizers.load_config(fit.to_randomizers(kind="posterior")) == fit.to_effects(kind="posterior")
+    env = s2r.wrap(s2r.make(f"model:{arm_file}"), effect, seed=0)
+    model = env.unwrapped.model
+    before = model_arrays(model)
+    _, info = env.reset()
+    params = info["sim2real"]["params"]
+    assert list(params) == ["tendon_damping[coupling]", "tendon_stiffness[cable]"]
+    assert model.tendon_damping[0] == params["tendon_damping[coupling]"] != 0.8
+    assert model.tendon_stiffness[1] == params["tendon_stiffness[cable]"] != 5.0
+    env.close()
+    assert_same_model(before, model)
