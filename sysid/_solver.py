@@ -129,7 +129,7 @@ def lm(
         if not accepted:
             converged = True  # no descent direction left at machine precision
             break
-        step_small = not p or np.all(np.abs(theta_new - theta) <= xtol * (np.abs(theta) + 1e-3 * (upper - lower)))
+        step_small = bool(p) and np.all(np.abs(theta_new - theta) <= xtol * (np.abs(theta) + 1e-3 * (upper - lower)))
         decrease = cost - cost_new
         theta, x0, cost = theta_new, x0_new, cost_new
         lam = max(lam / 4.0, 1e-10)
