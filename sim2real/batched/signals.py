@@ -327,7 +327,15 @@ class BatchedSignals:
         """The actions the worlds' envs get (the policy's, through each world's action noise and, on the
         ``"action"`` path, its action latency); ``everyone``: whether every world is ``active`` (None: look)."""
         if everyone is True and self._one_act and type(actions) is np.ndarray:  # the usual step: one add and clip
-            return self._act[0](actions, active, True)
+            pipes = self._act[0]
+            row = pipes.common
+            bounds = pipes.bounds
+            if row is not None and row != BLOCK and not pipes.check and pipes.all_unit and bounds is not None:
+                pipes.common = row + 1  # _Pipes.__call__'s lockstep path, inline
+                w = np.add(actions, pipes.F_rows[row])
+                _clip(w, bounds[0], bounds[1], w)
+                return w
+            return pipes(actions, active, True)
         if not self._act and self.action_path != "action":
             return actions
         if everyone is None:
@@ -360,9 +368,15 @@ class BatchedSignals:
                 slots = self._slots
                 size = len(slots)
                 slot = slots[kc % size]
-                sample = self._obs[0](obs, active, True, slot)
-                if sample is not slot:
-                    np.copyto(slot, sample)
+                pipes = self._obs[0]
+                row = pipes.common
+                if row is not None and row != BLOCK and not pipes.check and pipes.all_unit and pipes.clip is None:
+                    pipes.common = row + 1  # _Pipes.__call__'s lockstep path without a clip, inline
+                    np.add(obs, pipes.F_rows[row], slot)
+                else:
+                    sample = pipes(obs, active, True, slot)
+                    if sample is not slot:
+                        np.copyto(slot, sample)
                 # The slot's copy by assignment: the same values and dtype, half of np.copyto's call cost.
                 previous[...] = slots[(kc - lag) % size]
                 return previous
