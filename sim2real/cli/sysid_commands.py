@@ -185,6 +185,15 @@ def _fit_report_html(result: Any, task: str, log_path: str) -> str:
     return html_page(f"sysid fit: {task}", body)
 
 
+def _has_noise(result: Any, group: str) -> bool:
+    """Whether the fit estimated a sensor-noise level for ``group`` (``"qpos"``, ``"qvel"``)."""
+    try:
+        result.noise_level(group)
+    except ValueError:
+        return False
+    return True
+
+
 def cmd_sysid(args: argparse.Namespace, out: TextIO) -> int:
     import sysid
     from randomizers.files import atomic_write, check_suffix
@@ -246,6 +255,8 @@ def cmd_sysid(args: argparse.Namespace, out: TextIO) -> int:
     ok = bool(getattr(result, "ok", True))
     effects = None
     if args.export and (ok or args.force):
+        if select is not None:  # the groups this fit has a noise level for (none: one level, or no noise at all)
+            select = {group: where for group, where in select.items() if _has_noise(result, group)} or None
         try:
             effects = result.to_randomizers(noise_select=select, force=bool(args.force))
         except ValueError as err:
