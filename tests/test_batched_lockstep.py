@@ -254,9 +254,10 @@ def test_next_noise_blocks_of_additive_pipelines_are_bitwise_their_own_blocks_ac
 @pytest.mark.parametrize("size", [2, 6])
 @pytest.mark.parametrize("std", ["constant", "drawn", "zero"])
 def test_next_noise_blocks_of_gaussian_heads_are_bitwise_their_own_blocks(size: int, std: str) -> None:
-    # Gaussian heads of keyed streams are started and drawn inline, scaled once a chunk when every world has the same
-    # scale (constant std), per world otherwise (drawn std; std 0, whose sign of zero must not be shared); rows of
-    # two float32 (size 2) are cast into a chunk and moved as int64. 30 worlds: more than one chunk either way.
+    # The usual noise (Gaussian of a keyed stream, then a Bias) is drawn by one generator set to each world's key and
+    # counter in turn, scaled and biased in one pass a world (constant, drawn and zero std: the sign of zero noise
+    # must survive); rows of two float32 (size 2) are cast into a chunk and moved as int64. 30 worlds: more than one
+    # chunk either way; compared with each world's own single-pipeline block, bitwise.
     from noise_models import Bias
     from noise_models.fused import _CHUNK_BYTES
     from randomizers import Uniform
