@@ -132,6 +132,9 @@ class Pipeline:
         self.simple = 0
         self._scratch: np.random.Generator | None = None
         self.rows: list[np.ndarray] = []  # the single affine stage's rows when ``simple``
+        #: The episode's :meth:`_Affine.plan` when the pipeline is that one stage (the usual noise), else None: read
+        #: by :func:`next_blocks` from the pipeline itself, so a refill of many worlds looks at no stage.
+        self.plan: tuple[Any, ...] | None = None
         clip = noise.clip and layout.low is not None
         # Bounds in the signal's dtype: mixed-dtype ufuncs take numpy's slow casting path.
         low = np.asarray(layout.low, dtype=dtype) if clip else None
@@ -191,6 +194,7 @@ class Pipeline:
         for stage in stages:
             if isinstance(stage, _Affine):
                 stage.plan()
+        self.plan = stages[0]._plan if len(stages) == 1 and isinstance(stages[0], _Affine) else None
         self.stages = stages
         self.first_affine = isinstance(stages[0], _Affine)
         self.simple = 0  # decided after the first refill, when the gain is known (see _decide)
@@ -292,6 +296,16 @@ def next_blocks(
         ``(offsets, gains, unit)``: ``(P, BLOCK, size)`` offsets and ``(P, size)`` gains in the signal's dtype (a
         pipeline without gain: ones), and ``(P,)`` bool, True where a pipeline has no gain (``NoiseBlock.gain`` None).
     """
+    plans = [pipe.plan for pipe in pipes]
+    if None not in plans:  # the usual noise in every pipeline (no gain): one pass a world, no stage looked at
+        lead = pipes[0]
+        n, size = len(pipes), lead.layout.size
+        if out is None:
+            out = (np.empty((n, BLOCK, size), lead.dtype), np.empty((n, size), lead.dtype), np.empty(n, bool))
+        _compose_additive((), pipes, out[0], plans)  # type: ignore[arg-type]
+        out[1][...] = 1.0
+        out[2][...] = True
+        return out
     stages: list[_Affine] = []
     for pipe in pipes:
         if len(pipe.stages) != 1 or not isinstance(pipe.stages[0], _Affine):
@@ -327,7 +341,12 @@ def next_blocks(
 _CHUNK_BYTES = 3 << 15
 
 
-def _compose_additive(stages: Sequence[_Affine], pipes: Sequence[Pipeline], offsets: np.ndarray) -> None:
+def _compose_additive(
+    stages: Sequence[_Affine],
+    pipes: Sequence[Pipeline],
+    offsets: np.ndarray,
+    plans: Sequence[tuple[Any, ...]] | None = None,
+) -> None:
     """:func:`compose` of stages without gain parts, then the cast into ``offsets`` (``(P, BLOCK, size)``), a few
     pipelines at a time: each pipeline's draws and sums in its own ``(BLOCK, size)`` slice of a float64 scratch
     array, then one ``+ 0.0`` that casts them all into ``offsets``.
@@ -336,10 +355,13 @@ def _compose_additive(stages: Sequence[_Affine], pipes: Sequence[Pipeline], offs
     the same floats, since ``(x + 0.0) + b == (x + b) + 0.0`` for all finite ``x`` and ``b`` (adding ``0.0`` only
     turns ``-0.0`` into ``0.0``, and ``x + b`` is ``-0.0`` only when both are). A gain part breaks this (the sign of
     ``0.0 * g``), so stages with one take :func:`compose` (``next_blocks``).
+
+    ``plans``: every pipeline's :attr:`Pipeline.plan` (the usual noise), read instead of ``stages``; each pipeline's
+    block is counted here then (``block += 1``, ``r = BLOCK``, as :func:`next_blocks` does before the other path).
     """
     size = offsets.shape[2]
     chunk = max(1, _CHUNK_BYTES // (BLOCK * size * 8))
-    n = len(stages)
+    n = len(pipes)
     scratch = np.empty((min(chunk, n), BLOCK, size))
     # A row of 8 contiguous bytes (two float32: actions of two actuators): cast contiguously into a float32 chunk,
     # then moved as int64 (the same bits) in ``offsets``' order: numpy's cast into rows of two floats spread over the
@@ -354,8 +376,7 @@ def _compose_additive(stages: Sequence[_Affine], pipes: Sequence[Pipeline], offs
     # one generator set to its state (key and counter: the values do not depend on which generator draws them),
     # scaled and biased while its block is in cache: draw_into's and the sum's values, with no Python call a world
     # but numpy's, and one generator object in cache instead of one a world.
-    plans = [stage._plan for stage in stages]
-    inline = None not in plans
+    inline = plans is not None
     if inline:
         gen = pipes[0].scratch_generator()
         bitgen, normal = gen.bit_generator, gen.standard_normal
@@ -370,18 +391,22 @@ def _compose_additive(stages: Sequence[_Affine], pipes: Sequence[Pipeline], offs
             "has_uint32": 0,
             "uinteger": 0,
         }
-    head = stages[0].parts[0]
-    drawn = head.kind == "block" and getattr(head, "draw_into", None) is not None
-    drawn = drawn and isinstance(head.sel, slice) and head.sel == slice(0, size)
+    else:
+        head = stages[0].parts[0]
+        drawn = head.kind == "block" and getattr(head, "draw_into", None) is not None
+        drawn = drawn and isinstance(head.sel, slice) and head.sel == slice(0, size)
     whole = slice(0, size)
     for start in range(0, n, chunk):
         stop = min(start + chunk, n)
         F = scratch[: stop - start]
         if inline:
-            for f, plan, pipe in zip(F, plans[start:stop], pipes[start:stop], strict=True):
-                key, episode, scale, bias = plan  # type: ignore[misc]
+            for f, plan, pipe in zip(F, plans[start:stop], pipes[start:stop], strict=True):  # type: ignore[index]
+                b = pipe.block + 1
+                pipe.block = b
+                pipe.r = BLOCK  # handed over, as next_noise_block
+                key, episode, scale, bias = plan
                 inner["key"] = key  # StreamFactory.start(gen, name, episode, 1 + block), on our generator
-                counter[2] = 1 + pipe.block
+                counter[2] = 1 + b
                 counter[3] = episode
                 bitgen.state = state
                 normal(out=f)
