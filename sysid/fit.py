@@ -207,7 +207,8 @@ def fit(
             present in the log).
         horizon: shooting-segment length in control steps; ``"auto"`` (default) chooses it from the data: the
             number of steps the model (after the global stage) stays within a few noise levels of the log when
-            simulated open loop from logged states (:func:`sysid.shooting.divergence_horizon`), whole episodes
+            simulated open loop from logged states (a few times the response to the logged state's own noise
+            when that is larger, as on stiff servos; :func:`sysid.shooting.divergence_horizon`), whole episodes
             when it never drifts away; None: whole episodes.
         contacts: ``"cut"`` (default) leaves out the rows where a contact touches a body the parameters move
             (a hand hitting the floor or an object; :mod:`sysid.events`), so no shooting segment crosses a
