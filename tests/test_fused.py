@@ -287,3 +287,18 @@ def test_torchrl_fused_is_bitwise_the_compose_of_two(task: str) -> None:
     }
     fused.close()
     layered.close()
+
+
+def test_gym_fused_hot_step_reports_draws_changed_mid_episode() -> None:
+    # The hot step binds the episode's merged draws once; a change of the draws mid-episode (restore_nominal, or
+    # the randomizer applied again) replaces the physics dict, and the next step's report follows it.
+    env = s2r.wrap(s2r.make("dmc/reacher-easy"), *PHYSICS, *STACKS["noise+latency"], seed=4)
+    _, info = env.reset(seed=1)
+    assert env._hot
+    action = np.zeros(env.action_space.shape, env.action_space.dtype)
+    drawn = env.step(action)[4]["sim2real"]["params"]
+    assert drawn == info["sim2real"]["params"]
+    env.restore_nominal()
+    nominal = env.step(action)[4]["sim2real"]["params"]
+    assert nominal == {**env.randomizer.nominal_params(), **env.signal_params} != drawn
+    env.close()

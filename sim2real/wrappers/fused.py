@@ -231,6 +231,9 @@ class RandomizeAndCorrupt(CorruptSignals):
         size = len(ring) if ring is not None else 0
         ndarray, asarray = np.ndarray, np.asarray
         assert template is not None
+        # The episode's draws: both dicts are replaced, never mutated, when a value changes (a call to the
+        # randomizer's apply/restore_nominal mid-episode), so two identity checks tell when to merge again.
+        phys, signals, merged = randomizer.current_params, corruptor.current_params, self._params()
 
         def step(action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
             if type(action) is not ndarray:
@@ -252,14 +255,11 @@ class RandomizeAndCorrupt(CorruptSignals):
             if (info and ("diverged" in info or "sim2real" in info)) or (diverged is not None and diverged()):
                 return step_end(obs, reward, terminated, truncated, info, True)
             self._last_obs = obs
-            merged_from = self._merged_from
-            merged = (
-                self._merged
-                if merged_from[0] is randomizer.current_params and merged_from[1] is corruptor.current_params
-                else self._params()
-            )
             report = template.copy()
-            report["params"] = merged.copy()
+            if randomizer.current_params is phys and corruptor.current_params is signals:
+                report["params"] = merged.copy()
+            else:
+                report["params"] = self._params().copy()
             info["sim2real"] = report
             return observe(obs, 0), reward, terminated, truncated, info
 
