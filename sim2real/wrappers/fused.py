@@ -294,8 +294,7 @@ class RandomizeAndCorrupt(CorruptSignals):
                 raise ValueError(wrong_action_shape(action.shape, self._act_shape))
             codec = self._act_codec
             action = c.hot_act(action) if codec is None else c.hot_act(action.reshape(-1)).reshape(codec)
-        clock._control += 1
-        clock._passed = 0
+        clock._passed = 0  # (clock._control counts only for envs without MuJoCo: this layer always has it)
         if self._reset_diverged:  # nothing to step: the reset diverged
             return self._step_end(self._last_obs, 0.0, False, True, {}, False)
         if self._step_effects:
