@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import TYPE_CHECKING, Any
@@ -92,6 +92,8 @@ class GapReport:
         control_timestep: seconds per control step (latencies are shown in ms), or None.
         substeps: physics steps per control step (a timing model's ``steps`` count them), or None (one).
         linear: names of slide joints (and actuators along them), whose units are lengths.
+        tendons: ``(tendon, unit of its length)``: ``"m"``, ``"rad"`` or ``"mixed"``
+            (:func:`sim2real.report.labels.tendon_units`), which gives each tendon parameter its unit.
         policy_labels: ``(policy, label)`` shown in tables and figures (``"policy: <name>"`` by default).
         condition_labels: ``(condition, label)`` shown in tables and figures (``"sim: nominal"``, ``"real twin"``).
         lead: the caller's opening paragraph (e.g. the study's), shown first in the summary; see :meth:`with_lead`.
@@ -143,6 +145,7 @@ class GapReport:
     control_timestep: float | None = None
     substeps: int | None = None
     linear: tuple[str, ...] = ()
+    tendons: tuple[tuple[str, str], ...] = ()
     policy_labels: tuple[tuple[str, str], ...] = ()
     condition_labels: tuple[tuple[str, str], ...] = ()
     lead: str = ""
@@ -176,6 +179,7 @@ class GapReport:
         control_timestep: float | None = None,
         substeps: int | None = None,
         linear: Sequence[str] = (),
+        tendons: Mapping[str, str] | Iterable[tuple[str, str]] | None = None,
         policy_labels: Mapping[str, str] | None = None,
         condition_labels: Mapping[str, str] | None = None,
         lead: str = "",
@@ -209,6 +213,9 @@ class GapReport:
                 (None: one, as on a suite task).
             linear: names of slide joints and of actuators that push along them: their parameters and channels are
                 shown in N·s/m, m, m/s (default: every joint a hinge, as on the suite tasks).
+            tendons: tendon -> the unit of its length (``"m"``, ``"rad"`` or ``"mixed"``; a mapping or pairs), read
+                from the model by :func:`sim2real.report.labels.tendon_units`: a fitted ``tendon_damping[grip]`` is then shown in
+                N·s/m or N·m·s/rad (default: none known, shown without a unit).
             policy_labels: policy -> display name (default ``"policy: <name>"``).
             condition_labels: condition -> display name (default by kind: ``"sim: nominal"``, ``"real twin"``).
             lead: an opening paragraph for the summary (e.g. the study's).
@@ -241,6 +248,7 @@ class GapReport:
                 control_timestep=control_timestep,
                 substeps=substeps,
                 linear=linear,
+                tendons=tendons,
                 policy_labels=policy_labels,
                 condition_labels=condition_labels,
                 lead=lead,

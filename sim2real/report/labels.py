@@ -19,12 +19,14 @@ Example:
     ('sim: nominal', 'real twin')
     >>> channel_unit("qvel[shoulder]"), parameter_unit("dof_damping[elbow]")
     ('rad/s', 'N·m·s/rad')
+    >>> parameter_unit("tendon_damping[cable]", tendons={"cable": "m"})  # a spatial tendon (see tendon_units)
+    'N·s/m'
 """
 
 from __future__ import annotations
 
 import re
-from collections.abc import Collection
+from collections.abc import Collection, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -38,6 +40,7 @@ __all__ = [
     "observation_unit",
     "parameter_unit",
     "policy_label",
+    "tendon_units",
 ]
 
 
@@ -65,6 +68,9 @@ _EFFECTS = {
     "Friction": "friction",
     "Armature": "joint armature",
     "Gravity": "gravity",
+    "TendonStiffness": "tendon stiffness",
+    "TendonDamping": "tendon damping",
+    "TendonFrictionLoss": "tendon friction loss",
     "ActionLatency": "action latency",
     "ObservationLatency": "observation latency",
     "ObservationNoise": "sensor noise",
@@ -97,6 +103,64 @@ _LINEAR_UNITS = {
     "qvel": "m/s",
     "qacc": "m/s²",
 }
+
+
+# tendon field -> (unit when the tendon's length is in m, unit when it is in rad): a tendon's force, stiffness,
+# damping and armature follow the unit of its length, which :func:`tendon_units` reads from the model
+_TENDON_UNITS = {
+    "tendon_stiffness": ("N/m", "N·m/rad"),
+    "tendon_damping": ("N·s/m", "N·m·s/rad"),
+    "tendon_frictionloss": ("N", "N·m"),
+    "tendon_lengthspring": ("m", "rad"),
+    "tendon_armature": ("kg", "kg·m²"),
+}
+#: the unit :func:`parameter_unit` gives a tendon field of a fixed tendon over both hinges and slides
+MIXED = "mixed units (tendon over hinge and slide joints)"
+
+
+def tendon_units(model: Any) -> tuple[tuple[str, str], ...]:
+    """``(tendon, unit of its length)`` for every tendon of a MuJoCo model, in id order: ``"m"`` for a spatial
+    tendon and for a fixed tendon over slide joints only, ``"rad"`` for a fixed tendon over hinges only,
+    ``"mixed"`` for a fixed tendon over both (its length adds angles and lengths; the coefficients carry the
+    conversion, which the model does not state). Unnamed tendons are ``#<id>``, as addresses name them.
+
+    :func:`parameter_unit` gives each tendon field (``tendon_damping``, ``tendon_stiffness``, ...) its unit from
+    this; pass it as ``tendons=`` there and to :meth:`sim2real.report.GapReport.build`.
+
+    Example:
+        >>> import mujoco
+        >>> model = mujoco.MjModel.from_xml_string(
+        ...     '<mujoco><worldbody><body><joint name="a" type="slide"/><geom size=".1"/></body>'
+        ...     '<body><joint name="b"/><geom size=".1"/></body></worldbody><tendon>'
+        ...     '<fixed name="rail"><joint joint="a" coef="1"/></fixed>'
+        ...     '<fixed><joint joint="a" coef="1"/><joint joint="b" coef="0.1"/></fixed></tendon></mujoco>')
+        >>> tendon_units(model)
+        (('rail', 'm'), ('#1', 'mixed'))
+    """
+    import mujoco
+
+    from randomizers.addressing import element_names
+
+    units = []
+    for t, name in enumerate(element_names(model, "tendon")):
+        start = int(model.tendon_adr[t])
+        wraps = range(start, start + int(model.tendon_num[t]))
+        if any(int(model.wrap_type[w]) != int(mujoco.mjtWrap.mjWRAP_JOINT) for w in wraps):
+            units.append((name, "m"))  # a spatial tendon: a path through sites and around geoms, in metres
+            continue
+        kinds = {int(model.jnt_type[int(model.wrap_objid[w])]) for w in wraps}
+        units.append((name, "rad" if kinds == {_HINGE} else "m" if kinds == {_SLIDE} else "mixed"))
+    return tuple(units)
+
+
+def _tendon(field: str, address: str, tendons: Mapping[str, str]) -> str | None:
+    """The unit of the tendon field ``field`` of the tendon ``address`` names, when ``tendons`` knows that tendon."""
+    pair = _TENDON_UNITS.get(field)
+    named = re.match(r"[^\[]*\[([^\]]*)\]", address)
+    if pair is None or named is None or named.group(1) not in tendons:
+        return None
+    length = tendons[named.group(1)]
+    return pair[0] if length == "m" else pair[1] if length == "rad" else MIXED
 
 
 def _linear(field: str, address: str, linear: Collection[str]) -> str | None:
@@ -266,16 +330,30 @@ def condition_label(name: str, kind: str, *, simulated: bool) -> str:
     return name
 
 
-def parameter_unit(address: str, linear: Collection[str] = ()) -> str:
+def parameter_unit(
+    address: str, linear: Collection[str] = (), tendons: Mapping[str, str] | Iterable[tuple[str, str]] = ()
+) -> str:
     """The SI unit of an addressed parameter's field (``""`` when unknown), e.g. ``N·m·s/rad`` for
     ``dof_damping[...]``; ``N·s/m`` when the element is among ``linear`` (slide joints, and actuators that push
     along them).
 
+    A tendon field (``tendon_stiffness``, ``tendon_damping``, ``tendon_frictionloss``, ``tendon_lengthspring``,
+    ``tendon_armature``) takes its unit from its tendon's length unit in ``tendons`` (:func:`tendon_units`: ``"m"``,
+    ``"rad"`` or ``"mixed"``, which is said so); a tendon ``tendons`` does not list has no unit (``""``).
+
     Example:
         >>> parameter_unit("dof_damping[elbow]"), parameter_unit("dof_damping[finger]", linear=("finger",))
         ('N·m·s/rad', 'N·s/m')
+        >>> units = {"coupling": "rad", "grip": "m", "#2": "mixed"}
+        >>> [parameter_unit(f"tendon_stiffness[{t}]", tendons=units) for t in ("coupling", "grip", "#2", "other")]
+        ['N·m/rad', 'N/m', 'mixed units (tendon over hinge and slide joints)', '']
+        >>> parameter_unit("tendon_lengthspring[grip][1]", tendons=units)
+        'm'
     """
-    found = _linear(address.split("[", 1)[0], address, linear)
+    field = address.split("[", 1)[0]
+    if field in _TENDON_UNITS:
+        return _tendon(field, address, dict(tendons)) or ""
+    found = _linear(field, address, linear)
     if found is not None:
         return found
     for prefix, unit in _PARAMETER_UNITS:

@@ -283,7 +283,7 @@ def document(report: GapReport) -> list[_Block]:
             [
                 [
                     p.address,
-                    parameter_unit(p.address, report.linear),
+                    parameter_unit(p.address, report.linear, report.tendons),
                     _num(p.estimate, 6),
                     _num(p.stderr, 3),
                     f"[{_num(p.low, 6)}, {_num(p.high, 6)}]",

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Any
 
 from sim2real.metrics import Estimate
 from sim2real.report import findings
+from sim2real.report.labels import parameter_unit
 from sim2real.report.results import ConditionInfo, EpisodeTarget, ParameterDraws
 
 if TYPE_CHECKING:
@@ -178,6 +179,7 @@ def to_dict(report: GapReport) -> dict[str, Any]:
         else {
             "params": {
                 p.address: {
+                    "unit": parameter_unit(p.address, report.linear, report.tendons),
                     "estimate": _finite(p.estimate),
                     "stderr": _finite(p.stderr),
                     "ci95": [_finite(p.low), _finite(p.high)],

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -66,6 +66,7 @@ def report_fields(
     control_timestep: float | None = None,
     substeps: int | None = None,
     linear: Sequence[str] = (),
+    tendons: Mapping[str, str] | Iterable[tuple[str, str]] | None = None,
     policy_labels: Mapping[str, str] | None = None,
     condition_labels: Mapping[str, str] | None = None,
     lead: str = "",
@@ -122,6 +123,17 @@ def report_fields(
         raise ValueError(f"`substeps` must be an int >= 1 or None. Received {substeps!r}.")
     if isinstance(linear, str) or not all(isinstance(n, str) for n in linear):
         raise ValueError(f"`linear` must be a sequence of element names. Received {linear!r}.")
+    try:
+        tendon_units = dict(tendons or {})
+    except (TypeError, ValueError):
+        tendon_units = {"": ""}  # not pairs: refused below
+    if isinstance(tendons, str) or not all(
+        isinstance(n, str) and u in ("m", "rad", "mixed") for n, u in tendon_units.items()
+    ):
+        raise ValueError(
+            "`tendons` must map tendon names to the unit of their length, 'm', 'rad' or 'mixed' "
+            f"(sim2real.report.labels.tendon_units). Received {tendons!r}."
+        )
     if observation_unit is not None and (not isinstance(observation_unit, str) or not observation_unit):
         raise ValueError(f"`observation_unit` must be a non-empty string or None. Received {observation_unit!r}.")
     if not isinstance(lead, str):
@@ -180,6 +192,7 @@ def report_fields(
         control_timestep=None if control_timestep is None else float(control_timestep),
         substeps=substeps,
         linear=tuple(linear),
+        tendons=tuple(tendon_units.items()),
         policy_labels=tuple(plabels.items()),
         condition_labels=tuple(clabels.items()),
         lead=lead,
