@@ -20,7 +20,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-__all__ = ["DIVERGENCE_WARNINGS", "PhysicsHandle", "find_physics"]
+__all__ = ["DIVERGENCE_WARNINGS", "PhysicsHandle", "StepInterception", "find_physics"]
 
 # MuJoCo resets the state and counts these when positions, velocities or accelerations blow up.
 DIVERGENCE_WARNINGS = (
@@ -143,34 +143,30 @@ class PhysicsHandle:
         self,
         stepper: Callable[[Any, int, Any], None],
         direct: Callable[[Any, Any], Callable[[int], None]] | None = None,
-    ) -> Callable[[], None]:
+    ) -> StepInterception:
         """Routes the env's physics stepping through ``stepper(run, nstep, runner)``.
 
         The env asks for ``nstep`` physics steps (once per control step, or once per substep on
         composer envs); ``stepper`` decides what happens and calls ``run(k)`` to advance ``k`` steps
         with the env's own stepping code and the current ``data.ctrl``, or
         ``runner.split([(ctrl, k), ...])`` to advance in pieces with a command each, which does the
-        same work as one unsplit step (no extra kinematics or collision passes). Returns a function
-        that removes the interception.
+        same work as one unsplit step (no extra kinematics or collision passes). Returns the
+        :class:`StepInterception` (call it to remove the interception).
 
         ``direct(run, runner)``, when given, returns the function installed as dm-control's ``Physics.step``
         itself (it must do what ``stepper`` does): one Python call per physics step instead of two, for a stepper
-        on the hot path. Other envs ignore it.
+        on the hot path. Other envs ignore it. On dm-control the interceptions of one physics form a chain in the
+        order they were installed (see :class:`StepInterception`): the last one installed runs first.
 
         Raises:
             TypeError: the env steps MuJoCo in a way that cannot be intercepted.
         """
         owner = self.owner
         if self.source.startswith("dm_control"):
+            link = _Link(stepper, direct)
 
             def install(physics: Any) -> None:
-                original = physics.step
-                runner = _DmRunner(physics, original)
-
-                def step(nstep: int = 1) -> None:
-                    stepper(original, nstep, runner)
-
-                physics.step = step if direct is None else direct(original, runner)
+                _DmStepChain.of(physics).add(link)
 
             install(owner.physics)
             hook = None
@@ -178,13 +174,13 @@ class PhysicsHandle:
                 hook = self.on_recompile(lambda model, data: install(owner.physics))
 
             def remove() -> None:
-                physics = owner.physics
-                if "step" in vars(physics):
-                    del physics.step
+                chain = vars(owner.physics).get(_DmStepChain.ATTRIBUTE)
+                if chain is not None:
+                    chain.discard(link)
                 if hook is not None:
                     self.remove_hook(hook)
 
-            return remove
+            return StepInterception(remove, link, lambda: vars(owner.physics).get(_DmStepChain.ATTRIBUTE))
         if callable(getattr(owner, "_simulate", None)):
             original_sim = owner._simulate
             sim_runner = _Runner(original_sim, self.data)
@@ -211,13 +207,136 @@ class PhysicsHandle:
                 if name in vars(owner):
                     delattr(owner, name)
 
-        return remove_gym
+        return StepInterception(remove_gym)
 
     def remove_hook(self, hook: Callable[..., None]) -> None:
         """Unregisters a hook added by :meth:`on_recompile` (no-op when already gone)."""
         hooks = self.owner._hooks._after_compile.extra_hooks  # composer keeps no public remover
         if hook in hooks:
             hooks.remove(hook)
+
+
+class StepInterception:
+    """One interception of an env's physics step (:meth:`PhysicsHandle.intercept_step`); call it to remove it.
+
+    On dm-control envs the interceptions of one ``Physics`` are links of one chain that owns ``physics.step``, so an
+    interception that has nothing to do for an episode can leave the chain (:meth:`bypass`) and come back later in
+    its place, below the ones installed after it: one Python call less per control step while it is out.
+    """
+
+    def __init__(self, remove: Callable[[], None], link: _Link | None = None, chain: Any = None) -> None:
+        self._remove = remove
+        self._link = link
+        self._chain = chain  # () -> the current physics' _DmStepChain (or None)
+
+    def __call__(self) -> None:
+        self._remove()
+
+    def on_top(self) -> bool:
+        """Whether this interception runs first: no other interception (of sim2real or anyone) sits above it."""
+        chain = self._chain() if self._chain is not None else None
+        return chain is not None and chain.top_link() is self._link
+
+    def bypass(self, out: bool) -> bool:
+        """Takes this interception out of the chain (``out`` True) or puts it back in its place (False); True when
+        the chain now is as asked. False where it cannot be done: not a dm-control env, or someone else's code
+        patched ``physics.step`` over the chain (then nothing is changed and the interception stays in)."""
+        chain = self._chain() if self._chain is not None else None
+        if chain is None or self._link is None:
+            return not out
+        return chain.bypass(self._link, out)
+
+
+class _Link:
+    """One interception in a :class:`_DmStepChain`: ``stepper(run, nstep, runner)`` or its ``direct`` form."""
+
+    __slots__ = ("direct", "out", "stepper")
+
+    def __init__(self, stepper: Callable[[Any, int, Any], None], direct: Any) -> None:
+        self.stepper = stepper
+        self.direct = direct
+        self.out = False
+
+    def wrap(self, physics: Any, run: Callable[[int], None]) -> Callable[[int], None]:
+        runner = _DmRunner(physics, run)
+        if self.direct is not None:
+            step: Callable[[int], None] = self.direct(run, runner)
+            return step
+        stepper = self.stepper
+
+        def intercepted(nstep: int = 1) -> None:
+            stepper(run, nstep, runner)
+
+        return intercepted
+
+
+class _DmStepChain:
+    """The interceptions of one dm-control ``Physics.step``, composed over the step found before the first (the
+    class's, or one someone else set): the one owner of ``physics.step`` while sim2real intercepts it. Kept on the
+    physics object itself, so every handle of the same physics sees the same chain (a composer recompile makes a new
+    physics and a new chain). When someone else's code replaces ``physics.step`` over the chain, the chain is
+    frozen: new links start a chain over that step, and nothing already below it is bypassed or rebuilt."""
+
+    ATTRIBUTE = "_sim2real_step_chain"
+
+    def __init__(self, physics: Any) -> None:
+        self.physics = physics
+        self.base_own = vars(physics).get("step")  # someone else's step set before the first link (kept below)
+        # The class's step bound to the physics itself (composer hands out a weak proxy of it).
+        self.base = physics.step
+        self.links: list[_Link] = []
+        self.installed: Any = self.base_own
+
+    @classmethod
+    def of(cls, physics: Any) -> _DmStepChain:
+        chain = vars(physics).get(cls.ATTRIBUTE)
+        if chain is None or not chain.intact():
+            chain = cls(physics)
+            setattr(physics, cls.ATTRIBUTE, chain)
+        return chain
+
+    def intact(self) -> bool:
+        return vars(self.physics).get("step") is self.installed
+
+    def add(self, link: _Link) -> None:
+        if link not in self.links:  # (a physics object reused by a recompile keeps its chain)
+            self.links.append(link)
+        self.rebuild()
+
+    def discard(self, link: _Link) -> None:
+        """Removes ``link``; a frozen chain (someone else's step over it) is left as it is."""
+        if link in self.links and self.intact():
+            self.links.remove(link)
+            self.rebuild()
+
+    def top_link(self) -> _Link | None:
+        if not self.intact():
+            return None
+        active = [link for link in self.links if not link.out]
+        return active[-1] if active else None
+
+    def bypass(self, link: _Link, out: bool) -> bool:
+        if link.out == out:
+            return True
+        if link not in self.links or not self.intact():
+            return False
+        link.out = out
+        self.rebuild()
+        return True
+
+    def rebuild(self) -> None:
+        physics = self.physics
+        base = self.base
+        run = base
+        for link in self.links:
+            if not link.out:
+                run = link.wrap(physics, run)
+        if run is base and self.base_own is None:
+            vars(physics).pop("step", None)
+            self.installed = None
+        else:
+            physics.step = run
+            self.installed = run
 
 
 class _Runner:

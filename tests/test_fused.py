@@ -161,6 +161,67 @@ def test_gym_fused_leaves_the_delay_to_the_hook_where_the_action_is_not_the_comm
     recorded.close()
 
 
+def test_gym_fused_hook_leaves_the_physics_step_for_a_ring_episode_and_comes_back_below_a_later_recorder() -> None:
+    # While the fused layer delays the actions itself, its physics-step hook has nothing to do and leaves dm-control's
+    # Physics.step (the class's step runs, no pass-through call). A recorder wrapped around it later (installed while
+    # the hook is out) must still read the command the env wrote: at the next reset the hook comes back in its place,
+    # below the recorder, and applies the delay there; once the recorder's hook is gone the hook may leave again.
+    from sim2real.physics import _DmStepChain
+    from sim2real.recording import RecordTrajectory
+
+    fused = s2r.wrap(s2r.make("dmc/reacher-easy"), *PHYSICS, ActionLatency(seconds=0.04), seed=1)
+    physics = fused.env.dm_env.physics
+    fused.reset(seed=0)
+    assert fused._action_ring is not None and "step" not in vars(physics)
+    fused.step(np.array([0.2, 0.2]))
+    recorded = RecordTrajectory(fused)  # hooked on the physics step while the fused layer's hook is out
+    assert "step" in vars(physics)
+    recorded.reset(seed=0)
+    assert fused._action_ring is None and fused.clock._ring is not None  # the hook's ring of ctrl rows again
+    chain = vars(physics)[_DmStepChain.ATTRIBUTE]
+    assert [link.stepper for link in chain.links if not link.out] == [fused.clock._stepper, recorded._capture]
+    ctrl = s2r.find_physics(fused).data.ctrl  # type: ignore[union-attr]
+    sent = [np.array([0.3, -0.2]), np.array([0.1, 0.4]), np.array([-0.5, 0.5]), np.array([0.7, -0.1])]
+    for k, a in enumerate(sent):
+        recorded.step(a)
+        np.testing.assert_array_equal(ctrl, sent[k - 2] if k >= 2 else np.zeros(2), strict=True)  # delayed below
+    np.testing.assert_array_equal(recorded.to_log().ctrl[-4:], np.array(sent), strict=True)  # as the env wrote it
+    recorded._remove()  # the recorder's hook alone (close() would close the fused layer too)
+    assert [link.stepper for link in chain.links] == [fused.clock._stepper]
+    fused.reset(seed=1)
+    assert fused._action_ring is not None and "step" not in vars(physics)  # out again
+    fused.close()
+    assert "step" not in vars(physics) and chain.links == []
+
+
+def test_physics_step_chain_leaves_someone_elses_step_alone() -> None:
+    # Code outside sim2real that replaced Physics.step over the hook freezes the chain: the hook stays in (the
+    # fused layer does not delay the actions itself), and closing the layer does not delete the other code's step.
+    fused = s2r.wrap(s2r.make("dmc/reacher-easy"), *PHYSICS, ActionLatency(seconds=0.04), seed=1)
+    physics = fused.env.dm_env.physics
+    fused.reset(seed=0)
+    fused.reset(seed=0)  # (the hook back in; then out again for this ring episode)
+    assert fused._action_ring is not None
+    fused.clock._remove.bypass(False)
+    below = physics.step
+    calls: list[int] = []
+
+    def theirs(nstep: int = 1) -> None:
+        calls.append(nstep)
+        below(nstep)
+
+    physics.step = theirs
+    fused.reset(seed=1)
+    assert fused._action_ring is None and physics.step is theirs  # frozen: the hook stays in, under theirs
+    ctrl = s2r.find_physics(fused).data.ctrl  # type: ignore[union-attr]
+    for k in range(3):
+        fused.step(np.full(2, 0.1 * (k + 1)))
+    np.testing.assert_array_equal(ctrl, np.full(2, 0.1), strict=True)  # the command of two steps before
+    assert calls == [1, 1, 1]
+    fused.close()
+    assert physics.step is theirs
+
+
 def test_gym_fused_keeps_the_reports_of_a_diverged_reset_and_step() -> None:
     """A reset that diverges under an extreme draw: the next step ends the episode, in both, identically."""
     physics = (s2r.Stiffness(set=1e12),)

@@ -14,7 +14,7 @@ import numpy as np
 
 from noise_models import ActionLatency, ControlJitter, Layout, SignalCorruptor
 from noise_models.timing import convert_time, elapsed_steps
-from sim2real.physics import PhysicsHandle, find_physics
+from sim2real.physics import PhysicsHandle, StepInterception, find_physics
 
 __all__ = ["NoCopy", "SignalClock", "action_delay_path"]
 
@@ -111,9 +111,8 @@ class SignalClock(NoCopy):
             action_dtype=action_dtype,
             action_delay=self.action_path or "ctrl",
         )
-        self._remove: Any = None
+        self._remove: StepInterception | None = None
         self._hook: Any = None
-        self._direct_step: Any = None  # the function installed as dm-control's Physics.step (see _direct)
         if handle is not None and handle.recompiles:
             self._hook = handle.on_recompile(lambda model, data: None)  # keeps handle.data current
         if corruptor.needs_physics_hook:
@@ -171,6 +170,8 @@ class SignalClock(NoCopy):
         """Call right after the env's reset."""
         self._control = 0
         self._ring = None
+        if self._remove is not None:
+            self._remove.bypass(False)  # back in its place if the last episode left the physics step alone
         if self.handle is not None:
             if self.handle.rebuilt() and self._remove is not None:
                 # The env compiled a new model in its reset: the physics-step interception moves to it.
@@ -197,14 +198,19 @@ class SignalClock(NoCopy):
         copies the action into ``data.ctrl`` as it is (``Task.before_step``, ``Physics.set_control``; every suite
         task) in float64. The ring holds ``lag + 1`` references to the reset command at first; the caller stores
         the action of control step ``k`` (counted from 0) at ``k % len(ring)`` and sends ``ring[(k + 1) %
-        len(ring)]``: the command of ``lag`` steps before, as the hook would write it. The hook then lets this
-        episode's physics steps through (the caller leaves ``_in_step`` False). Not when another hook sits on the
-        physics step (a recorder reading the command the env wrote: it would read the delayed one).
+        len(ring)]``: the command of ``lag`` steps before, as the hook would write it. The hook has nothing to do
+        this episode and leaves the physics step's chain until the next :meth:`begin_episode` puts it back in its
+        place (the caller leaves ``_in_step`` False, so it would only pass the steps through). Not when another
+        hook sits on the physics step above this one (a recorder reading the command the env wrote: it would read
+        the delayed one).
         """
         if self._ring is None or not _action_is_ctrl(env, self.handle):
             return None
-        if vars(self.handle.owner.physics).get("step") is not self._direct_step:  # type: ignore[union-attr]
+        hook = self._remove
+        assert hook is not None  # _ring implies the hook
+        if not hook.on_top():
             return None  # another hook on the physics step (a recorder) reads ctrl as the env wrote it
+        hook.bypass(True)
         self._ring = None
         lag = self.corruptor.command_lag
         assert lag is not None  # _ring implies a whole-step lag
@@ -241,7 +247,6 @@ class SignalClock(NoCopy):
             self._passed += nstep
             run(nstep)
 
-        self._direct_step = step
         return step
 
     def _stepper(self, run: Any, nstep: int, runner: Any = None) -> None:
