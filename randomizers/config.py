@@ -3,7 +3,11 @@
 The format is a mapping with an ``effects`` list; each item has ``type`` plus the effect's
 keyword arguments. Distributions are a number (constant), ``[low, high]`` (uniform) or a mapping
 with ``type``. Schedules are ``reset``, ``startup`` or ``{interval: {steps: N}}`` /
-``{interval: {seconds: T}}``.
+``{interval: {seconds: T}}``. A signal model's ``select`` is observation keys, an index, a list of indices,
+a slice in Python's notation (``"0:12"``, ``":6"``, ``"0:12:2"``) or a range as Python prints it
+(``"range(0, 12)"``); these strings read back to the very ``slice``/``range``, so the process keeps its random
+stream (:func:`noise_models.values.selection_repr` names it) and draws the same values. Quote a slice written by
+hand (``select: '6:12'``): YAML 1.1 reads an unquoted ``6:12`` as the base-60 number 372 (``dump_config`` quotes it).
 
 Example:
     >>> text = '''
@@ -26,6 +30,7 @@ from __future__ import annotations
 
 import difflib
 import os
+import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -212,8 +217,8 @@ def _signal_kwargs(item: Mapping[str, Any], key: str) -> dict[str, Any]:
             continue
         if name in _SIGNAL_VALUE_ARGS:
             out[name] = _signal_value(value, f"{key}.{name}")
-        elif name == "select" and isinstance(value, list):
-            out[name] = tuple(value)
+        elif name == "select":
+            out[name] = _select_from_config(value)
         else:
             out[name] = value
     return out
@@ -257,8 +262,8 @@ def _load_signals(config: Any, where: str) -> list[Any]:
         if not isinstance(item, Mapping) or item.get("type") not in types:
             got = item.get("type") if isinstance(item, Mapping) else item
             raise ValueError(f"{key}.type must be one of {sorted(types)}. Received {got!r}.")
-        kwargs = _signal_kwargs(item, key)
         try:
+            kwargs = _signal_kwargs(item, key)
             if item["type"] in ("ObservationNoise", "ActionNoise"):
                 processes = item.get("processes")
                 if not isinstance(processes, Sequence) or isinstance(processes, str) or not processes:
@@ -308,21 +313,70 @@ def dump_config(effects: Sequence[Any]) -> str:
     """YAML text with ``effects:`` and ``signals:`` lists that :func:`load_config` reads back to equal models."""
     physical = [e for e in effects if isinstance(e, Effect)]
     signals = [e.to_config() for e in effects if not isinstance(e, Effect)]
-    for item in signals:
-        _check_writable_select(item)
+    signals = [_writable_select(item) for item in signals]
     doc: dict[str, Any] = {"effects": [effect_to_config(e) for e in physical]}
     if signals:
         doc["signals"] = signals
     return yaml.safe_dump(doc, sort_keys=False)
 
 
-def _check_writable_select(item: Mapping[str, Any]) -> None:
-    """Refuses a ``select`` YAML cannot hold (a slice or range: ``load_config`` has no form for one, and the list of
-    its indices would name another noise stream, so draw other values) before ``yaml`` fails on it."""
-    for part in [item, *item.get("processes", ())]:
-        select = part.get("select")
-        if isinstance(select, (slice, range)):
-            raise ValueError(
-                f"`select` of {part['type']} must be observation keys, an index or a list of indices to be written "
-                f"to YAML (a config has no slice form). Received {select!r}."
-            )
+_INT = r"\s*(-?\d+)?\s*"
+_SLICE = re.compile(f"{_INT}:{_INT}(?::{_INT})?")
+_RANGE = re.compile(r"range\(\s*(-?\d+)\s*(?:,\s*(-?\d+)\s*(?:,\s*(-?\d+)\s*)?)?\)")
+
+
+def _select_to_config(select: object) -> object:
+    """A slice as ``"start:stop[:step]"`` (a part left out stays out, a step of 1 stays 1) and a range as its
+    repr; any other selection as it is (a tuple as a list)."""
+    if isinstance(select, slice):
+        parts = ["" if v is None else str(int(v)) for v in (select.start, select.stop, select.step)]
+        return ":".join(parts if select.step is not None else parts[:2])
+    if isinstance(select, range):
+        return repr(select)
+    return list(select) if isinstance(select, tuple) else select
+
+
+def _select_from_config(value: object) -> object:
+    """The inverse of :func:`_select_to_config`: a string with ``:`` is a slice, ``range(...)`` a range.
+
+    Example:
+        >>> _select_from_config("0:12"), _select_from_config(":6:2"), _select_from_config("range(0, 12, 3)")
+        (slice(0, 12, None), slice(None, 6, 2), range(0, 12, 3))
+        >>> _select_from_config("0:twelve")
+        Traceback (most recent call last):
+        ...
+        ValueError: `select` must be observation keys, an index, a list of indices, a slice written 'start:stop' or \
+'start:stop:step' (integers, each may be left out, step not 0: '0:12', ':6', '0:12:2') or a range written \
+'range(start, stop)' or 'range(start, stop, step)'. Received '0:twelve'.
+    """
+    if isinstance(value, list):
+        return tuple(value)
+    if not isinstance(value, str) or (":" not in value and not value.startswith("range(")):
+        return value  # keys (fnmatch patterns), an index; noise_models checks them
+    found = _SLICE.fullmatch(value)
+    if found is not None:
+        start, stop, step = (None if v is None else int(v) for v in found.groups())
+        if step != 0:
+            return slice(start, stop, step)
+    found = _RANGE.fullmatch(value.strip())
+    if found is not None:
+        args = [int(v) for v in found.groups() if v is not None]
+        if len(args) < 3 or args[2] != 0:
+            return range(*args) if len(args) > 1 else range(args[0])
+    raise ValueError(
+        "`select` must be observation keys, an index, a list of indices, a slice written 'start:stop' or "
+        "'start:stop:step' (integers, each may be left out, step not 0: '0:12', ':6', '0:12:2') or a range written "
+        f"'range(start, stop)' or 'range(start, stop, step)'. Received {value!r}."
+    )
+
+
+def _writable_select(item: Mapping[str, Any]) -> dict[str, Any]:
+    """``item`` (a signal model's :meth:`to_config`) with every ``select`` (its own and its processes') in a form
+    YAML holds and :func:`load_config` reads back equal: a slice as ``"0:12"``, a range as ``"range(0, 12)"``.
+    The list of a slice's indices would not do: it names another noise stream, so it would draw other values."""
+    out = dict(item)
+    if "select" in out:
+        out["select"] = _select_to_config(out["select"])
+    if "processes" in out:
+        out["processes"] = [_writable_select(p) for p in out["processes"]]
+    return out

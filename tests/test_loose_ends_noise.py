@@ -141,20 +141,19 @@ def test_an_empty_noise_select_is_refused_not_an_export_without_sensor_noise(fit
         fit.to_randomizers(noise_select={})
 
 
-def test_a_noise_select_slice_is_refused_by_the_yaml_export_naming_it(fit: sysid.FitResult) -> None:
-    """A slice is a valid ``select`` for to_effects, but YAML has no form for it: to_randomizers raised yaml's
-    RepresenterError ('cannot represent an object'), and the list of its indices would draw other values."""
+def test_a_noise_select_slice_is_written_by_the_yaml_export_and_reloads_equal(fit: sysid.FitResult) -> None:
+    """A slice is a valid ``select`` for to_effects: to_randomizers raised yaml's RepresenterError ('cannot represent
+    an object'), then (090a454) refused it; it is now written as '0:12' and reloads to the same slice (its list of
+    indices would name another noise stream and draw other values: tests/test_loose_ends11_select.py)."""
     where = {"qpos": slice(0, 12), "qvel": slice(12, 23)}
-    assert len(_gaussians(fit.to_effects(noise_select=where))) == 2
-    message = (
-        r"`select` of Gaussian must be observation keys, an index or a list of indices to be written to YAML \(a "
-        r"config has no slice form\). Received slice\(0, 12, None\)\."
-    )
-    with pytest.raises(ValueError, match=message):
-        fit.to_randomizers(noise_select=where)
+    effects = fit.to_effects(noise_select=where)
+    assert len(_gaussians(effects)) == 2
+    text = fit.to_randomizers(noise_select=where)
+    assert "select: 0:12\n" in text and "select: '12:23'\n" in text, text  # yaml quotes what YAML 1.1 reads as base 60
+    assert [g.select for g in _gaussians(load_config(text))] == [slice(0, 12), slice(12, 23)]
+    assert _gaussians(load_config(text)) == _gaussians(effects)
     from noise_models import Gaussian, ObservationNoise
     from randomizers import dump_config
 
-    with pytest.raises(ValueError, match=r"`select` of ObservationNoise .* Received range\(0, 2\)\."):
-        dump_config([ObservationNoise(Gaussian(std=0.1), select=range(2))])
+    assert "select: range(0, 2)\n" in dump_config([ObservationNoise(Gaussian(std=0.1), select=range(2))])
     assert "select:\n    - 0\n    - 1\n" in dump_config([ObservationNoise(Gaussian(std=0.1, select=[0, 1]))])
