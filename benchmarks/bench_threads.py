@@ -73,7 +73,8 @@ def _condition(name: str, args: Any, cores: int) -> None:
     med = {k: statistics.median(v) for k, v in walls.items()}
     best = min(med.values())
     print(f"\n## {name}: one-minute load {load:.2f}; runnable tasks {list(readings.running)} -> busy cores "
-          f"{busy_cores(readings)}; default_threads costs {1e3 * cost:.3f} ms")  # fmt: skip
+          f"{busy_cores(readings)} (cores {readings.cores}, elsewhere {readings.elsewhere}, cgroup quota "
+          f"{readings.quota}); default_threads costs {1e3 * cost:.3f} ms")  # fmt: skip
     for k in counts:
         runs = ", ".join(f"{1e3 * x:.0f}" for x in walls[k])
         print(

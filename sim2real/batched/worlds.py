@@ -48,7 +48,7 @@ import mujoco
 import numpy as np
 from mujoco import batch as mjbatch
 
-__all__ = ["BatchedPhysics", "CpuReadings", "busy_cores", "default_threads", "read_cpu"]
+__all__ = ["BatchedPhysics", "CpuReadings", "busy_cores", "default_threads", "read_cpu", "usable_cores"]
 
 _NONE = int(mujoco.mjtStage.mjSTAGE_NONE)
 _VEL = int(mujoco.mjtStage.mjSTAGE_VEL)
@@ -68,11 +68,17 @@ class CpuReadings:
             ``/proc/loadavg``.
         load: the one-minute load average (``os.getloadavg()``), None where there is none: read only without
             ``running``.
+        elsewhere: cores of the machine this process may not run on (``os.cpu_count()`` less ``cores``: a container
+            or ``taskset`` pinned to some of them). ``/proc/loadavg`` counts the tasks running there too.
+        quota: the CPU time this process's cgroup may use, in cores (cgroup v2 ``cpu.max``: ``"150000 100000"`` is
+            1.5; the smallest along the cgroup's path), None without a quota (``"max 100000"``) or a cgroup v2.
     """
 
     cores: int
     running: tuple[int, ...]
     load: float | None
+    elsewhere: int = 0
+    quota: float | None = None
 
 
 #: Readings of the runnable-task count :func:`read_cpu` takes (a task busy on another core is runnable in every one;
@@ -80,8 +86,9 @@ class CpuReadings:
 SAMPLES = 4
 
 
-def read_cpu(samples: int = SAMPLES) -> CpuReadings:
-    """This machine's :class:`CpuReadings` now (< 1 ms)."""
+def read_cpu(samples: int = SAMPLES, *, proc: str = "/proc", cgroup: str = "/sys/fs/cgroup") -> CpuReadings:
+    """This machine's :class:`CpuReadings` now (< 1 ms). ``proc`` and ``cgroup`` are where ``/proc`` and the cgroup
+    v2 hierarchy are mounted (a test points them at files of its own)."""
     try:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:  # pragma: no cover - no affinity on this platform
@@ -89,7 +96,7 @@ def read_cpu(samples: int = SAMPLES) -> CpuReadings:
     running: list[int] = []
     try:
         for _ in range(samples):
-            with open("/proc/loadavg", "rb") as f:  # "0.52 0.58 0.59 2/345 6789": runnable/total tasks in field 4
+            with open(f"{proc}/loadavg", "rb") as f:  # "0.52 0.58 0.59 2/345 6789": runnable/total tasks in field 4
                 running.append(int(f.read().split()[3].split(b"/")[0]))
     except (OSError, IndexError, ValueError):  # no /proc (macOS, Windows) or an unexpected format
         running = []
@@ -99,34 +106,109 @@ def read_cpu(samples: int = SAMPLES) -> CpuReadings:
             load = os.getloadavg()[0]
         except (AttributeError, OSError):  # no load average on this platform
             load = None
-    return CpuReadings(max(1, cores), tuple(running), load)
+    elsewhere = max(0, (os.cpu_count() or cores) - cores)
+    return CpuReadings(max(1, cores), tuple(running), load, elsewhere, _cgroup_quota(proc, cgroup))
+
+
+def _read_text(path: str) -> str | None:
+    try:
+        with open(path, "rb") as f:
+            return f.read().decode()
+    except (OSError, UnicodeDecodeError):
+        return None
+
+
+def _cgroup_quota(proc: str, cgroup: str) -> float | None:
+    """The smallest cgroup v2 CPU quota (in cores) from this process's cgroup up to the root; None without one.
+
+    The cgroup is the ``0::<path>`` line of ``/proc/self/cgroup`` (``0::/`` in a container with its own cgroup
+    namespace, whose quota is then ``/sys/fs/cgroup/cpu.max``); a quota on a parent bounds its children too."""
+    path = "/"
+    for line in (_read_text(f"{proc}/self/cgroup") or "").splitlines():
+        if line.startswith("0::"):
+            path = line[3:].strip() or "/"
+    parts = [p for p in path.split("/") if p]
+    if ".." in parts:  # a cgroup outside this namespace's root: only the root's file is visible
+        parts = []
+    quotas = []
+    for depth in range(len(parts), -1, -1):
+        text = _read_text("/".join([cgroup, *parts[:depth], "cpu.max"]))
+        quota = None if text is None else _cpu_max(text)
+        if quota is not None:
+            quotas.append(quota)
+    return min(quotas) if quotas else None
+
+
+def _cpu_max(text: str) -> float | None:
+    """Cores of a cgroup v2 ``cpu.max`` (``"<quota> <period>"`` in microseconds; ``"max ..."``: none; None when
+    malformed).
+
+    Example:
+        >>> _cpu_max("max 100000"), _cpu_max("150000 100000\\n"), _cpu_max("200000"), _cpu_max("x 100000")
+        (None, 1.5, 2.0, None)
+    """
+    fields = text.split()
+    if not fields or fields[0] == "max" or len(fields) > 2:
+        return None
+    try:
+        quota, period = int(fields[0]), int(fields[1]) if len(fields) == 2 else 100000
+    except ValueError:
+        return None
+    return quota / period if quota > 0 and period > 0 else None
+
+
+def usable_cores(readings: CpuReadings) -> int:
+    """Cores' worth of CPU this process may use: the cores it may run on, at most its cgroup's quota rounded up
+    (a quota of 1.5 cores gives 2 threads: together they use all 1.5, throttled at once in each period, where one
+    thread would use 1).
+
+    Example:
+        >>> usable_cores(CpuReadings(cores=8, running=(), load=None, quota=1.5))
+        2
+    """
+    if readings.quota is None:
+        return max(1, readings.cores)
+    return max(1, min(readings.cores, math.ceil(readings.quota)))
 
 
 def busy_cores(readings: CpuReadings) -> int:
-    """Cores other work keeps busy: the fewest tasks runnable at any reading, less the reading thread itself (a
-    task that runs on another core the whole time counts; a burst that was over by the next reading does not).
-    Without those counts, the one-minute load average above 1 (this process), rounded down; with neither, 0.
+    """Cores among those this process may run on that other work keeps busy: the fewest tasks runnable at any
+    reading, less the reading thread itself (a task that runs on another core the whole time counts; a burst that
+    was over by the next reading does not), less the cores this process may not run on (``elsewhere``: the
+    machine's other tasks fill those first). Without those counts, the one-minute load average above 1 (this
+    process), rounded down, less ``elsewhere``; with neither, 0.
 
     Example:
         >>> busy_cores(CpuReadings(cores=2, running=(2, 3, 2, 2), load=None))  # one task on the other core
         1
         >>> busy_cores(CpuReadings(cores=2, running=(1, 2, 1, 1), load=None))  # a burst: idle
         0
+        >>> busy_cores(CpuReadings(cores=2, running=(62, 63, 62, 62), load=None, elsewhere=62))  # pinned, host busy
+        0
     """
     if readings.running:
-        return max(0, min(readings.running) - 1)
-    if readings.load is not None:
-        return max(0, math.floor(readings.load - 1.0))
-    return 0
+        others = min(readings.running) - 1
+    elif readings.load is not None:
+        others = math.floor(readings.load - 1.0)
+    else:
+        return 0
+    return max(0, others - readings.elsewhere)
 
 
 def default_threads(num_envs: int, readings: CpuReadings | None = None) -> int:
     """The batch's threads when the caller gives none: the cores other work leaves idle now, at most ``num_envs``.
 
-    The cores this process may use, less those other tasks keep busy at this moment (:func:`busy_cores` of
-    :func:`read_cpu`: the runnable tasks of the whole system, sampled a few times over about 0.1 ms; a runnable
-    thread of this process's own, e.g. a spinning OpenMP worker, counts as busy too), at least 1 and at most
-    ``num_envs``.
+    The rule: ``min(num_envs, usable_cores, cores - busy_cores)``, at least 1, where
+
+    * ``cores`` are the cores this process may run on (``os.sched_getaffinity``: a container's cpuset, ``taskset``);
+    * :func:`usable_cores` bounds them by the cgroup v2 CPU quota (``cpu.max``, rounded up), if any;
+    * :func:`busy_cores` are the tasks other work keeps runnable now (the runnable tasks of the whole machine in
+      ``/proc/loadavg``, sampled a few times over about 0.1 ms, the fewest of them, less this thread; a runnable
+      thread of this process's own, e.g. a spinning OpenMP worker, counts as busy too), less the cores of the
+      machine this process may not run on: ``/proc/loadavg`` counts the whole host, so a container pinned to 2
+      idle cores of a 64-core host with 60 runnable tasks sees them all, and only what the other 62 cores cannot
+      hold can be on its own (before, it counted all 60 against its 2 cores and took 1 thread).
+
     A batch call returns when its slowest thread has finished, so a thread that waits for a busy core holds every
     world up: on the 2-core box at load 6-7, 2 threads stepped 64 reacher worlds at 0.71 and 64 manipulator worlds
     at 0.65 of 1 thread (``benchmarks/bench_eval.py --before``). The one-minute load average the choice used to
@@ -143,11 +225,15 @@ def default_threads(num_envs: int, readings: CpuReadings | None = None) -> int:
         2
         >>> default_threads(64, CpuReadings(cores=2, running=(2, 2, 3, 2), load=None))
         1
+        >>> default_threads(64, CpuReadings(cores=4, running=(61,) * 4, load=None, elsewhere=60))  # pinned to 4 idle
+        4
+        >>> default_threads(64, CpuReadings(cores=64, running=(1,) * 4, load=None, quota=2.0))  # docker --cpus=2
+        2
         >>> default_threads(1)
         1
     """
     r = read_cpu() if readings is None else readings
-    return max(1, min(int(num_envs), r.cores - busy_cores(r)))
+    return max(1, min(int(num_envs), usable_cores(r), r.cores - busy_cores(r)))
 
 
 class BatchedPhysics:
