@@ -12,6 +12,9 @@ rotates and flips every repeat, timed in CPU time (``time.process_time``; the bo
   arithmetic (action noise, clip, action delay, observation noise and delay, a fresh report of as many params) and
   nothing else: the floor any Python wrapper meets on this work (its draws are not the stack's; physics DR not
   included, which costs ~1% on either task). ``fused/lean`` >= 1 means the fused layer is at that floor.
+* ``lean, keyed noise``: the same drawing a fresh block of Gaussian rows every 256 steps from a Philox generator
+  (as the stack's keyed streams do: ``standard_normal(out=...)``, the bias added, the cast), instead of cycling one
+  fixed block: the floor of a wrapper whose noise is noise. ``fused/lean keyed`` >= 1 means the fused layer is at it.
 * ``lean, no report``: the same without the per-step report (``info["sim2real"]``: a fresh dict holding a fresh copy
   of the episode's params, as gymnasium's env checker demands of every step's info): what that contract costs.
 * manipulator only, the env as it was before its fast path: ``dmc raw`` is the adapter around dm-control's own
@@ -69,9 +72,12 @@ class LeanFloor(gym.Wrapper):  # type: ignore[type-arg]
     Nothing is checked, nothing is general, the draws are not the stack's: a reference for what the arithmetic and
     the fresh per-step dicts cost, not a feature (``lean`` arm)."""
 
-    def __init__(self, env: Any, n_params: int, action_lag: int, obs_lag: int, report: bool = True) -> None:
+    def __init__(
+        self, env: Any, n_params: int, action_lag: int, obs_lag: int, report: bool = True, keyed: bool = False
+    ) -> None:
         super().__init__(env)
         self.n_params, self.action_lag, self.obs_lag, self.report = n_params, action_lag, obs_lag, report
+        self.keyed = keyed  # draw a fresh block every 256 steps (``lean, keyed noise``) instead of cycling one
 
     def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
         obs, info = self.env.reset(**kwargs)
@@ -86,10 +92,29 @@ class LeanFloor(gym.Wrapper):  # type: ignore[type-arg]
         self._obs_ring = [obs] * (self.obs_lag + 1)
         self._params = {f"p{j}": 0.1 * j for j in range(self.n_params)}
         self._template = {"params": None, "events": (), "episode": 0, "diverged": False, "reapplied": ()}
+        if self.keyed:
+            self._gen = np.random.Generator(np.random.Philox(key=np.arange(2, dtype=np.uint64)))
+            self._bias = rng.uniform(-0.02, 0.02, size)
+            self._obs64, self._act64 = np.empty((256, size)), np.empty((256, *space.shape))
+            self._obs_list, self._act_list = list(self._obs_rows), list(self._act_rows)
+            self._row = 255  # the first step draws the first block
         return obs, info
+
+    def _draw(self) -> None:
+        """The next block of both sides' rows: what a keyed refill does per block (normals, scale, bias, cast)."""
+        gen, o, a = self._gen, self._obs64, self._act64
+        gen.standard_normal(out=o)
+        o *= 0.01
+        np.add(o, self._bias, o)
+        np.add(o, 0.0, out=self._obs_rows)
+        gen.standard_normal(out=a)
+        a *= 0.05
+        np.add(a, 0.0, out=self._act_rows)
 
     def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
         r = self._row = (self._row + 1) % 256
+        if r == 0 and self.keyed:
+            self._draw()
         noisy = action + self._act_rows[r]
         _clip(noisy, self._low, self._high, noisy)  # the clip ufunc itself (np.clip's Python dispatch costs ~2 us)
         k = self._k = self._k + 1
@@ -120,6 +145,7 @@ def arms_for(name: str) -> dict[str, Any]:
         "two layers": s2r.wrap(s2r.wrap(s2r.make(tid), *make_stack_physics(), seed=0), *make_signal_models(), seed=0),
         "fused": fused,
         "lean": LeanFloor(s2r.make(tid), *lags),
+        "lean, keyed noise": LeanFloor(s2r.make(tid), *lags, keyed=True),
         "lean, no report": LeanFloor(s2r.make(tid), *lags, report=False),
     }
     if name.startswith("manipulator-"):
@@ -248,6 +274,8 @@ def _summary(rates: dict[str, list[float]]) -> dict[str, Any]:
     result["lean/raw"] = _ratio(rates, "lean", "raw")
     result["fused/lean"] = _ratio(rates, "fused", "lean")
     result["lean no report/raw"] = _ratio(rates, "lean, no report", "raw")
+    result["lean keyed/raw"] = _ratio(rates, "lean, keyed noise", "raw")
+    result["fused/lean keyed"] = _ratio(rates, "fused", "lean, keyed noise")
     if "dmc raw" in rates:
         result["before"] = _ratio(rates, "dmc two layers", "dmc raw")
         result["fast raw/dmc raw"] = _ratio(rates, "raw", "dmc raw")
@@ -274,9 +302,11 @@ def report(results: dict[str, dict[str, Any]]) -> None:
         print(
             f"{'  floor: a lean Python wrapper doing the same arithmetic (LeanFloor)':<26}\n"
             f"    lean/raw {_fmt(r['lean/raw'])}; fused/lean {_fmt(r['fused/lean'])}; "
-            f"lean without the per-step report / raw {_fmt(r['lean no report/raw'])}"
+            f"lean without the per-step report / raw {_fmt(r['lean no report/raw'])}\n"
+            f"    lean drawing fresh noise blocks / raw {_fmt(r['lean keyed/raw'])}; "
+            f"fused/lean keyed {_fmt(r['fused/lean keyed'])}"
         )
-        verdicts.append(f"{name} lean/raw={r['lean/raw'][0]:.3f}")
+        verdicts.append(f"{name} lean/raw={r['lean/raw'][0]:.3f} lean_keyed/raw={r['lean keyed/raw'][0]:.3f}")
         if "before" in r:
             print(
                 f"{'  (manipulator, dm-control named-indexer task)':<26}\n"
