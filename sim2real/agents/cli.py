@@ -84,6 +84,26 @@ def _check_paths(args: argparse.Namespace) -> str | None:
     return None
 
 
+def _check_effects(env: Any, effects: list[Any], config: Any, args: argparse.Namespace, label: str) -> str | None:
+    """Wraps ``env`` once with the run's effects and its ADR and resets it, so effects that do not fit the env (a
+    joint it does not have, an observation key it lacks) are one line before training instead of a traceback from
+    inside it; returns the message, or None. Closes ``env``."""
+    import sim2real
+    from sim2real.agents.adr_training import with_adr
+
+    try:
+        plain, adr = with_adr(effects, config)
+        if plain or adr is not None:
+            env = sim2real.wrap(env, *plain, adr=adr, seed=args.seed)
+            env.reset(seed=args.seed)
+    except (TypeError, ValueError) as err:
+        flags = " and ".join(f for f, v in (("--config", args.config), ("--adr", args.adr)) if v is not None)
+        return f"the effects of {flags or '--config'} do not fit {label!r}: {err}"
+    finally:
+        env.close()
+    return None
+
+
 def cli_train(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
     """Runs ``sim2real train``; returns the exit code (0 ok, 2 usage error).
 
@@ -138,25 +158,31 @@ def cli_train(argv: Sequence[str] | None = None, out: TextIO | None = None) -> i
 
     try:  # --task, --model robot.xml or --env module:factory (sim2real.sources); the env is built once to check it
         source = resolve_source(args.task, args.model, args.env)
-        source.make().close()
+        env = source.make()
     except SourceError as err:
         return _fail(parser, str(err))
     except (TypeError, ValueError) as err:
         return _fail(parser, f"--task: {err}")
+    problem = _check_effects(env, effects, config, args, source.label)
+    if problem is not None:
+        return _fail(parser, problem)
 
     from sim2real.agents.training import train
 
-    result = train(
-        source.id,
-        config,
-        effects=effects,
-        seed=args.seed,
-        progress=not args.quiet and sys.stderr.isatty(),
-        logger=None if args.no_log else "csv",
-        log_dir=args.log_dir,
-    )
     try:
+        result = train(
+            source.id,
+            config,
+            effects=effects,
+            seed=args.seed,
+            progress=not args.quiet and sys.stderr.isatty(),
+            logger=None if args.no_log else "csv",
+            log_dir=args.log_dir,
+        )
         result.save(args.out)
+    except KeyboardInterrupt:  # what every other command says on Ctrl-C; the checkpoint is written atomically
+        print(f"{parser.prog}: interrupted; no checkpoint was written to {args.out!r}", file=sys.stderr)
+        return 130
     except OSError as err:  # the atomic writer has removed its temporary file
         return _fail(parser, f"cannot write {args.out!r}: {err.strerror or err}.")
     returns = [r for r in result.metrics.get("episode_return", ()) if r == r]
