@@ -50,6 +50,8 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
+import numpy as np
+
 from sim2real.evaluation import Condition, axis_values, grid, measured, nominal, randomized, real, sweep
 
 __all__ = ["EvaluationSpec", "SpecError", "load_spec"]
@@ -100,6 +102,56 @@ class EvaluationSpec:
         from sim2real.sheets import contact_sheet
 
         return contact_sheet(self.task, effects, n=n, seed=self.seed, size=(64, 64))
+
+    def check(self) -> None:
+        """Builds the task's env and every simulated condition's env once (reset, then closed), so a spec whose
+        effects do not fit the task's model, or whose ``{constant: [...]}`` policy has the wrong number of values,
+        fails before any episode runs, naming the condition or the policy, instead of inside a worker.
+
+        Raises:
+            SpecError: ``<file>: policies.<name>.constant ...`` or ``<file>: condition '<name>' ...``.
+
+        Example:
+            >>> spec = load_spec("task: dmc/reacher-easy\\npolicies: {hold: {constant: [0, 0, 0]}}")
+            >>> spec.check()
+            Traceback (most recent call last):
+            ...
+            sim2real.spec.SpecError: <config>: policies.hold.constant must have 2 values, the action size of 'dmc/reacher-easy'. Received 3: [0.0, 0.0, 0.0].
+        """
+        from sim2real.safety import ConstantAction
+        from sim2real.tasks import make
+
+        try:
+            env = make(self.task, **self.task_options)
+        except (TypeError, ValueError) as err:
+            raise SpecError(f"{self.source}: {err}") from err
+        try:
+            shape = getattr(env.action_space, "shape", None)
+        finally:
+            env.close()
+        for name, policy in self.policies.items():
+            if isinstance(policy, ConstantAction) and shape is not None and policy.action.shape != tuple(shape):
+                raise SpecError(
+                    f"{self.source}: policies.{name}.constant must have {int(np.prod(shape))} values, the action "
+                    f"size of {self.task!r}. Received {policy.action.size}: {[round(float(v), 6) for v in policy.action]}."
+                )
+        for condition in self.conditions:
+            if not condition.simulated:
+                continue
+            try:
+                base = condition.base_env(self.task, **self.task_options)
+            except (TypeError, ValueError) as err:
+                raise SpecError(f"{self.source}: condition {condition.name!r}: {err}") from err
+            env = base
+            try:
+                env = condition.wrap(base, seed=self.seed)
+                env.reset(seed=self.seed)
+            except (TypeError, ValueError) as err:
+                raise SpecError(
+                    f"{self.source}: the effects of condition {condition.name!r} do not fit {self.task!r}: {err}"
+                ) from err
+            finally:
+                env.close()  # the wrapper closes the env it wraps
 
     def run(
         self,

@@ -436,3 +436,27 @@ def test_train_interrupted_says_so_in_one_line_and_leaves_no_checkpoint(
     )
     assert (code, out) == (130, "") and not Path("cut.pt").exists()
     assert err == "sim2real train: interrupted; no checkpoint was written to 'cut.pt'\n"
+
+
+def test_evaluate_refuses_a_spec_that_does_not_fit_the_env_before_any_episode(user_dir: Path, user: Any) -> None:
+    # Before: both specs ran into a traceback inside the evaluation (exit 1): effects naming a joint the user's arm
+    # does not have, and a constant action with 3 values for a 4-actuator arm.
+    Path("bad.yaml").write_text("effects:\n  - {type: Damping, scale: 1.2, joints: nope}\n")
+    spec = (
+        f"env: {MODULE}:make_gym\nepisodes: 1\nmax_steps: 5\npolicies: {{hold: {{constant: [0.0, -0.6, 1.2, 0.0]}}}}\n"
+    )
+    Path("misfit.yaml").write_text(spec + "randomized: bad.yaml\n")
+    Path("short.yaml").write_text(spec.replace("1.2, 0.0", "1.2"))
+    code, out, err = run_cli(["evaluate", "--config", "misfit.yaml", "--out", "r1", "--backend", "serial", "--quiet"])
+    assert (code, out) == (2, "") and not Path("r1").exists()
+    assert err == (
+        f"sim2real evaluate: error: misfit.yaml: the effects of condition 'randomized' do not fit "
+        f"'env:{MODULE}:make_gym': `joints` pattern 'nope' matches no joint in the model. Known joints: 'yaw', "
+        "'shoulder', 'elbow', 'wrist'.\n"
+    )
+    code, out, err = run_cli(["evaluate", "--config", "short.yaml", "--out", "r2", "--backend", "serial", "--quiet"])
+    assert (code, out) == (2, "") and not Path("r2").exists()
+    assert err == (
+        f"sim2real evaluate: error: short.yaml: policies.hold.constant must have 4 values, the action size of "
+        f"'env:{MODULE}:make_gym'. Received 3: [0.0, -0.6, 1.2].\n"
+    )

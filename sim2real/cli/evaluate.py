@@ -45,6 +45,10 @@ def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
     if args.task is not None or args.model is not None or args.env is not None:
         spec = dataclasses.replace(spec, task=source_of(args).id)  # the command line overrides the spec's source
     check_outputs({}, ("--out", args.out, False))
+    try:  # effects that do not fit the model, a constant action of the wrong size: one line, before any episode
+        spec.check()
+    except SpecError as err:
+        raise UsageError(str(err)) from err
     from sim2real.agents.checkpoint import CheckpointError
     from sim2real.safety import LimitsError, SafetyTable
 
