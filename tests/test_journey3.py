@@ -460,3 +460,11 @@ def test_evaluate_refuses_a_spec_that_does_not_fit_the_env_before_any_episode(us
         f"sim2real evaluate: error: short.yaml: policies.hold.constant must have 4 values, the action size of "
         f"'env:{MODULE}:make_gym'. Received 3: [0.0, -0.6, 1.2].\n"
     )
+
+
+def test_study_on_an_own_env_names_the_commands_with_that_env(user_dir: Path, user: Any) -> None:
+    # Before: `study --env pkg:make` told the user to run `record --model ROBOT.xml`, ... (an MJCF they do not have).
+    code, out, err = run_cli(["study", "--env", f"{MODULE}:make_gym", "--out", "study"])
+    assert (code, out) == (2, "") and not Path("study").exists() and err.count("\n") == 1
+    assert f"`sim2real record --env {MODULE}:make_gym`" in err and "--model" not in err
+    assert err.endswith(f"Received --env {MODULE}:make_gym.\n")

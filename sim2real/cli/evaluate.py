@@ -172,13 +172,17 @@ def cmd_study(args: argparse.Namespace, stdout: TextIO) -> int:
 
     given = [f"{flag} {value}" for flag, value in (("--model", args.model), ("--env", args.env)) if value is not None]
     if given:  # every command that takes --task takes --model/--env; the study needs what ships for its tasks
+        import shlex
+
         from sim2real.study.profile import study_tasks
 
+        # The user's own words, quoted for a shell: `record --env pkg:make`, not an MJCF they may not have.
+        own = f"--model {shlex.quote(args.model)}" if args.model is not None else f"--env {shlex.quote(args.env)}"
         raise UsageError(
             f"the study runs on tasks with a bundled profile and trained policies ({study_tasks()}); on your robot run "
-            "its loop with `sim2real record --model ROBOT.xml`, `sim2real sysid fit LOG --model ROBOT.xml --export "
-            "EFFECTS.yaml`, `sim2real train --model ROBOT.xml --config EFFECTS.yaml` and `sim2real evaluate --config "
-            f"SPEC.yaml` (README, 'Your own robot'). Received {' and '.join(given)}."
+            f"its loop with `sim2real record {own}`, `sim2real sysid fit LOG {own} --export EFFECTS.yaml`, `sim2real "
+            f"train {own} --config EFFECTS.yaml` and `sim2real evaluate --config SPEC.yaml` (README, 'Your own "
+            f"robot'). Received {' and '.join(given)}."
         )
     out = args.out if args.out is not None else str(free_folder(DEFAULT_OUT))
     check_outputs({}, ("--out", out, True))
