@@ -51,6 +51,7 @@ from scipy.stats import qmc
 from noise_models.timing import convert_time
 from sysid._heldout import Setting, held_out
 from sysid._noise import difference_sigma, residual_sigma
+from sysid._omitted import omitted_scores
 from sysid._problem import Problem, make_segments
 from sysid._solver import COST_ATOL, Progress, State, fd_steps, lm
 from sysid._statistics import estimate_statistics
@@ -503,6 +504,25 @@ def fit(
         r, jac = final.jacobian(st.theta, st.delay, st.obs, st.x0, fd_steps(st.theta, lower, upper, fd_step), fitted)
     summary = estimate_statistics(final, st.theta, r, jac, lower, upper, fitted, unknowns)
     cost, s2, stderr, ci95 = summary.cost, summary.s2, summary.stderr, summary.ci95
+    # Score test of the fixed physics (sysid._omitted): a left-out friction hides from every held-out statistic.
+    omitted = (
+        omitted_scores(
+            final,
+            pool.models_for(st.theta)[0],
+            signals,
+            obs_margin,
+            state_mask,
+            st.delay,
+            st.obs,
+            st.x0,
+            r,
+            jac,
+            fitted,
+            s2,
+        )
+        if max_iter > 0
+        else {}
+    )
     warns = list(summary.warnings)
     for side, chosen, searched in (("action", st.delay / n_sub, ranges["action"]), ("obs", st.obs, ranges["obs"])):
         if len(searched) > 1 and chosen >= max(searched):  # the cost may still fall beyond the range searched
@@ -593,6 +613,7 @@ def fit(
         contact_count,
         profiles,
         _jitter_steps(log),
+        omitted,
     )
     all_rows = np.unique(np.concatenate(rows))
     index = {int(r_): k for k, r_ in enumerate(all_rows)}

@@ -35,6 +35,7 @@ __all__ = [
     "INFORMATIVE_SHARE",
     "MIN_FIT_PERCENT",
     "NOT_WHITE_P",
+    "OMITTED_P",
     "VALIDATION_RATIO_LIMIT",
     "FitQuality",
     "NotOkError",
@@ -53,6 +54,9 @@ INFORMATIVE_SHARE = 0.01
 NOT_WHITE_P = 1e-3
 #: Held-out RMS error over in-fit RMS error (both in noise SDs) above which the model does not generalise.
 VALIDATION_RATIO_LIMIT = 1.5
+#: Family-wise level of the omitted-term score test: some fixed parameter's |z| beyond the two-sided Bonferroni
+#: quantile over the candidates (a right model trips it in about this share of fits).
+OMITTED_P = 1e-3
 #: Standard-error widening by the sandwich covariance above which the residuals are too coloured to trust.
 INFLATION_LIMIT = 3.0
 
@@ -96,6 +100,11 @@ class FitQuality:
             curvature was flat (standard error above 25% of the estimate, or an interval past a bound).
         contact_rows: log rows left out of the fit because a contact touched a body the parameters move
             (``fit(contacts="cut")``; 0 when none were).
+        omitted: ``{address: z}`` score of every physical parameter the fit held fixed (each measured joint's
+            damping, friction loss and armature, each moving body's mass, each actuator's gain): the in-fit
+            residual's component along what that parameter would change, beyond what the fitted parameters and
+            initial states explain, in standard errors (standard normal for a right model; NaN where the fit
+            already spans it). A left-out friction or a wrong link mass shows here when the residuals look white.
         reasons: one sentence per failed check; empty when the fit is ok.
     """
 
@@ -112,9 +121,10 @@ class FitQuality:
     contact_rows: int = 0
     profiles: tuple[ProfileCheck, ...] = ()
     reasons: tuple[str, ...] = ()
+    omitted: Mapping[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        for name in ("fit_percent", "whiteness_pvalue", "se_inflation"):
+        for name in ("fit_percent", "whiteness_pvalue", "se_inflation", "omitted"):
             object.__setattr__(self, name, _floats(getattr(self, name)))
         for name in ("condition_number", "validation_ratio"):
             object.__setattr__(self, name, float(getattr(self, name)))
@@ -168,6 +178,7 @@ class FitQuality:
             "contact_rows": self.contact_rows,
             "profiles": [c.to_dict() for c in self.profiles],
             "reasons": list(self.reasons),
+            "omitted": {k: num(v) for k, v in self.omitted.items()},
         }
 
     @classmethod
@@ -191,6 +202,7 @@ class FitQuality:
             contact_rows=int(data.get("contact_rows", 0)),
             profiles=tuple(ProfileCheck.from_dict(c) for c in data.get("profiles", ())),
             reasons=tuple(data.get("reasons", ())),
+            omitted={k: val(v) for k, v in data.get("omitted", {}).items()},
         )
 
 
@@ -306,6 +318,7 @@ def assess(
     contact_rows: int = 0,
     profiles: tuple[ProfileCheck, ...] = (),
     jitter: float = 0.0,
+    omitted: Mapping[str, float] | None = None,
 ) -> FitQuality:
     """Runs every check and returns the :class:`FitQuality` with a reason per failure.
 
@@ -313,6 +326,9 @@ def assess(
     (``log.meta["csv"]["max_jitter_s"]`` over the control timestep). The fit predicts every sample at its own time
     but takes each command to act from its grid point, so a driver that sends its commands on the jittery clock
     leaves coloured residuals: a whiteness failure then names that among the causes.
+
+    ``omitted`` holds the score ``z`` of every fixed parameter (:attr:`FitQuality.omitted`); the largest ``|z|``
+    beyond the two-sided Bonferroni quantile of :data:`OMITTED_P` over the candidates is a reason.
 
     Example:
         >>> q = assess({"qpos[a]": 20.0, "qpos[b]": 30.0}, {"qpos[a]": 1e-9, "qpos[b]": 1e-6}, ("dof_damping[a]",),
@@ -365,6 +381,16 @@ def assess(
             f"held-out error is {validation_ratio:.2f}x the in-fit error (> {VALIDATION_RATIO_LIMIT:g}): the fitted "
             "model does not generalise beyond the data it was fitted on"
         )
+    scores = {k: v for k, v in (omitted or {}).items() if math.isfinite(v)}
+    if scores and not exact:
+        limit = float(stats.norm.isf(OMITTED_P / (2 * len(scores))))
+        worst = max(scores, key=lambda k: abs(scores[k]))
+        if abs(scores[worst]) > limit:
+            reasons.append(
+                f"the residuals follow a term the model holds fixed: {worst} (score z={scores[worst]:+.1f}, "
+                f"|z| > {limit:.2f}, the {OMITTED_P:g} level over {len(scores)} fixed parameters): friction, a mass, "
+                "a gain or a damping the model gets wrong or leaves out; fit it or fix the model"
+            )
     inflated = {} if exact else {k: v for k, v in se_inflation.items() if v > INFLATION_LIMIT}
     if inflated:
         worst = max(inflated, key=lambda k: inflated[k])
@@ -386,4 +412,5 @@ def assess(
         contact_rows=contact_rows,
         profiles=profiles,
         reasons=tuple(reasons),
+        omitted=dict(omitted or {}),
     )

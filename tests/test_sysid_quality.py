@@ -64,6 +64,46 @@ def test_missing_frictionloss_is_not_ok_and_export_refused(log_and_truth, tmp_pa
     assert back.quality.reasons == result.quality.reasons
 
 
+@pytest.fixture(scope="module")
+def second_log():
+    """Record seed 29 of the same arm: the friction left out was judged ok on it (and on 30-33; only 28 was not)."""
+    truth = mujoco.MjModel.from_xml_string(ARM)
+    space = ParameterSpace(truth, ["dof_damping[*]"])
+    values = space.nominal * np.random.default_rng(21).uniform(0.8, 1.3, space.size)
+    space.writer(truth)(values)
+    return excitation_log(truth, duration=5.0, seed=29), values
+
+
+def test_missing_frictionloss_is_caught_by_the_score_test_on_white_residuals(second_log) -> None:
+    log, truth = second_log
+    result = _fit(log, lambda m: m.dof_frictionloss.__setitem__(slice(None), 0.0))
+    q = result.quality
+    lo, hi = result.ci95.T
+    assert np.sum((lo <= truth) & (truth <= hi)) == 0  # every interval misses: the fit must not be ok
+    # Before: ok (held-out/in-fit 0.99, every whiteness p above its Bonferroni level). The residuals are white, but
+    # they line up with what friction on the light wrist joints would do.
+    assert 0.8 < q.validation_ratio < 1.25
+    assert not result.ok and len(q.reasons) == 1, q.reasons
+    assert q.reasons[0].startswith("the residuals follow a term the model holds fixed: dof_frictionloss[")
+    assert set(q.omitted) == {f"{f}[{n}]" for f in ("dof_frictionloss", "dof_armature") for n in _JOINTS} | {
+        f"body_mass[link{i}]" for i in range(1, 7)
+    } | {f"actuator_gain[{n}]" for n in _JOINTS}
+    assert min(q.omitted.values()) < -8.0  # a friction force opposes motion: negative along its column
+    assert FitResult.from_json(result.to_json()).quality == q
+
+
+def test_right_model_on_another_log_passes_the_score_test(second_log) -> None:
+    log, truth = second_log
+    result = _fit(log)
+    assert result.ok, result.quality.reasons
+    assert max(abs(v) for v in result.quality.omitted.values()) < 3.0
+    lo, hi = result.ci95.T
+    assert np.sum((lo <= truth) & (truth <= hi)) >= 4
+
+
+_JOINTS = ("base_yaw", "shoulder", "elbow", "wrist_roll", "wrist_pitch", "flange")
+
+
 def test_heavier_link_is_not_ok(log_and_truth) -> None:
     log, _ = log_and_truth
 
@@ -116,6 +156,17 @@ def test_assess_reasons_name_the_failure() -> None:
     assert gen.reasons[0].startswith("held-out error is 2.00x the in-fit error (> 1.5)")
     wide = assess({}, {}, (), 1.0, True, 1.0, {"dof_damping[a]": 4.0}, 0, 1)
     assert "widens the standard error of dof_damping[a] 4.0x (> 3x)" in wide.reasons[0]
+    # the omitted-term score test: Bonferroni over the finite scores, two-sided (4 scores: |z| > 3.66)
+    scores = {"dof_frictionloss[a]": -3.8, "body_mass[b]": 1.0, "dof_armature[a]": 0.5, "actuator_gain[a]": -2.0}
+    late = assess({}, {}, (), 1.0, True, 1.0, {}, 0, 1, omitted=scores)
+    assert late.reasons == (
+        "the residuals follow a term the model holds fixed: dof_frictionloss[a] (score z=-3.8, |z| > 3.66, the 0.001 "
+        "level over 4 fixed parameters): friction, a mass, a gain or a damping the model gets wrong or leaves out; "
+        "fit it or fix the model",
+    )
+    assert late.omitted == scores
+    assert assess({}, {}, (), 1.0, True, 1.0, {}, 0, 1, omitted={**scores, "dof_frictionloss[a]": 3.6}).ok
+    assert assess({}, {}, (), 1.0, True, 1.0, {}, 0, 1, omitted={"dof_frictionloss[a]": math.nan}).ok
 
 
 def test_pooled_whiteness_has_power_on_short_segments() -> None:
@@ -148,9 +199,10 @@ _names = st.text(alphabet="abcdefgh[]_", min_size=1, max_size=8)
     identifiable=st.booleans(),
     reasons=st.lists(st.text(max_size=30), max_size=3),
     inflation=_floats,
+    omitted=st.dictionaries(_names, _floats, max_size=4),
 )
 def test_quality_round_trips_through_json(
-    fit_percent, whiteness, condition, ratio, horizon, segments, identifiable, reasons, inflation
+    fit_percent, whiteness, condition, ratio, horizon, segments, identifiable, reasons, inflation, omitted
 ) -> None:
     quality = FitQuality(
         fit_percent=fit_percent,
@@ -164,6 +216,7 @@ def test_quality_round_trips_through_json(
         segments=segments,
         informative_channels=tuple(whiteness)[:2],
         reasons=tuple(reasons),
+        omitted=omitted,
     )
     result = dataclasses.replace(FitResult.from_estimates({"dof_damping[a]": (1.0, 0.1)}), quality=quality)
     back = FitResult.from_json(result.to_json())
