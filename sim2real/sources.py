@@ -153,7 +153,8 @@ def resolve_source(
         task: a task id.
         model: an MJCF file (relative paths are taken from ``base``, default the working folder); it must exist
             and compile.
-        env: ``"package.module:factory"``; its module must import and the factory exist (it is not called here).
+        env: ``"package.module:factory"``; its module must import (from ``sys.path``, the working folder or
+            ``base``) and the factory exist (it is not called here).
         default_task: used when none is given; None makes one of them required.
         base: the folder relative model paths start from (a spec file's folder).
         arguments: how the three are named in messages (``("task", "model", "env")`` for YAML keys).
@@ -194,7 +195,7 @@ def resolve_source(
         return source
     if not isinstance(env, str):
         raise SourceError(f"`{arguments[2]}` must look like 'package.module:factory'. Received {env!r}.")
-    import_factory(env, arguments[2])
+    import_factory(env, arguments[2], base=base)  # a module beside the spec is found too
     return Source("env", env, arguments[2])
 
 

@@ -2,7 +2,8 @@
 
 Format (paths are relative to the YAML file; every key but ``task`` and ``policies`` is optional)::
 
-    task: sim2real/arm-reach   # or model: robot.xml (an MJCF file) or env: package.module:factory
+    task: sim2real/arm-reach   # or model: robot.xml (an MJCF file) or env: package.module:factory (the module
+                               #   is also looked for in the working folder and beside this file)
     seed: 0
     episodes: 20            # per (policy, simulated condition)
     max_steps: 100          # cap on episode length (default: the task's limit)

@@ -72,24 +72,29 @@ def is_env(obj: Any) -> bool:
     return isinstance(obj, EnvBase)
 
 
-def import_factory(spec: str, argument: str) -> Callable[[], Any]:
-    """The callable named by ``'package.module:factory'`` (the working folder is tried when the module is not found)."""
+def import_factory(spec: str, argument: str, base: str | os.PathLike[str] | None = None) -> Callable[[], Any]:
+    """The callable named by ``'package.module:factory'``. When the module is not found, the working folder and then
+    ``base`` (the folder of the spec that names it) are tried: the console script puts neither on ``sys.path``, and a
+    user's own module usually lives in one of them. A folder that finds it stays on ``sys.path`` (so later builds
+    and spawned workers import it too)."""
     module_name, sep, attr = spec.partition(":")
     if not sep or not module_name or not attr or ":" in attr:
         raise SourceError(f"`{argument}` must look like 'package.module:factory'. Received {spec!r}.")
     try:
         module = importlib.import_module(module_name)
     except ModuleNotFoundError as first:
-        # The console script does not put the working folder on sys.path; a user's own module usually lives there.
-        cwd = os.getcwd()
-        if cwd in sys.path or first.name != module_name.split(".")[0]:
+        if first.name != module_name.split(".")[0]:
             raise SourceError(f"`{argument}` {spec!r}: cannot import module {module_name!r}: {first}.") from first
-        sys.path.insert(0, cwd)
         try:
-            module = importlib.import_module(module_name)
+            module = _import_beside(module_name, [os.getcwd(), *([os.fspath(base)] if base is not None else [])])
         except ImportError as err:
-            sys.path.remove(cwd)
             raise SourceError(f"`{argument}` {spec!r}: cannot import module {module_name!r}: {err}.") from err
+        except Exception as err:  # found, but it fails while importing
+            raise SourceError(
+                f"`{argument}` {spec!r}: importing module {module_name!r} raised {type(err).__name__}: {err}"
+            ) from err
+        if module is None:
+            raise SourceError(f"`{argument}` {spec!r}: cannot import module {module_name!r}: {first}.") from first
     except Exception as err:  # a module that fails while importing (syntax error, its own ImportError)
         raise SourceError(
             f"`{argument}` {spec!r}: importing module {module_name!r} raised {type(err).__name__}: {err}"
@@ -105,6 +110,26 @@ def import_factory(spec: str, argument: str) -> Callable[[], Any]:
             f"`{argument}` {spec!r} must name a callable that returns an env. Received {type(factory).__name__}."
         )
     return factory
+
+
+def _import_beside(module_name: str, folders: list[str]) -> Any:
+    """``module_name`` imported from the first of ``folders`` (not yet on ``sys.path``) that holds it, that folder
+    left on ``sys.path``; None when none does. Errors raised while importing it propagate."""
+    top = module_name.split(".")[0]
+    for folder in dict.fromkeys(os.path.abspath(f) for f in folders):
+        if folder in sys.path:
+            continue
+        sys.path.insert(0, folder)
+        try:
+            return importlib.import_module(module_name)
+        except ModuleNotFoundError as err:
+            sys.path.remove(folder)
+            if err.name != top:  # the module is there but imports something missing: say so
+                raise
+        except BaseException:
+            sys.path.remove(folder)
+            raise
+    return None
 
 
 def build_model(path: str, argument: str, options: Mapping[str, Any]) -> gym.Env:

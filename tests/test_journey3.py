@@ -468,3 +468,32 @@ def test_study_on_an_own_env_names_the_commands_with_that_env(user_dir: Path, us
     assert (code, out) == (2, "") and not Path("study").exists() and err.count("\n") == 1
     assert f"`sim2real record --env {MODULE}:make_gym`" in err and "--model" not in err
     assert err.endswith(f"Received --env {MODULE}:make_gym.\n")
+
+
+def test_an_env_module_beside_the_spec_is_found_from_any_folder(
+    tmp_path: Path, user: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A spec's `model:` is relative to the spec; its `env:` module was only looked for in the working folder, so
+    # `sim2real evaluate --config project/eval.yaml` from anywhere else failed with 'No module named ...'.
+    monkeypatch.setattr(sys, "path", list(sys.path))  # the folder that finds the module is left on it: undo that
+    monkeypatch.delitem(sys.modules, "journey3_beside_spec", raising=False)
+    project, elsewhere = tmp_path / "project", tmp_path / "elsewhere"
+    project.mkdir()
+    elsewhere.mkdir()
+    (project / "journey3_beside_spec.py").write_text(f"from {MODULE} import make_gym as make\n")
+    (project / "eval.yaml").write_text(
+        "env: journey3_beside_spec:make\nepisodes: 1\nmax_steps: 5\n"
+        "policies: {hold: {constant: [0.0, -0.6, 1.2, 0.0]}}\n"
+    )
+    monkeypatch.chdir(elsewhere)
+    code, out, err = run_cli(
+        ["evaluate", "--config", str(project / "eval.yaml"), "--out", "report", "--backend", "serial", "--quiet"]
+    )
+    assert (code, err) == (0, "") and (elsewhere / "report" / "report.json").is_file()
+    assert str(project) in sys.path
+    code, out, err = run_cli(["record", "--env", "journey3_nowhere:make", "--out", "log.npz"])
+    assert (code, out) == (2, "") and not Path("log.npz").exists()
+    assert err == (
+        "sim2real record: error: `--env` 'journey3_nowhere:make': cannot import module 'journey3_nowhere': "
+        "No module named 'journey3_nowhere'.\n"
+    )
