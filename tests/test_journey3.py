@@ -497,3 +497,20 @@ def test_an_env_module_beside_the_spec_is_found_from_any_folder(
         "sim2real record: error: `--env` 'journey3_nowhere:make': cannot import module 'journey3_nowhere': "
         "No module named 'journey3_nowhere'.\n"
     )
+
+
+def test_a_gymnasium_id_without_its_prefix_is_refused_with_the_id_to_use(user: Any) -> None:
+    # Before: the message listed the form 'gym/<gymnasium id>' but not that this id is one (no close match either).
+    message = (
+        "`task_id` must be one of the ids listed by `sim2real tasks` or 'gym/<gymnasium id>'. Received 'UserArm3-v0'. "
+        "'UserArm3-v0' is registered with gymnasium: use 'gym/UserArm3-v0'."
+    )
+    with pytest.raises(ValueError) as err:
+        s2r.make("UserArm3-v0")
+    assert str(err.value) == message
+    with pytest.raises(ValueError) as err:
+        s2r.make_vec("UserArm3-v0", 2)
+    assert str(err.value) == message
+    code, out, err_text = run_cli(["record", "--task", "UserArm3-v0", "--out", "log.npz"])
+    assert (code, out) == (2, "") and not Path("log.npz").exists()
+    assert err_text.endswith(message + "\n") and err_text.count("\n") == 1
