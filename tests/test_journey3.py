@@ -511,6 +511,6 @@ def test_a_gymnasium_id_without_its_prefix_is_refused_with_the_id_to_use(user: A
     with pytest.raises(ValueError) as err:
         s2r.make_vec("UserArm3-v0", 2)
     assert str(err.value) == message
-    code, out, err_text = run_cli(["record", "--task", "UserArm3-v0", "--out", "log.npz"])
-    assert (code, out) == (2, "") and not Path("log.npz").exists()
+    code, out, err_text = run_cli(["record", "--task", "UserArm3-v0", "--out", "never.npz"])
+    assert (code, out) == (2, "") and not Path("never.npz").exists()
     assert err_text.endswith(message + "\n") and err_text.count("\n") == 1
