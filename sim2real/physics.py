@@ -20,7 +20,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-__all__ = ["DIVERGENCE_WARNINGS", "PhysicsHandle", "StepInterception", "find_physics"]
+__all__ = ["DIVERGENCE_WARNINGS", "PhysicsHandle", "StepInterception", "declared_control_period", "find_physics"]
 
 # MuJoCo resets the state and counts these when positions, velocities or accelerations blow up.
 DIVERGENCE_WARNINGS = (
@@ -137,6 +137,13 @@ class PhysicsHandle:
             value = _attribute(owner, name)
             if isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= 1:
                 return int(value)
+        # An env that declares its control period instead (a hand-written dm_env's control_timestep()): the
+        # physics steps of the model's timestep in it.
+        period = declared_control_period(owner)
+        if period is not None:
+            steps = period / float(self.model.opt.timestep)
+            if steps >= 0.5:
+                return max(1, round(steps))
         return None
 
     def intercept_step(
@@ -427,6 +434,29 @@ def _dm_handle(env: Any) -> PhysicsHandle | None:
     if isinstance(env, control.Environment):
         physics = env.physics
         return PhysicsHandle(physics.model.ptr, physics.data.ptr, "dm_control.suite", env)
+    return None
+
+
+def declared_control_period(obj: Any) -> float | None:
+    """The control period in seconds ``obj`` declares: a positive ``dt`` or ``control_timestep()`` of ``obj`` or of
+    ``obj.unwrapped`` (gymnasium's MujocoEnv has ``dt``, a dm_env written by hand or dm-control's ``control_timestep()``),
+    None when it declares none.
+
+    Example:
+        >>> import gymnasium as gym
+        >>> declared_control_period(gym.make("InvertedPendulum-v5"))
+        0.04
+    """
+    for holder in (obj, _attribute(obj, "unwrapped")):
+        for name in ("dt", "control_timestep"):
+            value = _attribute(holder, name)
+            if callable(value):
+                try:
+                    value = value()
+                except TypeError:  # a method that needs arguments: not a period
+                    value = None
+            if isinstance(value, (int, float, np.floating)) and not isinstance(value, bool) and value > 0:
+                return float(value)
     return None
 
 

@@ -5,10 +5,12 @@ from __future__ import annotations
 
 from typing import Any
 
+import dm_env
 import gymnasium as gym
 import mujoco
 import numpy as np
 import pytest
+from dm_env import specs
 
 import sim2real as s2r
 from noise_models import (
@@ -159,6 +161,65 @@ def test_control_jitter_varies_substeps_and_keeps_latency_exact() -> None:
     applied = env.unwrapped.applied
     expected = [max((t + 1 for t in range(40) if boundaries[t] + 2 <= s), default=0.0) for s in range(len(applied))]
     assert applied == expected
+
+
+_SERVO_XML = """
+<mujoco><option timestep="0.002"/>
+  <worldbody><body><joint name="j" type="hinge" axis="0 0 1"/><geom type="capsule" size="0.02" fromto="0 0 0 0.2 0 0"/>
+  </body></worldbody>
+  <actuator><position name="s" joint="j" kp="5" ctrlrange="-1 1"/></actuator>
+</mujoco>
+"""
+
+
+class _PeriodDmEnv(dm_env.Environment):  # type: ignore[misc]
+    """A dm_env written by hand around mujoco that says its control period only by ``control_timestep()`` (5 physics
+    steps of 2 ms, stepped through ``_simulate``): no frame_skip, n_substeps or _n_sub_steps attribute."""
+
+    def __init__(self) -> None:
+        self.model = mujoco.MjModel.from_xml_string(_SERVO_XML)
+        self.data = mujoco.MjData(self.model)
+        self.commands: list[float] = []  # data.ctrl at every physics step
+
+    def reset(self) -> Any:
+        mujoco.mj_resetData(self.model, self.data)
+        return dm_env.restart({"q": self.data.qpos.copy()})
+
+    def step(self, action: Any) -> Any:
+        self.data.ctrl[:] = action
+        self._simulate(5)
+        return dm_env.transition(0.0, {"q": self.data.qpos.copy()})
+
+    def _simulate(self, nstep: int) -> None:
+        for _ in range(nstep):
+            self.commands.append(float(self.data.ctrl[0]))
+            mujoco.mj_step(self.model, self.data)
+
+    def control_timestep(self) -> float:
+        return 0.01
+
+    def observation_spec(self) -> Any:
+        return {"q": specs.Array((1,), np.float64, "q")}
+
+    def action_spec(self) -> Any:
+        return specs.BoundedArray((1,), np.float64, -1.0, 1.0, "action")
+
+
+def test_an_env_that_declares_its_period_by_control_timestep_gets_the_latency_it_reports() -> None:
+    # 13 ms on a 2 ms timestep is 7 physics steps (reported 14 ms); the env's 5 physics steps per control step are
+    # found from its control_timestep(), so the command of control step 0 reaches ctrl at physics step 7, in
+    # control step 1. (The clock took 1 physics step per control step: the command came 7 control steps late.)
+    from sim2real.physics import find_physics
+
+    inner = _PeriodDmEnv()
+    assert find_physics(inner).substeps == 5  # type: ignore[union-attr]
+    env = s2r.wrap(inner, ActionLatency(seconds=0.013), seed=0)
+    env.reset()
+    assert (env.current_params["action_latency_steps"], env.current_params["action_latency"]) == (7, 0.014)
+    for k in range(3):
+        env.step(np.array([0.1 * (k + 1)]))
+    assert inner.commands == [0.0] * 7 + [0.1] * 5 + [0.2] * 3
+    env.close()
 
 
 def test_composer_env_latency_per_substep() -> None:

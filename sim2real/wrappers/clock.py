@@ -14,7 +14,7 @@ import numpy as np
 
 from noise_models import ActionLatency, ControlJitter, Layout, SignalCorruptor
 from noise_models.timing import convert_time, elapsed_steps
-from sim2real.physics import PhysicsHandle, StepInterception, find_physics
+from sim2real.physics import PhysicsHandle, StepInterception, declared_control_period, find_physics
 
 __all__ = ["NoCopy", "SignalClock", "action_delay_path"]
 
@@ -79,7 +79,7 @@ class SignalClock(NoCopy):
             timestep: float | None = float(handle.model.opt.timestep)
             substeps = (handle.substeps or 1) * repeat
         else:
-            timestep = _control_dt(env)
+            timestep = declared_control_period(env)
             substeps = 1
         self.timestep = timestep
         #: seconds per physics step (only read when a MuJoCo handle exists, where it is the model's timestep)
@@ -92,7 +92,7 @@ class SignalClock(NoCopy):
             self.action_path = "action" if handle is None else action_delay_path(handle.model, action)
             if handle is not None and self.action_path == "action" and handle.substeps is None:
                 # Physics steps per action are needed to delay actions by the drawn physics-step latency.
-                dt = _control_dt(env)
+                dt = declared_control_period(env)
                 if dt is None or timestep is None:
                     raise TypeError(
                         "ActionLatency delays this env's action (it does not map onto `ctrl`), which needs the "
@@ -363,17 +363,3 @@ def action_delay_path(model: Any, action: Layout | None) -> str:
         if any(model.body_mocapid[b] >= 0 for b in ends):
             return "action"
     return "ctrl"
-
-
-def _control_dt(env: Any) -> float | None:
-    for obj in (env, getattr(env, "unwrapped", None)):
-        for name in ("dt", "control_timestep"):
-            value = getattr(obj, name, None)
-            if callable(value):
-                try:
-                    value = value()
-                except TypeError:
-                    value = None
-            if isinstance(value, (int, float)) and not isinstance(value, bool) and value > 0:
-                return float(value)
-    return None
