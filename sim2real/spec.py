@@ -119,6 +119,8 @@ class EvaluationSpec:
             ...
             sim2real.spec.SpecError: <config>: policies.hold.constant must have 2 values, the action size of 'dmc/reacher-easy'. Received 3: [0.0, 0.0, 0.0].
         """
+        import gymnasium as gym
+
         from sim2real.safety import ConstantAction
         from sim2real.tasks import make
 
@@ -127,14 +129,16 @@ class EvaluationSpec:
         except (TypeError, ValueError) as err:
             raise SpecError(f"{self.source}: {err}") from err
         try:
-            shape = getattr(env.action_space, "shape", None)
+            space = env.action_space
         finally:
             env.close()
+        size = int(np.prod(space.shape)) if isinstance(space, gym.spaces.Box) else None  # a Discrete action: as is
         for name, policy in self.policies.items():
-            if isinstance(policy, ConstantAction) and shape is not None and policy.action.shape != tuple(shape):
+            if isinstance(policy, ConstantAction) and size is not None and policy.action.size != size:
                 raise SpecError(
-                    f"{self.source}: policies.{name}.constant must have {int(np.prod(shape))} values, the action "
-                    f"size of {self.task!r}. Received {policy.action.size}: {[round(float(v), 6) for v in policy.action]}."
+                    f"{self.source}: policies.{name}.constant must have {size} value{'s' if size != 1 else ''}, the "
+                    f"action size of {self.task!r}. Received {policy.action.size}: "
+                    f"{[round(float(v), 6) for v in policy.action]}."
                 )
         for condition in self.conditions:
             if not condition.simulated:
