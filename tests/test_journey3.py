@@ -516,13 +516,9 @@ def test_a_gymnasium_id_without_its_prefix_is_refused_with_the_id_to_use(user: A
     assert err_text.endswith(message + "\n") and err_text.count("\n") == 1
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="PhysicsHandle.substeps ignores a dm_env's control_timestep(): the clock takes 1 physics step per control "
-    "step, so 7 reported physics steps are applied as 7 control steps (35 physics steps). Fix in sim2real/physics.py "
-    "(lead's); this test then passes and its mark must go.",
-)
 def test_the_hand_written_dm_env_gets_the_action_latency_it_reports(user: Any) -> None:
+    # Before the lead's 2157f6a the clock took 1 physics step per control step here (PhysicsHandle.substeps read
+    # frame_skip/n_substeps only): 7 reported physics steps were applied as 7 control steps (70-80 ms).
     dm = user.make_dm()  # 5 physics steps of 2 ms per step, declared by control_timestep() = 0.01 s
     env = s2r.wrap(dm, ActionLatency(seconds=0.013), seed=0)
     env.reset()
