@@ -528,3 +528,24 @@ def test_the_hand_written_dm_env_gets_the_action_latency_it_reports(user: Any) -
     env.step(HOME)  # physics steps 5-9: it lands at step 7
     assert np.allclose(dm.data.ctrl, HOME)
     env.close()
+
+
+def test_train_on_a_batched_task_takes_signal_models_alone(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # Before: `train --config` holding only `signals:` (an actuator delay, sensor noise) on a task with a batched
+    # kernel stopped with "AttributeError: 'ArmReachEnv' object has no attribute 'randomizer'": the batched TorchRL
+    # env read the physics layer's addresses from a layer that was not there.
+    from sim2real.batched.torchrl_env import BatchedTorchRLEnv
+
+    env = BatchedTorchRLEnv("sim2real/arm-reach", 2, ActionLatency(seconds=0.1), seed=0)
+    td = env.reset()
+    assert env.param_names == ("action_latency_steps", "action_latency", "action_latency_control_steps")
+    assert td["sim2real_params"].tolist() == [[50.0, 0.1, 5.0]] * 2  # as the single env reports them
+    env.close()
+    monkeypatch.chdir(tmp_path)
+    Path("lat.yaml").write_text("signals:\n- {type: ActionLatency, seconds: 0.1}\n")
+    Path("ppo.yaml").write_text("algo: ppo\nframes: 128\nframes_per_batch: 128\nminibatch_size: 64\nepochs: 1\n")
+    code, out, err = run_cli(
+        ["train", "--task", "sim2real/arm-reach", "--config", "lat.yaml", "--agent-config", "ppo.yaml", "--no-log",
+         "--quiet", "--out", "ppo.pt"]
+    )  # fmt: skip
+    assert (code, err) == (0, "") and "collection: batched engine" in out and Path("ppo.pt").is_file()

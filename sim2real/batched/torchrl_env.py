@@ -94,7 +94,8 @@ class BatchedTorchRLEnv(EnvBase):
         corruptor = getattr(single, "corruptor", None)
         # Two layers (CorruptSignals around the physics layer) or one fused layer that has both.
         physics = single if corruptor is None or hasattr(single, "randomizer") else single.env
-        names = list(physics.randomizer.nominal_params())
+        randomizer = getattr(physics, "randomizer", None)  # None: signal models alone, no physics addresses
+        names = list(randomizer.nominal_params()) if randomizer is not None else []
         if corruptor is not None:
             probe = copy.deepcopy(corruptor)
             probe.begin_episode(seed=0)
