@@ -549,3 +549,19 @@ def test_train_on_a_batched_task_takes_signal_models_alone(tmp_path: Path, monke
          "--quiet", "--out", "ppo.pt"]
     )  # fmt: skip
     assert (code, err) == (0, "") and "collection: batched engine" in out and Path("ppo.pt").is_file()
+
+
+def test_train_refuses_in_one_line_what_only_torchrl_cannot_take(user_dir: Path, user: Any) -> None:
+    # The hand-written dm_env's observation parts are named qpos/qvel: gymnasium's view of it (DmEnvToGym) takes
+    # `select: qpos`, but PPO collects through TorchRL, whose view is one flat 'observation'. Before, the check on the
+    # gymnasium env passed and training stopped in a ValueError traceback (exit 1).
+    Path("qpos_noise.yaml").write_text(
+        "signals:\n- type: ObservationNoise\n  processes: [{type: Gaussian, std: 0.002}]\n  select: qpos\n"
+    )
+    code, out, err = run_cli(["train", "--env", f"{MODULE}:make_dm", "--config", "qpos_noise.yaml", "--frames", "64",
+                              "--no-log", "--quiet", "--out", "qpos.pt"])  # fmt: skip
+    assert (code, out) == (2, "") and not Path("qpos.pt").exists()
+    assert err == (
+        f"sim2real train: error: the effects of --config do not fit '{MODULE}:make_dm' as TorchRL sees it (PPO's "
+        "collection env): `select` names key 'qpos', which the signal does not have. Known keys: 'observation'.\n"
+    )

@@ -84,23 +84,34 @@ def _check_paths(args: argparse.Namespace) -> str | None:
     return None
 
 
-def _check_effects(env: Any, effects: list[Any], config: Any, args: argparse.Namespace, label: str) -> str | None:
-    """Wraps ``env`` once with the run's effects and its ADR and resets it, so effects that do not fit the env (a
-    joint it does not have, an observation key it lacks) are one line before training instead of a traceback from
-    inside it; returns the message, or None. Closes ``env``."""
+def _check_effects(
+    env: Any, effects: list[Any], config: Any, args: argparse.Namespace, label: str, task: str
+) -> str | None:
+    """Wraps ``env`` once with the run's effects and its ADR and resets it, then builds (and closes) the TorchRL env
+    PPO collects from or SAC steps when it is not the gymnasium env itself, so effects that do not fit the env (a
+    joint it does not have, an observation key it lacks, here or in TorchRL's view of it) are one line before
+    training instead of a traceback from inside it; returns the message, or None. Closes ``env``."""
     import sim2real
     from sim2real.agents.adr_training import with_adr
+    from sim2real.agents.collect import choose_collection, make_collection_env
 
+    flags = " and ".join(f for f, v in (("--config", args.config), ("--adr", args.adr)) if v is not None)
     try:
         plain, adr = with_adr(effects, config)
         if plain or adr is not None:
             env = sim2real.wrap(env, *plain, adr=adr, seed=args.seed)
             env.reset(seed=args.seed)
     except (TypeError, ValueError) as err:
-        flags = " and ".join(f for f, v in (("--config", args.config), ("--adr", args.adr)) if v is not None)
         return f"the effects of {flags or '--config'} do not fit {label!r}: {err}"
     finally:
         env.close()
+    if not (plain or adr is not None) or config.algo != "ppo":
+        return None  # SAC steps a task id through gymnasium, as checked above
+    run_effects = [*plain, adr] if adr is not None else plain
+    try:  # what train collects from: the batched worlds or GymWrapper + sim2real's TorchRL transforms
+        make_collection_env(task, run_effects, args.seed, choose_collection(task, run_effects, config)).close()
+    except (TypeError, ValueError) as err:
+        return f"the effects of {flags} do not fit {label!r} as TorchRL sees it (PPO's collection env): {err}"
     return None
 
 
@@ -163,7 +174,7 @@ def cli_train(argv: Sequence[str] | None = None, out: TextIO | None = None) -> i
         return _fail(parser, str(err))
     except (TypeError, ValueError) as err:
         return _fail(parser, f"--task: {err}")
-    problem = _check_effects(env, effects, config, args, source.label)
+    problem = _check_effects(env, effects, config, args, source.label, source.id)
     if problem is not None:
         return _fail(parser, problem)
 
