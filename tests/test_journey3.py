@@ -565,3 +565,31 @@ def test_train_refuses_in_one_line_what_only_torchrl_cannot_take(user_dir: Path,
         f"sim2real train: error: the effects of --config do not fit '{MODULE}:make_dm' as TorchRL sees it (PPO's "
         "collection env): `select` names key 'qpos', which the signal does not have. Known keys: 'observation'.\n"
     )
+
+
+def test_record_and_fit_step_the_hand_written_dm_env_at_its_declared_period(user_dir: Path, user: Any) -> None:
+    # The dm_env says its period only through control_timestep() (0.01 s: 5 physics steps). Before the lead's
+    # 2157f6a, record logged it at one physics step per control step (control_timestep 0.002, `--latency 2` = 4 ms)
+    # and a driver CSV at 100 Hz was refused ("median spacing of 0.01 s, but meta['control_timestep'] is 0.002 s").
+    source = ["--env", f"{MODULE}:make_dm"]
+    code, out, err = run_cli(
+        ["record", *source, "--set", "dof_damping[elbow]=*1.3", "--latency", "2", "--episodes", "1", "--steps", "100",
+         "--obs-noise", "1e-3", "--seed", "0", "--out", "dm_log.npz", "--quiet"]
+    )  # fmt: skip
+    assert (code, err) == (0, "")
+    log = sysid.load_log("dm_log.npz")
+    assert log.control_timestep == pytest.approx(0.01) and log.meta["true_latency_seconds"]["action"] == 0.02
+    with open("dm_log.csv", "w") as f:  # what a 100 Hz driver would write: ms and degrees
+        header = ["t [ms]", *(f"q{i} [deg]" for i in range(4)), *(f"dq{i} [deg/s]" for i in range(4))]
+        f.write(",".join([*header, *(f"u{i}" for i in range(4))]) + "\n")
+        for t, q, dq, u in zip(log.time, log.qpos, log.qvel, log.ctrl, strict=True):
+            f.write(",".join(str(v) for v in [1000 * t, *np.degrees(q), *np.degrees(dq), *u]) + "\n")
+    Path("dm_map.yaml").write_text('columns: {time: "t [ms]", qpos: "q* [deg]", qvel: "dq* [deg/s]", ctrl: "u*"}\n')
+    code, out, err = run_cli(
+        ["sysid", "fit", "dm_log.csv", "--columns", "dm_map.yaml", *source, "--params", "dof_damping[elbow]",
+         "--latency", "--quiet", "--out", "dm_fit.json"]
+    )  # fmt: skip
+    assert code in (0, 4), err
+    fit = sysid.FitResult.from_json(Path("dm_fit.json"))
+    assert "latency (s): action=0.02\n" in out
+    assert fit.ci95[0][0] <= 1.3 <= fit.ci95[0][1]
