@@ -36,6 +36,7 @@ __all__ = [
     "import_factory",
     "is_env",
     "make_user_env",
+    "module_file",
 ]
 
 #: Prefix of the id of an MJCF-file source.
@@ -110,6 +111,18 @@ def import_factory(spec: str, argument: str, base: str | os.PathLike[str] | None
             f"`{argument}` {spec!r} must name a callable that returns an env. Received {type(factory).__name__}."
         )
     return factory
+
+
+def module_file(spec: str) -> str | None:
+    """The file of the module an ``--env`` factory ``'package.module:factory'`` lives in, or None when it does not
+    import (that is reported where the source is resolved) or has no file: an input of the command, which no output
+    may overwrite (``train --env my_robot:make --out my_robot.py`` replaced the user's module with a checkpoint)."""
+    try:
+        import_factory(spec, "--env")
+    except SourceError:
+        return None
+    path = getattr(sys.modules.get(spec.partition(":")[0]), "__file__", None)
+    return path if isinstance(path, str) else None
 
 
 def _import_beside(module_name: str, folders: list[str]) -> Any:

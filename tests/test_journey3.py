@@ -593,3 +593,29 @@ def test_record_and_fit_step_the_hand_written_dm_env_at_its_declared_period(user
     fit = sysid.FitResult.from_json(Path("dm_fit.json"))
     assert "latency (s): action=0.02\n" in out
     assert fit.ci95[0][0] <= 1.3 <= fit.ci95[0][1]
+
+
+def test_no_output_overwrites_the_module_of_the_users_env(user_dir: Path, user: Any) -> None:
+    # Before: `--model robot.xml` was an input no output could overwrite, but the module of `--env pkg:make` was not:
+    # `train --out`, `sysid fit --out` and `--export` naming it replaced the user's source with a checkpoint,
+    # JSON or YAML (exit 0).
+    module = Path(f"{MODULE}.py")
+    source = module.read_bytes()
+    env = ["--env", f"{MODULE}:make_gym"]
+    fit = ["sysid", "fit", "dm_log.npz", *env, "--params", "dof_damping[*]", "--quiet"]
+    runs = [
+        ("train", ["train", *env, "--frames", "64", "--no-log", "--quiet", "--out", str(module)], "--out"),
+        ("sysid", [*fit, "--out", "f.json", "--export", str(module)], "--export"),
+        ("sysid", [*fit, "--out", f"./{module}"], "--out"),
+    ]
+    if not Path("dm_log.npz").exists():  # the log of the dm_env test; never read here: outputs are checked first
+        Path("dm_log.npz").write_bytes(b"")
+    for command, argv, flag in runs:
+        code, out, err = run_cli(argv)
+        given = argv[argv.index(flag) + 1]
+        assert (code, out) == (2, "")
+        assert err == (
+            f"sim2real {command}: error: {flag} must not be the input --env module, which it would overwrite. "
+            f"Received {given!r} for both.\n"
+        )
+        assert module.read_bytes() == source and not Path("f.json").exists()

@@ -66,12 +66,13 @@ def _fail(parser: argparse.ArgumentParser, message: str) -> int:
 def _check_paths(args: argparse.Namespace) -> str | None:
     """The checkpoint file and the logger folder, checked before training (see :mod:`sim2real.output_paths`);
     returns the error message, or None."""
+    from sim2real.cli._common import source_inputs
     from sim2real.output_paths import OutputPathError, check_file, check_folder, check_not_inputs
 
     try:
         check_file(args.out, "--out")
         inputs = {
-            "--model": args.model,
+            **source_inputs(args),
             "--config": args.config,
             "--adr": args.adr,
             "--agent-config": args.agent_config,

@@ -27,6 +27,7 @@ __all__ = [
     "add_source_arguments",
     "check_outputs",
     "int_at_least",
+    "source_inputs",
     "source_of",
     "writing",
 ]
@@ -124,6 +125,15 @@ def add_source_arguments(
         help="your own env: a callable returning a gymnasium env or a dm_env.Environment",
     )
     parser.set_defaults(_default_task=default_task)
+
+
+def source_inputs(args: argparse.Namespace) -> dict[str, str | None]:
+    """The input files the env source names, for :func:`check_outputs`: ``--model``'s MJCF file and the file of
+    ``--env``'s module (an output path over either would overwrite the user's robot)."""
+    from sim2real.user_envs import module_file
+
+    env = getattr(args, "env", None)
+    return {"--model": getattr(args, "model", None), "--env module": module_file(env) if env is not None else None}
 
 
 def source_of(args: argparse.Namespace, *, task: str | None = None) -> Source:

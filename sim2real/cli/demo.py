@@ -24,7 +24,7 @@ import numpy as np
 
 import sim2real
 from randomizers import Effect
-from sim2real.cli._common import UsageError, check_outputs, source_of, writing
+from sim2real.cli._common import UsageError, check_outputs, source_inputs, source_of, writing
 from sim2real.cli.parser import ARM_REACH
 
 __all__ = ["ARM_REACH_POLICY", "cmd_demo", "cmd_tasks", "cmd_visualize", "default_effects"]
@@ -244,7 +244,7 @@ def cmd_demo(args: argparse.Namespace, out: TextIO) -> int:
 
 
 def cmd_visualize(args: argparse.Namespace, out: TextIO) -> int:
-    check_outputs({"--out": args.out}, inputs={"--model": args.model, "--config": args.config})
+    check_outputs({"--out": args.out}, inputs={**source_inputs(args), "--config": args.config})
     effects = _load_demo_effects(args.config) if args.config is not None else []
     camera: int | str | None = args.camera
     if isinstance(camera, str) and camera.lstrip("-").isdigit():

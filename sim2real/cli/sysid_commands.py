@@ -28,7 +28,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, TextIO
 
-from sim2real.cli._common import UsageError, check_outputs, source_of, writing
+from sim2real.cli._common import UsageError, check_outputs, source_inputs, source_of, writing
 from sim2real.sources import Source, SourceError, open_source
 
 __all__ = ["EXIT_FIT_NOT_OK", "cmd_record", "cmd_sysid"]
@@ -43,7 +43,7 @@ def cmd_record(args: argparse.Namespace, out: TextIO) -> int:
     from sim2real.home import parse_home
     from sim2real.recording import record
 
-    check_outputs({"--out": args.out}, inputs={"--model": args.model})
+    check_outputs({"--out": args.out}, inputs=source_inputs(args))
     try:
         sysid.check_log_path(args.out, "--out")  # before the recording, not after it
     except ValueError as err:
@@ -204,7 +204,7 @@ def cmd_sysid(args: argparse.Namespace, out: TextIO) -> int:
         raise UsageError("give the model to fit: --task TASK, --model ROBOT.xml or --env MODULE:FACTORY.")
     check_outputs(
         {"--out": args.out, "--report": args.report, "--export": args.export},
-        inputs={"`log`": args.log, "--model": args.model, "--columns": args.columns},
+        inputs={"`log`": args.log, **source_inputs(args), "--columns": args.columns},
     )
     if args.report is not None:
         try:
