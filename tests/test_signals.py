@@ -222,6 +222,56 @@ def test_an_env_that_declares_its_period_by_control_timestep_gets_the_latency_it
     env.close()
 
 
+class _MixedDtypeDmEnv(_PeriodDmEnv):
+    """Observation keys of three dtypes: float64 ``q``, an int32 scalar ``count``, float32 ``f32``."""
+
+    def _observation(self) -> Any:
+        return {
+            "q": self.data.qpos.copy(),
+            "count": np.int32(len(self.commands)),
+            "f32": np.array([self.data.qvel[0], 0.5], dtype=np.float32),
+        }
+
+    def reset(self) -> Any:
+        mujoco.mj_resetData(self.model, self.data)
+        return dm_env.restart(self._observation())
+
+    def step(self, action: Any) -> Any:
+        self.data.ctrl[:] = action
+        self._simulate(5)
+        return dm_env.transition(0.0, self._observation())
+
+    def observation_spec(self) -> Any:
+        return {
+            "q": specs.Array((1,), np.float64, "q"),
+            "count": specs.Array((), np.int32, "count"),
+            "f32": specs.Array((2,), np.float32, "f32"),
+        }
+
+
+@pytest.mark.parametrize("physics", [False, True])
+def test_dm_env_observation_keys_keep_their_spec_dtype(physics: bool) -> None:
+    # The models work on one float64 vector; each key leaves with its spec's dtype (an int32 counter no model
+    # selects stays int32, exactly; a float32 key stays float32), and an integer key that noise selects becomes
+    # float64, as the wrapper's observation_spec then says. (Every key came back float64 and failed its spec.)
+    effects = (s2r.Damping(scale=Uniform(0.5, 2.0)),) if physics else ()
+    models = (ObservationNoise(Gaussian(std=0.1), select="q"), ObservationLatency(steps=1))
+    env = s2r.wrap(_MixedDtypeDmEnv(), *effects, *models, seed=0)
+    spec = env.observation_spec()
+    assert {k: v.dtype for k, v in spec.items()} == {"q": np.float64, "count": np.int32, "f32": np.float32}
+    timesteps = [env.reset()] + [env.step(np.array([0.2])) for _ in range(3)]
+    for ts in timesteps:
+        for k, v in ts.observation.items():
+            spec[k].validate(v)
+    assert [int(ts.observation["count"]) for ts in timesteps] == [0, 0, 5, 10]  # one step late, exact
+    env.close()
+    noisy = s2r.wrap(_MixedDtypeDmEnv(), *effects, ObservationNoise(Gaussian(std=0.1), select="count"), seed=0)
+    assert noisy.observation_spec()["count"].dtype == np.float64
+    count = noisy.step(np.array([0.2])).observation["count"]  # (the first step resets)
+    assert count.dtype == np.float64 and count != 0.0
+    noisy.close()
+
+
 def test_composer_env_latency_per_substep() -> None:
     # Composer steps physics one substep at a time, and recompiles on reset: the command must still
     # arrive exactly two control steps late, episode after episode.

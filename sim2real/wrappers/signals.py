@@ -307,6 +307,17 @@ class CorruptSignalsDmEnv(NoCopy, DmEnvWrapper):
         act_layout = Layout(int(np.prod(aspec.shape)), low=low, high=high)
         self._action_shape = tuple(aspec.shape)
         self.clock = SignalClock(env, self.corruptor, obs_layout, act_layout, dtype, aspec.dtype)
+        # Each key leaves with its spec's dtype (the models work on one vector of the widest dtype): an integer key
+        # that a noise model selects becomes that float dtype, and observation_spec says so.
+        noisy = np.zeros(self._codec.size, dtype=bool)
+        for pipe in self.corruptor._obs_pipes:
+            for idx in pipe.indices:
+                noisy[idx] = True
+        self._out_dtypes = {
+            k: np.dtype(dtype) if noisy[sl].any() and not np.issubdtype(specs[k].dtype, np.floating) else specs[k].dtype
+            for k, sl, _ in self._codec.layout_keys
+        }
+        self._cast = [(k, t) for k, t in self._out_dtypes.items() if t != np.dtype(dtype)]
         self._reset_next_step = True
         self._has_obs = self.corruptor.has_observation
         self._has_action = self.corruptor.has_action
@@ -347,7 +358,21 @@ class CorruptSignalsDmEnv(NoCopy, DmEnvWrapper):
         else:
             vec = c.hot_observe(flat, self.clock.now() if self._needs_now else 0)
         out = self._codec.unflat(vec, OrderedDict())
+        for k, t in self._cast:  # (an exact round trip for a key no noise selects)
+            out[k] = out[k].astype(t)
         return timestep._replace(observation=out["observation"] if self._single else out)
+
+    def observation_spec(self) -> Any:
+        """The wrapped env's, with the dtype of an integer key a noise model selects made the models' float dtype."""
+        spec = self._env.observation_spec()
+        if not self._has_obs:
+            return spec
+        if self._single:
+            dtype = self._out_dtypes["observation"]
+            return spec if spec.dtype == dtype else spec.replace(dtype=dtype)
+        return type(spec)(
+            (k, s if s.dtype == self._out_dtypes[k] else s.replace(dtype=self._out_dtypes[k])) for k, s in spec.items()
+        )
 
     def _inner_reset(self) -> dm_env.TimeStep:
         """The reset of what the signal models wrap (the fused layer resets its physics half here)."""
