@@ -65,10 +65,11 @@ def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
     except RenderingUnavailable as err:  # the report still has every number; say why the images are missing
         sheet = None
         notes.append(f"no contact sheet of the visual effects: {err}")
-    control_timestep, substeps, linear, unit = _clock(spec.task)
+    control_timestep, substeps, units, unit = _clock(spec.task)
     options.setdefault("control_timestep", control_timestep)  # a timing sweep's steps are shown in ms
     options.setdefault("substeps", substeps)
-    options.setdefault("linear", linear)  # a gripper's slide fingers: N·s/m and m, not N·m·s/rad and rad
+    for key, value in units.items():  # slide joints and tendons in their own units (N·s/m and m, not N·m·s/rad)
+        options.setdefault(key, value)
     if unit is not None:  # a sensor-noise sweep in rad / rad/s, not "observation units"
         options.setdefault("observation_unit", unit)
     report = GapReport.build(evaluation, fit=fit, contact_sheet=sheet, rng=spec.seed, notes=tuple(notes), **options)
@@ -101,13 +102,13 @@ def _substeps(task: Any) -> int | None:
         env.close()
 
 
-def _clock(task: Any) -> tuple[float | None, int | None, tuple[str, ...], str | None]:
+def _clock(task: Any) -> tuple[float | None, int | None, dict[str, Any], str | None]:
     """Seconds per control step and physics steps per control step of the spec's task: what the Safety section's
     once-per-control-step sampling sees (the same reading the study makes), and what a latency sweep's ``steps``
     (physics steps) are in milliseconds. Before, a frame_skip=4 env's sweep over ActionLatency.steps 0, 4, 8 was
     labelled 'action latency (control steps)': four times the latency applied."""
     from sim2real.physics import find_physics
-    from sim2real.report.labels import observation_unit
+    from sim2real.report.labels import model_units, observation_unit
     from sim2real.safety import physics_substeps
     from sim2real.tasks import make
 
@@ -117,39 +118,15 @@ def _clock(task: Any) -> tuple[float | None, int | None, tuple[str, ...], str | 
         handle = find_physics(env)
         unit = observation_unit(env)
         if handle is None:
-            return None, substeps, (), unit
-        linear = _linear_names(handle.model)
+            return None, substeps, {}, unit
+        units = model_units(handle.model)
         timestep = float(handle.model.opt.timestep)
         period = getattr(env.unwrapped, "dt", None)  # a gymnasium MujocoEnv: timestep x frame_skip
         if substeps is None and isinstance(period, (int, float)) and period > 0:
-            return float(period), max(1, round(float(period) / timestep)), linear, unit
-        return (None, None, linear, unit) if substeps is None else (timestep * substeps, substeps, linear, unit)
+            return float(period), max(1, round(float(period) / timestep)), units, unit
+        return (None, None, units, unit) if substeps is None else (timestep * substeps, substeps, units, unit)
     finally:
         env.close()
-
-
-def _linear_names(model: Any) -> tuple[str, ...]:
-    """Names of the model's slide joints and of the actuators that push along slides only (directly or through a
-    fixed tendon of slides): their parameters and channels are lengths and forces, not angles and torques."""
-    import mujoco
-
-    obj = mujoco.mjtObj
-    slide = {j for j in range(model.njnt) if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_SLIDE}
-    names = [mujoco.mj_id2name(model, obj.mjOBJ_JOINT, j) for j in sorted(slide)]
-    for a in range(model.nu):
-        target, kind = int(model.actuator_trnid[a, 0]), model.actuator_trntype[a]
-        if kind == mujoco.mjtTrn.mjTRN_JOINT:
-            pushes = target in slide
-        elif kind == mujoco.mjtTrn.mjTRN_TENDON:
-            wraps = range(int(model.tendon_adr[target]), int(model.tendon_adr[target] + model.tendon_num[target]))
-            pushes = all(
-                model.wrap_type[w] == mujoco.mjtWrap.mjWRAP_JOINT and int(model.wrap_objid[w]) in slide for w in wraps
-            )
-        else:
-            pushes = False
-        if pushes:
-            names.append(mujoco.mj_id2name(model, obj.mjOBJ_ACTUATOR, a))
-    return tuple(n for n in names if n)
 
 
 def _limits(path: str | None) -> Any:

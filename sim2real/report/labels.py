@@ -37,6 +37,8 @@ __all__ = [
     "axis_label",
     "channel_unit",
     "condition_label",
+    "linear_names",
+    "model_units",
     "observation_unit",
     "parameter_unit",
     "policy_label",
@@ -151,6 +153,46 @@ def tendon_units(model: Any) -> tuple[tuple[str, str], ...]:
         kinds = {int(model.jnt_type[int(model.wrap_objid[w])]) for w in wraps}
         units.append((name, "rad" if kinds == {_HINGE} else "m" if kinds == {_SLIDE} else "mixed"))
     return tuple(units)
+
+
+def linear_names(model: Any) -> tuple[str, ...]:
+    """Names of the model's slide joints and of the actuators that push along slides only (directly or through a
+    fixed tendon of slides): their parameters and channels are lengths and forces, not angles and torques; pass it
+    as ``linear=`` to :func:`parameter_unit`, :func:`channel_unit` and :meth:`sim2real.report.GapReport.build`."""
+    import mujoco
+
+    obj = mujoco.mjtObj
+    slide = {j for j in range(model.njnt) if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_SLIDE}
+    names = [mujoco.mj_id2name(model, obj.mjOBJ_JOINT, j) for j in sorted(slide)]
+    for a in range(model.nu):
+        target, kind = int(model.actuator_trnid[a, 0]), model.actuator_trntype[a]
+        if kind == mujoco.mjtTrn.mjTRN_JOINT:
+            pushes = target in slide
+        elif kind == mujoco.mjtTrn.mjTRN_TENDON:
+            wraps = range(int(model.tendon_adr[target]), int(model.tendon_adr[target] + model.tendon_num[target]))
+            pushes = all(
+                model.wrap_type[w] == mujoco.mjtWrap.mjWRAP_JOINT and int(model.wrap_objid[w]) in slide for w in wraps
+            )
+        else:
+            pushes = False
+        if pushes:
+            names.append(mujoco.mj_id2name(model, obj.mjOBJ_ACTUATOR, a))
+    return tuple(n for n in names if n)
+
+
+def model_units(model: Any) -> dict[str, Any]:
+    """What :meth:`sim2real.report.GapReport.build` reads a model's units from: ``linear`` (:func:`linear_names`) and
+    ``tendons`` (:func:`tendon_units`), as keyword arguments.
+
+    Example:
+        >>> import mujoco
+        >>> model = mujoco.MjModel.from_xml_string(
+        ...     '<mujoco><worldbody><body><joint name="rail" type="slide"/><geom size=".1"/></body></worldbody>'
+        ...     '<actuator><motor name="push" joint="rail"/></actuator></mujoco>')
+        >>> model_units(model)
+        {'linear': ('rail', 'push'), 'tendons': ()}
+    """
+    return {"linear": linear_names(model), "tendons": tendon_units(model)}
 
 
 def _tendon(field: str, address: str, tendons: Mapping[str, str]) -> str | None:

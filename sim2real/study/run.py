@@ -140,8 +140,9 @@ def _run(
     import sysid
     from randomizers.files import atomic_write
     from sim2real.agents import baseline_for
+    from sim2real.physics import find_physics
     from sim2real.report import GapReport
-    from sim2real.report.labels import observation_unit
+    from sim2real.report.labels import model_units, observation_unit
     from sim2real.safety import SafetyTable, physics_substeps
     from sim2real.spec import load_spec
     from sim2real.study.fitting import best_fit, calibrated_effects, record_twin
@@ -261,6 +262,8 @@ def _run(
     env = make(profile.task)
     try:  # what the report's units and the safety sampling note are read from
         obs_unit, substeps = observation_unit(env), physics_substeps(env)
+        handle = find_physics(env)
+        units = {} if handle is None else model_units(handle.model)  # slide joints and tendons in their own units
     finally:
         env.close()
 
@@ -281,6 +284,7 @@ def _run(
             policy_labels={k: v for k, v in DISPLAY_POLICIES.items() if k in spec.policies},
             condition_labels={k: v for k, v in DISPLAY_CONDITIONS.items() if k in {c.name for c in spec.conditions}},
             observation_unit=obs_unit,  # the sensor-noise sweep in rad / m / rad/s
+            **units,
         )
         if safety is not None:
             report = replace(report, safety=SafetyTable.build(evaluation, safety, substeps=substeps))
