@@ -106,6 +106,40 @@ def test_nested_torchrl_entries_are_selected_by_dotted_name_or_tuple_key() -> No
         TransformedEnv(_nested_torchrl_arm(), bad).reset()
 
 
+@pytest.mark.parametrize("physics", [False, True])
+def test_torchrl_selects_the_parts_of_a_flat_dm_control_observation_as_gymnasium_does(physics: bool) -> None:
+    # GymWrapper(DmEnvToGym(...)) has one flat "observation" entry; its parts (position, to_target, velocity on
+    # reacher) are named by the gym env's observation_layout, so select="position" works on the TorchRL side too,
+    # with the gym side's report names, and only the position entries are noisy. (It raised: "`select` names key
+    # 'position', which the signal does not have. Known keys: 'observation'.")
+    import torch
+    from torchrl.envs import GymWrapper
+
+    effects = (s2r.Damping(scale=Uniform(0.5, 2.0)),) if physics else ()
+    models = (ObservationNoise(Gaussian(std=Uniform(0.05, 0.1)), select="position"),)
+    adapter = s2r.make("dmc/reacher-easy")
+    torch_env = s2r.wrap(GymWrapper(adapter), *effects, *models, seed=3)
+    gym_env = s2r.wrap(s2r.make("dmc/reacher-easy"), *effects, *models, seed=3)
+    td = torch_env.reset()
+    _, info = gym_env.reset(seed=1)
+    transform = torch_env.transform[-1] if hasattr(torch_env.transform, "__getitem__") else torch_env.transform
+    names = [k for k in transform.current_params if k.startswith("obs_")]
+    assert (
+        names
+        == [k for k in info["sim2real"]["params"] if k.startswith("obs_")]
+        == [
+            "obs_noise_std[0]",
+            "obs_noise_std[1]",
+        ]
+    )
+    for _ in range(3):
+        td = torch_env.step(td.set("action", torch.zeros(2)))["next"]
+        noisy, exact = td["observation"].numpy(), adapter.observe()  # observe(): the physics' own, again
+        assert (noisy[:2] != exact[:2]).all() and (noisy[2:] == exact[2:]).all()
+    torch_env.close()
+    gym_env.close()
+
+
 # -- TorchRL's own action repeat (GymWrapper(..., frame_skip=k)) -------------------------------------------------
 
 

@@ -356,6 +356,10 @@ class CorruptSignalsTransform(NoCopy, Transform):
                 highs.append(high)
             low_all, high_all = np.concatenate(lows), np.concatenate(highs)
             finite = bool(np.isfinite(low_all).any() or np.isfinite(high_all).any())
+            if len(shapes) == 1 and len(shapes[0][1]) == 1:
+                # One flat vector from a gymnasium env that says what its parts are (DmEnvToGym's
+                # observation_layout, reached through TorchRL's GymWrapper): select by part, as on the gym side.
+                named = _observation_parts(parent, start) or named
             obs_layout = Layout(
                 start,
                 keys=tuple(named),
@@ -544,6 +548,24 @@ def _key_name(key: NestedKey) -> str:
         ('robot.qpos', 'observation')
     """
     return key if isinstance(key, str) else ".".join(key)
+
+
+def _observation_parts(env: Any, size: int) -> list[tuple[str, slice, tuple[int, ...]]] | None:
+    """``observation_layout`` of the gymnasium env under ``env`` (TorchRL envs forward attribute lookups to the env
+    they wrap) when it is a layout of ``size`` entries, else None."""
+    try:
+        parts = getattr(env, "observation_layout", None)
+    except Exception:  # a forwarding __getattr__ that fails for another reason: no layout
+        return None
+    if not isinstance(parts, tuple) or not parts:
+        return None
+    try:
+        out = [(str(k), sl, tuple(shape)) for k, sl, shape in parts]
+    except (TypeError, ValueError):
+        return None
+    if sum(sl.stop - sl.start for _, sl, _ in out if isinstance(sl, slice)) != size:
+        return None
+    return out
 
 
 def _spec_bounds(spec: Any, n: int) -> tuple[Any, Any]:
