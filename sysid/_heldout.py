@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from sysid._problem import Problem, make_segments
+from sysid._problem import Problem, coupled_states, make_segments
 from sysid._solver import Progress, State, lm
 from sysid.events import near_contact_rows, simulated_contact_rows, split_ranges
 from sysid.logs import TrajectoryLog
@@ -79,7 +79,9 @@ def _solve(ranges: list[tuple[int, int, int, int]], c: Setting) -> HeldOut | Non
         return None
     problem = Problem(c.log, c.model, c.space, segments, c.signals, vfit, c.obs_margin, c.nthread, c.pool, c.state_mask)
     problem.weights = c.weights
-    vst = State(c.st.theta, problem.anchors(), c.st.delay, c.st.obs)
+    # The held-out initial states start on the joint/tendon couplings: a logged start a noise draw off them begins
+    # with a transient the robot never had, and the solve of the initial states alone can stop in it.
+    vst = State(c.st.theta, coupled_states(c.model, problem.anchors()), c.st.delay, c.st.obs)
     if vfit:
         vst = lm(
             problem,

@@ -16,6 +16,7 @@ at every command) turns into coloured residuals that fail the whiteness check of
 
 from __future__ import annotations
 
+import copy
 import itertools
 import os
 from dataclasses import dataclass
@@ -27,10 +28,62 @@ import numpy as np
 from sysid.logs import TrajectoryLog, channel_names
 from sysid.params import ModelPool, ParameterSpace
 
-__all__ = ["Problem", "Segments", "make_segments"]
+__all__ = ["Problem", "Segments", "coupled_states", "make_segments"]
 
 _SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
 _ON_GRID = 1e-6  # physics steps: a row's time this close to its grid point is on the grid (float rounding)
+_COUPLINGS = (int(mujoco.mjtEq.mjEQ_JOINT), int(mujoco.mjtEq.mjEQ_TENDON))
+
+
+def coupled_states(model: mujoco.MjModel, states: np.ndarray) -> np.ndarray:
+    """(S, nq+nv) ``states`` moved the least onto the model's joint and tendon equality couplings.
+
+    A logged state carries measurement noise on every joint, so two joints a ``<joint>`` or ``<tendon>`` equality
+    ties together (a gripper's two fingers) are logged a noise draw apart although the robot never is: simulated
+    from there, the constraint snaps them together in a transient of tens of noise SDs that the true motion never
+    had, and a solve of the initial state alone from that start can stop in it (H3's arm7, held-out record seeds
+    5, 108 and 115: held-out error 1.75x, 1.87x and 2.79x the in-fit error with the true model). The smallest
+    (Euclidean) position correction that satisfies the couplings (a few Gauss-Newton steps on their violation) and
+    the velocity's projection onto their null space is a start the robot could have been in. Other equalities
+    (connect, weld: bodies, possibly mocap) are left alone; a model without couplings gets ``states`` back as is.
+
+    Example:
+        >>> import mujoco, numpy as np
+        >>> m = mujoco.MjModel.from_xml_string(
+        ...     '<mujoco><worldbody><body><joint name="a" type="slide"/><geom size=".1"/></body>'
+        ...     '<body><joint name="b" type="slide"/><geom size=".1"/></body></worldbody>'
+        ...     '<equality><joint joint1="a" joint2="b"/></equality></mujoco>')
+        >>> coupled_states(m, np.array([[0.01, 0.03, 0.2, 0.0]])).round(6).tolist()
+        [[0.02, 0.02, 0.1, 0.1]]
+    """
+    types = model.eq_type[: model.neq]
+    if not np.isin(types, _COUPLINGS).any():
+        return states
+    dense = copy.copy(model)
+    dense.opt.jacobian = mujoco.mjtJacobian.mjJAC_DENSE
+    data = mujoco.MjData(dense)
+    nq, nv = model.nq, model.nv
+    out = np.array(states, dtype=np.float64, copy=True)
+
+    def rows() -> tuple[np.ndarray, np.ndarray]:
+        mujoco.mj_forward(dense, data)
+        n = data.nefc
+        keep = data.efc_type[:n] == int(mujoco.mjtConstraint.mjCNSTR_EQUALITY)
+        keep[keep] = np.isin(types[data.efc_id[:n][keep]], _COUPLINGS)  # efc_id names an equality only there
+        return data.efc_J.reshape(-1, nv)[:n][keep], data.efc_pos[:n][keep]
+
+    for state in out:
+        data.qpos[:], data.qvel[:] = state[:nq], state[nq:]
+        for _ in range(5):
+            jac, violation = rows()
+            if not violation.size or float(np.max(np.abs(violation))) <= 1e-12:
+                break
+            mujoco.mj_integratePos(dense, data.qpos, -np.linalg.pinv(jac) @ violation, 1.0)
+        jac, _ = rows()
+        if jac.size:
+            data.qvel[:] -= np.linalg.pinv(jac) @ (jac @ data.qvel)
+        state[:nq], state[nq:] = data.qpos, data.qvel
+    return out
 
 
 def sample_offsets(log: TrajectoryLog) -> np.ndarray | None:
