@@ -15,8 +15,17 @@ Families (``--family``, several allowed), each fitted with default settings on l
   (unfitted j1 damping 30% high), ``weakkp`` (a2 kp 20% low).
 
 Every fit prints one line; the summary gives, per family and model, the fits judged ok (after, and before: the
-same fit without the omitted-term score test, the only check added in the eleventh session, which moves no
-estimate), the 95% interval coverage of the truth for right models, and the largest |z| of the score test.
+same fit without the omitted-term score test, which moves no estimate), the 95% interval coverage of the truth
+for right models, and the largest |z| of the score test. The held-out starts' projection onto joint/tendon
+couplings (``sysid._problem.coupled_states``, gripper and manipulator only) is not undone by "before": compare
+with a run at an earlier commit for that.
+
+Measured in the eleventh session (original code -> score test + coupled held-out starts; right: ok / coverage):
+arm6 seeds 28-33: right 6/6 -> 6/6 (32/36), friction left out ok 5/6 -> 0/6, heavy/noarm/weakkp 0/6 -> 0/6;
+seeds 100-119: right 20/20 -> 20/20 (114/120), friction left out 20/20 -> 0/20, heavy 0/20, noarm/weakkp 0/19.
+arm7m 28-33 and 100-109: right 16/16 -> 16/16 (106/112), nofric/heavy 0/16 -> 0/16. gripper right: seeds 0-19
+19/20 -> 20/20 (76/80), 100-119 18/20 -> 20/20 (78/80); wrong 0/18 on 28-33. manip 28-33 + 100-119: right 25/26
+(seed 29: whiteness, unchanged), heavy 0/26.
 
 Usage (tuning seeds 28-33, fresh seeds 100-119):
     MUJOCO_GL=egl nice -n 10 .venv/bin/python -u benchmarks/bench_sysid_check.py --seeds 28-33

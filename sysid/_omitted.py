@@ -44,7 +44,7 @@ def _name(model: mujoco.MjModel, kind: mujoco.mjtObj, i: int) -> str | None:
 def candidate_addresses(problem: Problem, fitted: tuple[str, ...]) -> list[str]:
     """Addresses the score test checks: the physics of the measured joints that the fit holds fixed.
 
-    Hinge and slide joints whose velocity channel is in the residual give their damping, friction loss and
+    Hinge and slide joints whose position or velocity is in the residual give their damping, friction loss and
     armature; bodies that such a joint moves give their mass; actuators on such joints (or on a tendon) give their
     gain. Unnamed elements have no address and are skipped.
     """
@@ -55,7 +55,7 @@ def candidate_addresses(problem: Problem, fitted: tuple[str, ...]) -> list[str]:
         if int(model.jnt_type[j]) not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
             continue
         name = _name(model, mujoco.mjtObj.mjOBJ_JOINT, j)
-        if name is not None and f"qvel[{name}]" in channels:
+        if name is not None and (f"qvel[{name}]" in channels or f"qpos[{name}]" in channels):
             joints.append(j)
     out = [f"{f}[{_name(model, mujoco.mjtObj.mjOBJ_JOINT, j)}]" for j in joints for f in _DOF_FIELDS]
     bodies = sorted({int(model.jnt_bodyid[j]) for j in joints})
