@@ -559,7 +559,7 @@ def test_train_selects_the_dm_envs_observation_parts_through_torchrl(user_dir: P
     Path("qpos_noise.yaml").write_text(
         "signals:\n- type: ObservationNoise\n  processes: [{type: Gaussian, std: 0.002}]\n  select: qpos\n"
     )
-    code, out, err = run_cli(["train", "--env", f"{MODULE}:make_dm", "--config", "qpos_noise.yaml", "--frames", "64",
+    code, _, err = run_cli(["train", "--env", f"{MODULE}:make_dm", "--config", "qpos_noise.yaml", "--frames", "64",
                               "--no-log", "--quiet", "--out", "qpos.pt"])  # fmt: skip
     assert (code, err) == (0, "") and Path("qpos.pt").exists()
 
