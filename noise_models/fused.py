@@ -163,8 +163,9 @@ class Pipeline:
         self.low, self.high = low, high
 
     def scratch_generator(self) -> np.random.Generator:
-        """A Philox generator of this pipeline's own, made at the first call, for :func:`next_blocks` to set to each
-        world's stream state in turn (it never holds a stream of its own between calls)."""
+        """A Philox generator of this pipeline's own, made at the first call, that :func:`next_blocks` sets to each
+        world's stream state in turn and :meth:`_refill_planned` to this pipeline's (it never holds a stream of its
+        own between calls); ``_scratch_state`` is the state dict both write the key and counter into."""
         gen = self._scratch
         if gen is None:
             gen = self._scratch = np.random.Generator(np.random.Philox(key=np.zeros(2, np.uint64)))
@@ -427,16 +428,9 @@ def _compose_additive(
         gen = pipes[0].scratch_generator()
         bitgen, normal = gen.bit_generator, gen.standard_normal
         # One state dict for every world (numpy copies it in): each world's key and counter written into it in turn.
-        counter = [0, 0, 0, 0]
-        inner: dict[str, list[int]] = {"counter": counter, "key": []}
-        state: dict[str, Any] = {
-            "bit_generator": "Philox",
-            "state": inner,
-            "buffer": [0, 0, 0, 0],
-            "buffer_pos": 4,
-            "has_uint32": 0,
-            "uinteger": 0,
-        }
+        state = pipes[0]._scratch_state
+        inner = state["state"]
+        counter = inner["counter"]
     else:
         head = stages[0].parts[0]
         drawn = head.kind == "block" and getattr(head, "draw_into", None) is not None
