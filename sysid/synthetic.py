@@ -34,7 +34,7 @@ import numpy as np
 
 from sysid.logs import TrajectoryLog, channel_names
 
-__all__ = ["ACTUATORS", "excitation_log", "generate_arm", "home_pose"]
+__all__ = ["ACTUATORS", "excitation_log", "generate_arm", "gripper_arm", "home_pose"]
 
 #: Actuator kinds :func:`generate_arm` can build.
 ACTUATORS: tuple[str, ...] = ("motor", "position")
@@ -329,3 +329,98 @@ def excitation_log(
     if true_params is not None:
         meta["true_params"] = {str(k): float(v) for k, v in true_params.items()}
     return TrajectoryLog(time=time, qpos=qpos, qvel=qvel, ctrl=ctrl, meta=meta)
+
+
+def gripper_arm() -> str:
+    """The MJCF of a 7-DoF arm with stiff position servos and a two-finger gripper: slide fingers coupled by an
+    equality and driven through a fixed tendon, wrist force/torque sensors, a ``home`` keyframe, its control rate
+    declared (100 Hz). A start state a noise draw off the coupling is what the held-out check must survive
+    (``sysid._problem.coupled_states``).
+
+    Example:
+        >>> import mujoco
+        >>> model = mujoco.MjModel.from_xml_string(gripper_arm())
+        >>> model.nq, model.nu, model.neq, model.ntendon
+        (9, 8, 1, 1)
+    """
+    return _GRIPPER_ARM
+
+
+_GRIPPER_ARM = """<mujoco model="arm7_gripper">
+  <compiler angle="radian" autolimits="true"/>
+  <option timestep="0.002" gravity="0 0 -9.81"/>
+  <custom><numeric name="sim2real_control_timestep" data="0.01"/></custom>
+  <default><geom contype="0" conaffinity="0"/></default>
+  <worldbody>
+    <body name="base" pos="0 0 0.1">
+      <joint name="j1" axis="0 0 1" range="-2.8 2.8" damping="2.0" armature="0.1"/>
+      <geom type="cylinder" size="0.06 0.05" mass="4"/>
+      <body name="l2" pos="0 0 0.08">
+        <joint name="j2" axis="0 1 0" range="-1.8 1.8" damping="3.0" armature="0.1"/>
+        <geom type="capsule" fromto="0 0 0 0 0 0.3" size="0.045" mass="3"/>
+        <body name="l3" pos="0 0 0.3">
+          <joint name="j3" axis="0 0 1" range="-2.8 2.8" damping="1.5" armature="0.05"/>
+          <geom type="capsule" fromto="0 0 0 0 0 0.1" size="0.04" mass="1.5"/>
+          <body name="l4" pos="0 0 0.1">
+            <joint name="j4" axis="0 1 0" range="-2.5 0.2" damping="1.5" armature="0.05"/>
+            <geom type="capsule" fromto="0 0 0 0.25 0 0" size="0.035" mass="1.5"/>
+            <body name="l5" pos="0.25 0 0">
+              <joint name="j5" axis="1 0 0" range="-2.8 2.8" damping="0.5" armature="0.02"/>
+              <geom type="capsule" fromto="0 0 0 0.1 0 0" size="0.03" mass="0.8"/>
+              <body name="l6" pos="0.1 0 0">
+                <joint name="j6" axis="0 1 0" range="-1.6 1.6" damping="0.5" armature="0.02"/>
+                <geom type="capsule" fromto="0 0 0 0.08 0 0" size="0.03" mass="0.6"/>
+                <body name="l7" pos="0.08 0 0">
+                  <joint name="j7" axis="1 0 0" range="-2.8 2.8" damping="0.2" armature="0.01"/>
+                  <geom type="box" size="0.02 0.04 0.02" mass="0.3"/>
+                  <site name="wrist" pos="0 0 0" size="0.01"/>
+                  <body name="fl" pos="0.03 0.02 0">
+                    <joint name="fl" type="slide" axis="0 1 0" range="0 0.04" damping="0.5" armature="0.01"/>
+                    <geom type="box" size="0.02 0.005 0.01" mass="0.05"/>
+                  </body>
+                  <body name="fr" pos="0.03 -0.02 0">
+                    <joint name="fr" type="slide" axis="0 -1 0" range="0 0.04" damping="0.5" armature="0.01"/>
+                    <geom type="box" size="0.02 0.005 0.01" mass="0.05"/>
+                  </body>
+                </body>
+              </body>
+            </body>
+          </body>
+        </body>
+      </body>
+    </body>
+  </worldbody>
+  <tendon>
+    <fixed name="grip" stiffness="5" damping="0.1"><joint joint="fl" coef="0.5"/><joint joint="fr" coef="0.5"/></fixed>
+  </tendon>
+  <equality><joint joint1="fl" joint2="fr"/></equality>
+  <actuator>
+    <general name="a1" joint="j1" gaintype="fixed" biastype="affine" gainprm="80" biasprm="0 -80 -6"
+             ctrlrange="-2.8 2.8" forcerange="-60 60"/>
+    <general name="a2" joint="j2" gaintype="fixed" biastype="affine" gainprm="150" biasprm="0 -150 -10"
+             ctrlrange="-1.8 1.8" forcerange="-90 90"/>
+    <general name="a3" joint="j3" gaintype="fixed" biastype="affine" gainprm="60" biasprm="0 -60 -4"
+             ctrlrange="-2.8 2.8" forcerange="-40 40"/>
+    <general name="a4" joint="j4" gaintype="fixed" biastype="affine" gainprm="60" biasprm="0 -60 -4"
+             ctrlrange="-2.5 0.2" forcerange="-40 40"/>
+    <general name="a5" joint="j5" gaintype="fixed" biastype="affine" gainprm="15" biasprm="0 -15 -1"
+             ctrlrange="-2.8 2.8" forcerange="-10 10"/>
+    <general name="a6" joint="j6" gaintype="fixed" biastype="affine" gainprm="15" biasprm="0 -15 -1"
+             ctrlrange="-1.6 1.6" forcerange="-10 10"/>
+    <general name="a7" joint="j7" gaintype="fixed" biastype="affine" gainprm="5" biasprm="0 -5 -0.3"
+             ctrlrange="-2.8 2.8" forcerange="-3 3"/>
+    <general name="grip" tendon="grip" gaintype="fixed" biastype="affine" gainprm="40" biasprm="0 -40 -2"
+             ctrlrange="0 0.04" forcerange="-10 10"/>
+  </actuator>
+  <sensor>
+    <jointpos name="q2" joint="j2"/>
+    <jointvel name="dq4" joint="j4"/>
+    <force name="wrist_f" site="wrist"/>
+    <torque name="wrist_t" site="wrist"/>
+    <tendonpos name="grip_pos" tendon="grip"/>
+  </sensor>
+  <keyframe>
+    <key name="home" qpos="0 0.3 0 -1.2 0 0.5 0 0.02 0.02" ctrl="0 0.3 0 -1.2 0 0.5 0 0.02"/>
+  </keyframe>
+</mujoco>
+"""
