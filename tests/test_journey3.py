@@ -616,3 +616,19 @@ def test_no_output_overwrites_the_module_of_the_users_env(user_dir: Path, user: 
             f"Received {given!r} for both.\n"
         )
         assert module.read_bytes() == source and not Path("f.json").exists()
+
+
+def test_demo_holds_the_users_servo_arm_at_its_home_pose(user_dir: Path, user: Any) -> None:
+    # The registered MujocoEnv's actions are its position servos' set points (the Box is the ctrlrange): the demo holds
+    # them at the home keyframe's joint angles, as it does for an MJCF. Before it ran the zero action, which sends
+    # every servo to 0 rad (HC's journey 3), under a line saying so.
+    code, out, err = run_cli(["demo", "--env", f"{MODULE}:make_gym", "--episodes", "1", "--quiet"])
+    assert (code, err) == (0, "")
+    assert "policy: hold the home pose (position servos at their home set points; no scripted controller for" in out
+    from sim2real.cli.demo import _hold_policy
+
+    env = user.make_gym()
+    hold = _hold_policy(env)
+    assert hold is not None
+    np.testing.assert_allclose(hold(None), HOME, atol=1e-6)  # the keyframe's joint angles, in the ctrl range
+    env.close()

@@ -83,28 +83,52 @@ def _zero_policy(env: Any) -> Policy:
 
 
 def _hold_policy(env: Any) -> Policy | None:
-    """An MJCF's position servos held at their set points of the home pose (other actuators at 0), or None when
-    the model has no servo: a zero action sends every servo to 0 rad, far from the home pose the bare env scores."""
+    """Position servos held at their set points of the env's start pose (other actuators at 0), or None when the
+    model has no servo or the env's actions are not its actuators' controls: a zero action sends every servo to
+    0 rad, far from the pose the arm starts in. The start pose: the model's home keyframe (named ``home``, else the
+    first); without one a gymnasium MujocoEnv's ``init_qpos``; else ``qpos0``."""
+    import gymnasium as gym
     import mujoco
 
     from sim2real.home import _servo_mask
     from sim2real.mjcf_env import MjcfEnv, home_key
+    from sim2real.physics import find_physics
 
-    base = getattr(env, "unwrapped", env)
-    if not isinstance(base, MjcfEnv):
+    handle = find_physics(env)
+    space = env.action_space
+    if handle is None or not isinstance(space, gym.spaces.Box):
         return None
-    model = base.model
+    model = handle.model
     servo = _servo_mask(model)
-    if not servo.any():
+    if not servo.any() or space.shape != (model.nu,):
+        return None
+    base = getattr(env, "unwrapped", env)
+    if not isinstance(base, MjcfEnv) and not _actions_are_controls(model, space):
         return None
     data = mujoco.MjData(model)
-    key = home_key(model)
-    if key is not None:
+    start = getattr(base, "init_qpos", None)
+    if (key := home_key(model)) is not None:
         mujoco.mj_resetDataKeyframe(model, data, key)
+    elif isinstance(start, np.ndarray) and start.shape == (model.nq,):
+        data.qpos[:] = start
     mujoco.mj_forward(model, data)
-    low, high = env.action_space.low, env.action_space.high
-    hold = np.where(servo, np.clip(data.actuator_length, low, high), 0.0).astype(env.action_space.dtype)
+    low, high = space.low, space.high
+    hold = np.where(servo, np.clip(data.actuator_length, low, high), 0.0).astype(space.dtype)
     return lambda obs: hold
+
+
+def _actions_are_controls(model: Any, space: Any) -> bool:
+    """Whether an action space is the actuators' control range (as gymnasium's MujocoEnv and a dm_env built on
+    ``ctrlrange`` declare it): then an action entry is that actuator's command."""
+    limited = np.asarray(model.actuator_ctrllimited, dtype=bool)
+    if not limited.any():
+        return False
+    ranges = np.asarray(model.actuator_ctrlrange, dtype=np.float64)
+    low, high = np.asarray(space.low, dtype=np.float64), np.asarray(space.high, dtype=np.float64)
+    return bool(
+        np.allclose(low[limited], ranges[limited, 0], rtol=1e-6, atol=1e-6)
+        and np.allclose(high[limited], ranges[limited, 1], rtol=1e-6, atol=1e-6)
+    )
 
 
 def _run_episode(env: Any, policy: Policy, seed: int) -> _Episode:
