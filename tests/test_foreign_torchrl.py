@@ -140,6 +140,49 @@ def test_torchrl_selects_the_parts_of_a_flat_dm_control_observation_as_gymnasium
     gym_env.close()
 
 
+@pytest.mark.parametrize("native", [False, True])
+def test_torchrl_repeating_an_env_that_steps_frame_skip_itself_is_warned_about(native: bool) -> None:
+    # An EnvBase with a `frame_skip` instance attribute gets a FrameSkipTransform from TorchRL itself, which repeats
+    # the whole step; sim2real reads the attribute as the env's physics steps per step (gymnasium's meaning), so a
+    # latency counts frame_skip ** 2 physics steps per TorchRL step (HC's journey 3: 25 for 5). Said once at wrap
+    # time; not when the class says it implements frame_skip itself (`_has_frame_skip = True`: no transform added).
+    import warnings
+
+    from torchrl.envs import TransformedEnv
+
+    arm = type(_nested_torchrl_arm())  # (no frame_skip attribute: TorchRL leaves it alone)
+
+    class Skipping(arm):  # type: ignore[misc, valid-type]
+        _has_frame_skip = native
+
+        def __init__(self) -> None:
+            super().__init__()
+            self.frame_skip = 4
+
+        def _step(self, td: Any) -> Any:
+            self.n_substeps = self.frame_skip
+            return super()._step(td)
+
+    env = Skipping()
+    assert isinstance(env, TransformedEnv) != native  # TorchRL's own FrameSkipTransform(4) unless native
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        wrapped = s2r.wrap(env, ActionLatency(steps=8), seed=0)
+        wrapped.reset()
+    said = [str(w.message) for w in caught if "FrameSkipTransform(4)" in str(w.message)]
+    if native:
+        assert said == []
+    else:
+        assert said == [
+            "TorchRL repeats each step of Skipping 4 times (it appends FrameSkipTransform(4) to an EnvBase with a "
+            "`frame_skip` attribute), and sim2real reads that attribute as the env's physics steps per step: latency "
+            "and jitter count 16 physics steps per TorchRL step. If the env's _step already runs `frame_skip` physics "
+            "steps, set `_has_frame_skip = True` on its class so TorchRL does not repeat it; if it runs one, name the "
+            "attribute otherwise."
+        ]
+    wrapped.close()
+
+
 # -- TorchRL's own action repeat (GymWrapper(..., frame_skip=k)) -------------------------------------------------
 
 

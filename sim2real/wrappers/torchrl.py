@@ -17,6 +17,7 @@ Example:
 from __future__ import annotations
 
 import contextlib
+import warnings
 from collections.abc import Sequence
 from typing import Any
 
@@ -387,6 +388,8 @@ class CorruptSignalsTransform(NoCopy, Transform):
                     f"with {len(action_keys)}: {action_keys}."
                 )
             obs_dtype = _numpy_dtype(obs_spec[keys[0]].dtype) if keys else np.float64
+            if self.corruptor.timing:
+                _warn_frame_skip_twice(parent)
             self._clock = SignalClock(
                 parent.base_env,
                 self.corruptor,
@@ -537,6 +540,37 @@ def _action_repeat(parent: Any) -> int:
         if isinstance(t, FrameSkipTransform):
             repeat *= int(t.frame_skip)
     return repeat
+
+
+def _warn_frame_skip_twice(parent: Any) -> None:
+    """Warns when TorchRL repeats an env's whole step ``frame_skip`` times because the env has a ``frame_skip``
+    attribute (``EnvBase`` appends a ``FrameSkipTransform`` then), while sim2real reads that attribute as the env's
+    physics steps per step, as gymnasium's MujocoEnv means it: timing models then count ``frame_skip ** 2`` physics
+    steps per TorchRL step, right only if the env's ``_step`` itself runs ``frame_skip`` physics steps and the user
+    wants TorchRL to repeat that again."""
+    from torchrl.envs.transforms import Compose, FrameSkipTransform
+
+    base = parent.base_env
+    skip = vars(base).get("frame_skip")  # (from __dict__, as TorchRL reads it)
+    if not isinstance(skip, int) or isinstance(skip, bool) or skip <= 1:
+        return
+    if getattr(type(base), "_has_frame_skip", False):
+        return
+    transform = getattr(parent, "transform", None)
+    repeats = [
+        t for t in (transform if isinstance(transform, Compose) else (transform,)) if isinstance(t, FrameSkipTransform)
+    ]
+    if not any(int(t.frame_skip) == skip for t in repeats):
+        return
+    warnings.warn(
+        f"TorchRL repeats each step of {type(base).__name__} {skip} times (it appends FrameSkipTransform({skip}) to "
+        f"an EnvBase with a `frame_skip` attribute), and sim2real reads that attribute as the env's physics steps "
+        f"per step: latency and jitter count {skip * skip} physics steps per TorchRL step. If the env's _step already "
+        "runs `frame_skip` physics steps, set `_has_frame_skip = True` on its class so TorchRL does not repeat it; if "
+        "it runs one, name the attribute otherwise.",
+        UserWarning,
+        stacklevel=2,
+    )
 
 
 def _key_name(key: NestedKey) -> str:
