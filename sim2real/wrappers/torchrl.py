@@ -530,16 +530,24 @@ def _action_repeat(parent: Any) -> int:
     ``GymEnv``'s ``frame_skip`` (its ``wrapper_frame_skip`` loop) times each ``FrameSkipTransform`` before this
     transform. A control step of the transform is that many steps of the env, so its physics steps are that many
     times the env's ``frame_skip``."""
-    from torchrl.envs.transforms import Compose, FrameSkipTransform
-
     # From __dict__, as TorchRL reads it: a batched env's __getattr__ would start (or recurse into) its workers.
     repeat = vars(parent.base_env).get("wrapper_frame_skip", 1)
     repeat = repeat if isinstance(repeat, int) and not isinstance(repeat, bool) and repeat >= 1 else 1
-    transform = getattr(parent, "transform", None)
-    for t in transform if isinstance(transform, Compose) else (transform,):
-        if isinstance(t, FrameSkipTransform):
-            repeat *= int(t.frame_skip)
+    for skip in _frame_skips(parent):
+        repeat *= skip
     return repeat
+
+
+def _frame_skips(parent: Any) -> list[int]:
+    """The ``frame_skip`` of each ``FrameSkipTransform`` of ``parent`` (a transform or a ``Compose`` of them)."""
+    from torchrl.envs.transforms import Compose, FrameSkipTransform
+
+    transform = getattr(parent, "transform", None)
+    return [
+        int(t.frame_skip)
+        for t in (transform if isinstance(transform, Compose) else (transform,))
+        if isinstance(t, FrameSkipTransform)
+    ]
 
 
 def _warn_frame_skip_twice(parent: Any) -> None:
@@ -548,19 +556,11 @@ def _warn_frame_skip_twice(parent: Any) -> None:
     physics steps per step, as gymnasium's MujocoEnv means it: timing models then count ``frame_skip ** 2`` physics
     steps per TorchRL step, right only if the env's ``_step`` itself runs ``frame_skip`` physics steps and the user
     wants TorchRL to repeat that again."""
-    from torchrl.envs.transforms import Compose, FrameSkipTransform
-
     base = parent.base_env
     skip = vars(base).get("frame_skip")  # (from __dict__, as TorchRL reads it)
     if not isinstance(skip, int) or isinstance(skip, bool) or skip <= 1:
         return
-    if getattr(type(base), "_has_frame_skip", False):
-        return
-    transform = getattr(parent, "transform", None)
-    repeats = [
-        t for t in (transform if isinstance(transform, Compose) else (transform,)) if isinstance(t, FrameSkipTransform)
-    ]
-    if not any(int(t.frame_skip) == skip for t in repeats):
+    if getattr(type(base), "_has_frame_skip", False) or skip not in _frame_skips(parent):
         return
     warnings.warn(
         f"TorchRL repeats each step of {type(base).__name__} {skip} times (it appends FrameSkipTransform({skip}) to "
