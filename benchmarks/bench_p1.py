@@ -15,6 +15,10 @@ rotates and flips every repeat, timed in CPU time (``time.process_time``; the bo
 * ``lean, keyed noise``: the same drawing a fresh block of Gaussian rows every 256 steps from a Philox generator
   (as the stack's keyed streams do: ``standard_normal(out=...)``, the bias added, the cast), instead of cycling one
   fixed block: the floor of a wrapper whose noise is noise. ``fused/lean keyed`` >= 1 means the fused layer is at it.
+* ``lean, keyed, DR``: ``lean, keyed noise`` around an env whose model holds the stack's physics draws (a
+  :class:`RandomizePhysics` layer draws and writes them at every reset; steps bypass it): the floor of a Python
+  wrapper doing the whole stack's work, physics DR included (the randomised model's own dynamics cost ~1% on
+  manipulator). ``fused/lean keyed DR`` >= 1 means the fused layer is at the floor of the full stack.
 * ``lean, no report``: the same without the per-step report (``info["sim2real"]``: a fresh dict holding a fresh copy
   of the episode's params, as gymnasium's env checker demands of every step's info): what that contract costs.
 * manipulator only, the env as it was before its fast path: ``dmc raw`` is the adapter around dm-control's own
@@ -130,6 +134,22 @@ class LeanFloor(gym.Wrapper):  # type: ignore[type-arg]
         return oring[(k - self.obs_lag) % osize], reward, terminated, truncated, info
 
 
+class DrawsOnly(gym.Wrapper):  # type: ignore[type-arg]
+    """The raw env under a physics layer's draws: ``reset`` goes through ``layer`` (a RandomizePhysics around the
+    env), which draws and writes the episode's physics; ``step`` calls the env itself (no wrapper on the step path,
+    nothing reported): what the randomised model's own dynamics cost, for the ``lean, keyed, DR`` arm."""
+
+    def __init__(self, layer: Any) -> None:
+        super().__init__(layer.env)
+        self.layer = layer
+
+    def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
+        return self.layer.reset(**kwargs)  # type: ignore[no-any-return]
+
+    def close(self) -> None:
+        self.layer.close()
+
+
 def arms_for(name: str) -> dict[str, Any]:
     """The arms of one task (see the module docstring)."""
     from bench_overhead import make_signal_models, make_stack_physics, task_id
@@ -146,6 +166,9 @@ def arms_for(name: str) -> dict[str, Any]:
         "fused": fused,
         "lean": LeanFloor(s2r.make(tid), *lags),
         "lean, keyed noise": LeanFloor(s2r.make(tid), *lags, keyed=True),
+        "lean, keyed, DR": LeanFloor(
+            DrawsOnly(s2r.wrap(s2r.make(tid), *make_stack_physics(), seed=0)), *lags, keyed=True
+        ),
         "lean, no report": LeanFloor(s2r.make(tid), *lags, report=False),
     }
     if name.startswith("manipulator-"):
@@ -276,6 +299,8 @@ def _summary(rates: dict[str, list[float]]) -> dict[str, Any]:
     result["lean no report/raw"] = _ratio(rates, "lean, no report", "raw")
     result["lean keyed/raw"] = _ratio(rates, "lean, keyed noise", "raw")
     result["fused/lean keyed"] = _ratio(rates, "fused", "lean, keyed noise")
+    result["lean keyed DR/raw"] = _ratio(rates, "lean, keyed, DR", "raw")
+    result["fused/lean keyed DR"] = _ratio(rates, "fused", "lean, keyed, DR")
     if "dmc raw" in rates:
         result["before"] = _ratio(rates, "dmc two layers", "dmc raw")
         result["fast raw/dmc raw"] = _ratio(rates, "raw", "dmc raw")
@@ -304,9 +329,14 @@ def report(results: dict[str, dict[str, Any]]) -> None:
             f"    lean/raw {_fmt(r['lean/raw'])}; fused/lean {_fmt(r['fused/lean'])}; "
             f"lean without the per-step report / raw {_fmt(r['lean no report/raw'])}\n"
             f"    lean drawing fresh noise blocks / raw {_fmt(r['lean keyed/raw'])}; "
-            f"fused/lean keyed {_fmt(r['fused/lean keyed'])}"
+            f"fused/lean keyed {_fmt(r['fused/lean keyed'])}\n"
+            f"    the same over the stack's physics draws (the full stack's floor) / raw {_fmt(r['lean keyed DR/raw'])}; "
+            f"fused/lean keyed DR {_fmt(r['fused/lean keyed DR'])}"
         )
-        verdicts.append(f"{name} lean/raw={r['lean/raw'][0]:.3f} lean_keyed/raw={r['lean keyed/raw'][0]:.3f}")
+        verdicts.append(
+            f"{name} lean/raw={r['lean/raw'][0]:.3f} lean_keyed/raw={r['lean keyed/raw'][0]:.3f} "
+            f"lean_keyed_dr/raw={r['lean keyed DR/raw'][0]:.3f}"
+        )
         if "before" in r:
             print(
                 f"{'  (manipulator, dm-control named-indexer task)':<26}\n"
