@@ -2,8 +2,9 @@
 
 :class:`DmEnvToGym` declares float32 ``Box`` spaces, flattens dict observations in spec order
 (or keeps them as a ``Dict`` space with ``flatten=False``), honours ``reset(seed=...)`` by
-re-seeding the task's own ``RandomState`` in place (a deterministic dm_env takes a seed with nothing to
-re-seed; one whose randomness cannot be re-seeded refuses it, naming where it keeps it), ends an episode whose physics diverged with
+re-seeding the task's own ``RandomState`` in place (and any other numpy or ``random`` generator the env keeps
+on itself, its task or the dm_envs it wraps; a deterministic dm_env takes a seed with nothing to re-seed), ends an
+episode whose physics diverged with
 ``truncated=True`` and ``info["diverged"] = True`` instead of raising (a reset that diverges
 returns ``info["diverged"] = True`` and its next step ends the episode), and exposes the dm_env and
 its physics.
@@ -22,6 +23,7 @@ Example:
 from __future__ import annotations
 
 import random
+import zlib
 from collections import OrderedDict
 from typing import Any
 
@@ -63,22 +65,18 @@ def _inner_random_state(
     return None, []
 
 
-def _own_generator(wrapper: Any) -> str | None:
-    """The first random generator kept directly on ``wrapper`` (``"_rng (numpy.random.Generator)"``), if any."""
-    for name, value in getattr(wrapper, "__dict__", {}).items():
-        if isinstance(value, _RANDOM_SOURCES):
-            kind = type(value)
-            module = "numpy.random" if kind.__module__.startswith("numpy.random") else kind.__module__
-            return f"{name} ({module}.{kind.__name__})"
-    return None
+def _generators(obj: Any) -> list[tuple[str, Any]]:
+    """The random generators kept directly on ``obj``'s attributes, ``(name, generator)``, in attribute order."""
+    return [(name, value) for name, value in getattr(obj, "__dict__", {}).items() if isinstance(value, _RANDOM_SOURCES)]
 
 
-def _unseedable_randomness(env: Any) -> str | None:
-    """Where a dm_env without a dm-control RandomState keeps a random generator (``"env._rng
-    (numpy.random.Generator)"``), or None when none is visible: the attributes of the env, of its ``task``
-    and of the dm_envs it wraps are searched (a generator hidden deeper, or the global ``np.random``, is not)."""
+def _random_sources(env: Any) -> list[tuple[str, Any]]:
+    """Every random generator a dm_env without a dm-control RandomState keeps among the attributes of the env,
+    of its ``task`` and of the dm_envs it wraps, with its path (``"env._rng"``), each object once (a generator
+    hidden deeper, e.g. in a list, or the global ``np.random``, is not seen)."""
     stack: list[tuple[str, Any]] = [("env", env)]
     seen: set[int] = set()
+    found: list[tuple[str, Any]] = []
     while stack:
         path, obj = stack.pop()
         if id(obj) in seen:
@@ -88,13 +86,35 @@ def _unseedable_randomness(env: Any) -> str | None:
             attributes = vars(obj)
         except TypeError:  # no __dict__ (slots, builtins)
             continue
-        own = _own_generator(obj)
-        if own is not None:
-            return f"{path}.{own}"
+        for name, value in _generators(obj):
+            if id(value) not in seen:
+                seen.add(id(value))
+                found.append((f"{path}.{name}", value))
         for name, value in attributes.items():
             if isinstance(value, dm_env.Environment) or name in ("task", "_task"):
                 stack.append((f"{path}.{name}", value))
-    return None
+    return found
+
+
+def _describe(source: Any) -> str:
+    kind = type(source)
+    module = "numpy.random" if kind.__module__.startswith("numpy.random") else kind.__module__
+    return f"{module}.{kind.__name__}"
+
+
+def _reseed(source: Any, seed: int, path: str) -> None:
+    """Re-seeds ``source`` (a numpy Generator, BitGenerator or RandomState, or a ``random.Random``) in place from
+    ``seed`` and its attribute ``path`` (two generators of one env get different streams; the same seed and path,
+    the same stream)."""
+    child = np.random.SeedSequence(seed, spawn_key=(zlib.crc32(path.encode()),))
+    if isinstance(source, np.random.Generator):
+        source.bit_generator.state = type(source.bit_generator)(child).state
+    elif isinstance(source, np.random.BitGenerator):
+        source.state = type(source)(child).state
+    elif isinstance(source, np.random.RandomState):
+        source.seed(int(child.generate_state(1)[0]))
+    else:
+        source.seed(int(child.generate_state(1, np.uint64)[0]))
 
 
 def suite_observation(env: Any) -> Any:
@@ -217,35 +237,39 @@ class DmEnvToGym(gym.Env):
         """Starts an episode; a ``seed`` re-seeds the task's RandomState in place first.
 
         The RandomState of a suite or composer env wrapped in a user's dm_env wrapper (one that does not forward
-        ``task``) is found and re-seeded too, unless the wrapper keeps a generator of its own.
-        A dm_env with no random generator among its attributes (nor its ``task``'s, nor those of the dm_envs it
-        wraps) is taken as deterministic: it accepts a seed, which only seeds ``self.np_random`` (there is
-        nothing else to re-seed), so ``gymnasium``'s ``check_env`` runs on it. One that keeps a generator
-        DmEnvToGym cannot re-seed (e.g. ``self._rng = np.random.default_rng()``) refuses a seed, naming the
-        attribute, rather than ignore it. Randomness drawn from the global ``np.random`` cannot be seen.
+        ``task``) is found and re-seeded too. A hand-written dm_env's own generators (a numpy ``Generator``,
+        ``BitGenerator`` or ``RandomState``, or a ``random.Random``, kept as attributes of the env, its ``task``,
+        the dm_envs it wraps, or of wrappers above a suite task) are re-seeded in place, each from the seed and its
+        attribute path, so the same seed gives the same episode; a generator shared with other code is re-seeded
+        with it. A dm_env with no generator among those attributes is taken as deterministic: the seed only seeds
+        ``self.np_random``, so ``gymnasium``'s ``check_env`` runs on it. Randomness drawn from the global
+        ``np.random``, or kept deeper (in a list), cannot be seen.
 
         Raises:
-            ValueError: ``options`` given, or a ``seed`` for an env whose randomness cannot be re-seeded.
+            ValueError: ``options`` given, or a ``seed`` for an env whose generator cannot be re-seeded in place.
         """
         super().reset(seed=seed)
         if options:
             raise ValueError(f"`options` is not supported by dm-control environments. Received {options!r}.")
         if seed is not None:
             state, wrappers = _inner_random_state(self.dm_env)
-            # A wrapper's own generator would go unseeded beside the wrapped task's RandomState.
-            owns = [f"{path}.{own}" for path, wrapper in wrappers if (own := _own_generator(wrapper)) is not None]
-            hidden = owns[0] if owns else None
-            if state is not None and hidden is None:
+            if state is not None:
                 state.seed(int(np.random.SeedSequence(seed).generate_state(1)[0]))
+                # Generators of the user's wrappers above the task would go unseeded beside its RandomState.
+                sources = [
+                    (f"{path}.{name}", g) for path, w in wrappers for name, g in _generators(w) if g is not state
+                ]
             else:
-                hidden = hidden or _unseedable_randomness(self.dm_env)
-                if hidden is not None:
+                sources = _random_sources(self.dm_env)
+            for path, source in sources:
+                try:
+                    _reseed(source, seed, path)
+                except (TypeError, ValueError, AttributeError) as exc:  # a bit generator that takes no SeedSequence
                     raise ValueError(
-                        f"`seed` cannot be honoured: {type(self.dm_env).__name__} draws from {hidden}, which "
-                        "DmEnvToGym cannot re-seed. Keep the env's randomness in a numpy RandomState named "
-                        "`random_state` (re-seeded in place, as for composer envs), or seed the env in its "
-                        f"factory and call reset() without a seed. Received seed={seed!r}."
-                    )
+                        f"`seed` cannot be honoured: {type(self.dm_env).__name__} draws from {path} "
+                        f"({_describe(source)}), which DmEnvToGym cannot re-seed in place ({exc}). Seed the env in "
+                        f"its factory and call reset() without a seed. Received seed={seed!r}."
+                    ) from None
         self._reset_diverged = False
         try:
             timestep = self.dm_env.reset()

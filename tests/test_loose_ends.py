@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import random
 import warnings
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -53,23 +55,52 @@ def test_a_deterministic_dm_env_takes_a_seed_and_passes_check_env() -> None:
 
 
 @pytest.mark.parametrize(
-    ("rng", "kind"),
-    [
-        (np.random.default_rng(0), "numpy.random.Generator"),
-        (np.random.RandomState(0), "numpy.random.RandomState"),
-    ],
+    "make_rng",
+    [np.random.default_rng, np.random.RandomState, lambda s: np.random.Generator(np.random.Philox(s)), random.Random],
+    ids=["Generator", "RandomState", "Philox", "random.Random"],
 )
-def test_a_dm_env_with_randomness_it_keeps_to_itself_refuses_a_seed(rng: Any, kind: str) -> None:
-    env = DmEnvToGym(_Drift(rng))
-    with pytest.raises(ValueError) as err:
-        env.reset(seed=3)
-    assert str(err.value) == (
-        f"`seed` cannot be honoured: _Drift draws from env._rng ({kind}), which DmEnvToGym cannot re-seed. "
-        "Keep the env's randomness in a numpy RandomState named `random_state` (re-seeded in place, as for "
-        "composer envs), or seed the env in its factory and call reset() without a seed. Received seed=3."
-    )
-    obs, _ = env.reset()  # unseeded resets still work
-    assert obs.shape == (2,)
+def test_a_dm_env_keeping_its_own_generator_is_reseeded_in_place(make_rng: Any) -> None:
+    class Noisy(_Drift):
+        def reset(self) -> dm_env.TimeStep:
+            rng = self._rng
+            self.x = np.array([rng.gauss(0, 1), rng.gauss(0, 1)]) if isinstance(rng, random.Random) else None
+            if self.x is None:
+                self.x = rng.normal(size=2) if hasattr(rng, "normal") else rng.standard_normal(2)
+            self.t = 0
+            return dm_env.restart(self.x.copy())
+
+    rng = make_rng(0)
+    env = DmEnvToGym(Noisy(rng))
+    # "`seed` cannot be honoured: _Drift draws from env._rng (...), which DmEnvToGym cannot re-seed" before
+    first, _ = env.reset(seed=3)
+    other, _ = env.reset(seed=4)
+    env.reset()  # an unseeded reset draws on from where the stream is
+    again, _ = env.reset(seed=3)
+    assert first.tobytes() == again.tobytes() != other.tobytes()
+    assert env.dm_env._rng is rng  # the user's own generator, re-seeded in place, not replaced
+    twin, _ = DmEnvToGym(Noisy(make_rng(99))).reset(seed=3)  # whatever it was built with
+    assert twin.tobytes() == first.tobytes()
+    check_env(env, skip_render_check=True)
+
+
+def test_two_generators_of_one_env_get_different_streams_and_a_shared_one_is_seeded_once() -> None:
+    class Two(_Drift):
+        def reset(self) -> dm_env.TimeStep:
+            self.x = np.array([self._rng.normal(), self._other.normal()])
+            self.t = 0
+            return dm_env.restart(self.x.copy())
+
+    inner = Two(np.random.default_rng(0))
+    inner._other = np.random.default_rng(0)
+    obs, _ = DmEnvToGym(inner).reset(seed=5)
+    assert obs[0] != obs[1]  # each from the seed and its own attribute path
+    shared = Two(np.random.default_rng(0))
+    shared._other = shared._rng  # one generator under two names: re-seeded once, drawn twice
+    obs, _ = DmEnvToGym(shared).reset(seed=5)
+    expected = np.random.Generator(
+        np.random.PCG64(np.random.SeedSequence(5, spawn_key=(zlib.crc32(b"env._rng"),)))
+    ).normal(size=2)
+    assert obs.tolist() == expected.astype(np.float32).tolist()  # (DmEnvToGym observations are float32)
 
 
 def test_a_dm_env_exposing_random_state_is_reseeded_in_place() -> None:
@@ -271,9 +302,15 @@ def test_a_suite_env_inside_a_users_dm_env_wrapper_is_reseeded() -> None:
     other, _ = env.reset(seed=12)
     again, _ = env.reset(seed=11)
     assert first.tobytes() == again.tobytes() and first.tobytes() != other.tobytes()
+    # The wrapper's own generator is re-seeded too (refused before: "draws from env._rng (numpy.random.Generator),
+    # which DmEnvToGym cannot re-seed"); the task's RandomState is seeded as without it.
     noisy = DmEnvToGym(_Repeat(suite.load("reacher", "easy"), np.random.default_rng(0)))
-    with pytest.raises(ValueError, match=r"draws from env\._rng \(numpy\.random\.Generator\), which DmEnvToGym"):
-        noisy.reset(seed=1)
+    obs, _ = noisy.reset(seed=11)
+    draw = noisy.dm_env._rng.normal()
+    noisy.reset(seed=12)
+    assert noisy.dm_env._rng.normal() != draw
+    again, _ = noisy.reset(seed=11)
+    assert noisy.dm_env._rng.normal() == draw and obs.tobytes() == again.tobytes() == first.tobytes()
 
 
 def test_a_relative_model_path_in_a_spec_rebuilds_the_same_file_from_another_folder(
