@@ -61,15 +61,67 @@ def _header_unit(name: str) -> str | None:
     return unit if unit in UNITS else None
 
 
+def _skipped(row: list[str]) -> bool:
+    """A blank row or a ``#`` comment row (a driver's ``# firmware v2`` line): no reader of the CSV counts it."""
+    return not any(c.strip() for c in row) or row[0].lstrip().startswith("#")
+
+
+def _is_number(cell: str) -> bool:
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
+
+
+def header_row(path: str | os.PathLike[str], delimiter: str) -> tuple[int, list[str]]:
+    """The header as ``(row number in the file, stripped names)``: the first row that is neither blank nor a ``#``
+    comment, so comment rows a driver writes above its header are skipped; when that row holds numbers only, the
+    comment row just above it is the header (``numpy.savetxt(header=...)`` writes it as ``# t,q0,...``).
+    ``(0, [])`` for a file without one.
+
+    Example:
+        >>> import os, tempfile
+        >>> path = os.path.join(tempfile.mkdtemp(), "log.csv")
+        >>> _ = open(path, "w").write("# arm driver v2, 125 Hz\\n\\nt [ms],q [deg]\\n0,1\\n")
+        >>> header_row(path, ",")
+        (3, ['t [ms]', 'q [deg]'])
+        >>> _ = open(path, "w").write("# t,q\\n0,1\\n8,2\\n")
+        >>> header_row(path, ",")
+        (1, ['t', 'q'])
+    """
+    comment: tuple[int, list[str]] | None = None
+    with open(path, newline="", encoding="utf-8-sig") as handle:
+        for number, row in enumerate(csv.reader(handle, delimiter=delimiter), 1):
+            if not _skipped(row):
+                if comment is not None and all(_is_number(c.strip()) for c in row):
+                    names = [comment[1][0].lstrip()[1:], *comment[1][1:]]
+                    return comment[0], [h.strip() for h in names]
+                return number, [h.strip() for h in row]
+            if any(c.strip() for c in row):
+                comment = (number, row)
+    return 0, []
+
+
 def data_rows(path: str | os.PathLike[str], delimiter: str) -> list[tuple[int, list[str]]]:
-    """The CSV's data rows as ``(row number in the file, cells)``, as ``np.loadtxt`` reads them: after the header,
-    without blank rows and ``#`` comment rows (a driver's ``# firmware v2`` line)."""
+    """The CSV's data rows as ``(row number in the file, cells)``, as ``np.loadtxt`` reads them: after the header
+    (:func:`header_row`), without blank rows and ``#`` comment rows (a driver's ``# firmware v2`` line)."""
+    first, _ = header_row(path, delimiter)
     with open(path, newline="", encoding="utf-8-sig") as handle:
         return [
             (number, row)
             for number, row in enumerate(csv.reader(handle, delimiter=delimiter), 1)
-            if number > 1 and any(c.strip() for c in row) and not row[0].lstrip().startswith("#")
+            if number > first and not _skipped(row)
         ]
+
+
+def row_numbers(path: str | os.PathLike[str], first: int, delimiter: str, count: int) -> list[int]:
+    """Each data row's number in the file (``first``: the header's), the rows numpy's reader keeps: blank and ``#``
+    comment rows are skipped but counted, so errors and gaps name the row a user finds in an editor. A line scan;
+    when it does not find ``count`` rows (a quoted cell spanning lines), the CSV reader's count."""
+    with open(path, encoding="utf-8-sig") as handle:
+        found = [n for n, line in enumerate(handle, 1) if n > first and line.strip() and line.lstrip()[0] != "#"]
+    return found if len(found) == count else [n for n, _ in data_rows(path, delimiter)]
 
 
 def _time_origin(table: np.ndarray, column: int, path: str | os.PathLike[str], delimiter: str) -> str | None:

@@ -43,7 +43,6 @@ Example:
 from __future__ import annotations
 
 import contextlib
-import csv
 import difflib
 import fnmatch
 import itertools
@@ -58,7 +57,16 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from sysid._csv_units import _GAP, UNITS, _check_velocity_units, _header_unit, _time_origin, data_rows
+from sysid._csv_units import (
+    _GAP,
+    UNITS,
+    _check_velocity_units,
+    _header_unit,
+    _time_origin,
+    data_rows,
+    header_row,
+    row_numbers,
+)
 from sysid.logs import LogError, TrajectoryLog, _check_model, log_format
 
 __all__ = ["UNITS", "CsvWarning", "load_column_map", "load_csv", "log_format"]
@@ -194,13 +202,13 @@ def _number(value: Any, name: str, column: str) -> float:
 
 
 def _table(
-    header: list[str], used: list[int], where: str, path: str | os.PathLike[str], delimiter: str
+    header: list[str], used: list[int], where: str, path: str | os.PathLike[str], delimiter: str, first: int = 1
 ) -> tuple[np.ndarray, list[int] | None]:
     """The numbers below the header (unused columns NaN) and, when some cells are empty, each row's number in the
     file (None: every cell holds a number). numpy parses the file in C; when it cannot, the rows are read one by one
     to name the first bad row and column. Blank and ``#`` comment rows are skipped either way."""
     with contextlib.suppress(ValueError):
-        block = np.loadtxt(path, delimiter=delimiter, skiprows=1, usecols=used, ndmin=2, quotechar='"')
+        block = np.loadtxt(path, delimiter=delimiter, skiprows=first, usecols=used, ndmin=2, quotechar='"')
         if block.shape[0] >= 2 and np.all(np.isfinite(block)):
             table = np.full((block.shape[0], len(header)), np.nan)
             table[:, used] = block
@@ -247,8 +255,8 @@ def _hold_commands(
     index: dict[str, list[int]],
     dt: float,
     where: str,
-    lines: list[int] | None = None,
-) -> tuple[np.ndarray, int, int, int]:
+    lines: list[int],
+) -> tuple[np.ndarray, list[int], int, int, int]:
     """Commands logged at another rate than the states: an empty command cell holds the previous command of its
     segment (the driver sent none that step), a row of commands alone (every state cell empty) is merged into the
     rows after it, and state rows before their segment's first command are dropped: nothing says what was sent
@@ -256,7 +264,8 @@ def _hold_commands(
     naming its row (``lines``: each table row's number in the file) and column. ``table`` is in SI units.
 
     Returns:
-        The table of state rows, and the counts of held cells' rows, merged command rows and dropped rows.
+        The table of state rows, their numbers in the file, and the counts of held cells' rows, merged command
+        rows and dropped rows.
     """
     ctrl = index["ctrl"]
     state = [i for key in _STATE_KEYS if key in index for i in index[key]]
@@ -268,13 +277,13 @@ def _hold_commands(
         r = int(np.flatnonzero(bad)[0])
         c = next(i for i in required + state if blank[r, i])
         raise LogError(
-            f"`path` {where} row {r + 2 if lines is None else lines[r]}, column {header[c]!r} must hold a finite "
+            f"`path` {where} row {lines[r]}, column {header[c]!r} must hold a finite "
             "number (dropped rows are removed, "
             "not left empty; only command columns may be empty, or every state column of a row of commands). "
             "Received ''."
         )
     if not blank[:, ctrl].any():
-        return table, 0, 0, 0
+        return table, lines, 0, 0, 0
     rows = np.arange(table.shape[0])
     # segment starts among the state rows (a gap or a new episode); a command row belongs to the next state row
     states = np.flatnonzero(~commands_only)
@@ -292,7 +301,8 @@ def _hold_commands(
     held = int((blank[:, ctrl].any(axis=1) & keep).sum())
     if keep.sum() < 2:
         raise LogError(f"`path` {where} must hold at least 2 rows of states with every command column logged.")
-    return table[keep], held, int(commands_only.sum()), int((~commands_only & ~keep).sum())
+    kept = [line for line, k in zip(lines, keep.tolist(), strict=True) if k]
+    return table[keep], kept, held, int(commands_only.sum()), int((~commands_only & ~keep).sum())
 
 
 def _check_degrees(qpos: np.ndarray, names: list[str], explicit: set[str], model: mujoco.MjModel, where: str) -> None:
@@ -368,9 +378,10 @@ def _check_order(key: str, columns: list[str], model: mujoco.MjModel, where: str
 
 
 def _segments(
-    time: np.ndarray, episode: np.ndarray | None, dt: float, column: str, where: str
+    time: np.ndarray, episode: np.ndarray | None, dt: float, column: str, where: str, lines: list[int]
 ) -> tuple[list[tuple[int, int]], list[dict[str, float]]]:
-    """Row ranges of the segments (episodes split at gaps) and the gaps found."""
+    """Row ranges of the segments (episodes split at gaps) and the gaps found (``lines``: each row's number in the
+    file, which errors and gaps name)."""
     edges = [0, time.shape[0]]
     if episode is not None:
         edges += (np.flatnonzero(np.diff(episode) != 0) + 1).tolist()
@@ -387,7 +398,7 @@ def _segments(
             else ""
         )
         raise LogError(
-            f"{where} row {i + 2}, time column {column!r} must increase within a segment. Received "
+            f"{where} row {lines[i]}, time column {column!r} must increase within a segment. Received "
             f"{float(time[i]):.9g} s after {float(time[i - 1]):.9g} s.{hint}"
         )
     inner = steps[same]
@@ -410,7 +421,7 @@ def _segments(
             f"is {dt:.6g} s (the log must hold one row per control step).{hint}"
         )
     gap_rows = np.flatnonzero(same & (steps > _GAP * dt)) + 1
-    gaps = [{"row": int(i) + 2, "dt_s": round(float(steps[i - 1]), 12)} for i in gap_rows]
+    gaps = [{"row": lines[int(i)], "dt_s": round(float(steps[i - 1]), 12)} for i in gap_rows]
     edges = sorted(set(edges) | set(gap_rows.tolist()))
     return [(a, b) for a, b in itertools.pairwise(edges) if b > a], gaps
 
@@ -562,8 +573,7 @@ def load_csv(
         value = meta.get(key)
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
             raise LogError(f"`meta['{key}']` must be a positive number of seconds. Received {value!r}.")
-    with open(path, newline="", encoding="utf-8-sig") as handle:  # utf-8-sig: a BOM is not part of the first name
-        header = [h.strip() for h in next(csv.reader(handle, delimiter=delimiter), [])]
+    header_line, header = header_row(path, delimiter)  # comment rows above the header are skipped
     index = {key: _resolve_columns(spec, header, key, f"CSV file {where}") for key, spec in columns.items()}
     mapped: dict[int, str] = {}
     for key, idx in index.items():
@@ -578,7 +588,8 @@ def load_csv(
                     f"key (only sensordata may share one; narrow the pattern, e.g. '*_deg'). Received "
                     f"columns={dict(columns)!r}."
                 )
-    table, lines = _table(header, sorted(mapped), where, path, delimiter)
+    table, numbered = _table(header, sorted(mapped), where, path, delimiter, header_line)
+    lines = numbered if numbered is not None else row_numbers(path, header_line, delimiter, table.shape[0])
     origin = _time_origin(table, index["time"][0], path, delimiter)
     unit_of = _per_column(units, "units", header, mapped, f"CSV file {where}")
     for i in mapped:
@@ -612,7 +623,9 @@ def load_csv(
         table[:, i] *= value
     for i, value in offsets.items():
         table[:, i] += value
-    table, held, merged, leading = _hold_commands(table, header, index, float(meta["control_timestep"]), where, lines)
+    table, lines, held, merged, leading = _hold_commands(
+        table, header, index, float(meta["control_timestep"]), where, lines
+    )
     arrays = {key: table[:, idx[0]] if key in ("time", "episode") else table[:, idx] for key, idx in index.items()}
     dt = float(meta["control_timestep"])
     time_column = header[index["time"][0]]
@@ -620,7 +633,7 @@ def load_csv(
     if episode is not None and not np.all(episode == np.round(episode)):
         bad = int(np.flatnonzero(episode != np.round(episode))[0])
         raise LogError(
-            f"{where} row {bad + 2}, column {header[index['episode'][0]]!r} must hold integer episode indices. "
+            f"{where} row {lines[bad]}, column {header[index['episode'][0]]!r} must hold integer episode indices. "
             f"Received {episode[bad]!r}."
         )
     if model is not None:
@@ -640,7 +653,7 @@ def load_csv(
         dt,
         f"CSV file {where}",
     )
-    bounds, gaps = _segments(arrays["time"], episode, dt, time_column, f"CSV file {where}")
+    bounds, gaps = _segments(arrays["time"], episode, dt, time_column, f"CSV file {where}", lines)
     resampled, segment, jitter, dropped, filled = _resample(arrays, bounds, dt, velocity_of)
     name = Path(path).name
     if gaps:

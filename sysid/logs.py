@@ -405,7 +405,8 @@ def save_log(log: TrajectoryLog, path: str | os.PathLike[str]) -> None:
 
 
 def log_format(path: str | os.PathLike[str]) -> str:
-    """``"npz"`` (a zip archive), ``"csv"`` (text with a delimiter on its first line) or ``"unknown"``.
+    """``"npz"`` (a zip archive), ``"csv"`` (text with a delimiter on its first row that is not blank or a ``#``
+    comment) or ``"unknown"``.
 
     Example:
         >>> import os, tempfile
@@ -422,7 +423,8 @@ def log_format(path: str | os.PathLike[str]) -> str:
         text = head.decode("utf-8")
     except UnicodeDecodeError:
         return "unknown"
-    first = text.splitlines()[0] if text else ""
+    # the first row that is neither blank nor a '#' comment (a driver's '# firmware v2' line above its header)
+    first = next((line for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")), "")
     return "csv" if any(d in first for d in (",", ";", "\t")) else "unknown"
 
 

@@ -1,0 +1,226 @@
+"""Journey 4: my own arm, from a driver CSV to a calibrated simulator, through the CLI.
+
+The user's arm is nothing like ours: a linear axis (a slide carrying the arm) under four hinges on a vertical chain
+under gravity, joint limits, position servos next to torque motors, armature and friction loss, a 250 Hz physics step
+and a 125 Hz driver (``sim2real_control_timestep``), a ``home`` keyframe. Its "real" twin is the same MJCF with other
+dampings, friction loss and hand mass. It is logged twice: by ``sim2real record --set`` and by the user's own driver,
+a CSV in milliseconds, degrees and millimetres (units in brackets), commands at half the state rate, comment rows and
+a dropped row, read through ``--columns map.yaml``. Each test pins what a user saw before a fix and sees now.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+import yaml
+
+import sysid
+
+# {placeholders} are what differs between the model and the "real" arm.
+ARM = """<mujoco model="journey4_arm">
+  <compiler angle="radian" autolimits="true"/>
+  <option timestep="0.004" gravity="0 0 -9.81"/>
+  <custom><numeric name="sim2real_control_timestep" data="0.008"/></custom>
+  <default><geom contype="0" conaffinity="0"/></default>
+  <worldbody>
+    <body name="carriage" pos="0 0 0.3">
+      <joint name="lift" type="slide" axis="0 0 1" range="-0.15 0.15" damping="40" armature="1.0" frictionloss="2"/>
+      <geom type="box" size="0.08 0.08 0.05" mass="3"/>
+      <body name="turret" pos="0 0 0.08">
+        <joint name="yaw" axis="0 0 1" range="-2.5 2.5" damping="1.2" armature="0.08" frictionloss="0.1"/>
+        <geom type="cylinder" size="0.05 0.03" mass="1.5"/>
+        <body name="upper" pos="0 0 0.04">
+          <joint name="shoulder" axis="0 1 0" range="-1.7 1.7" damping="{shoulder_damping}" armature="0.1"
+                 frictionloss="{shoulder_friction}"/>
+          <geom type="capsule" fromto="0 0 0 0 0 0.3" size="0.035" mass="2"/>
+          <body name="fore" pos="0 0 0.3">
+            <joint name="elbow" axis="0 1 0" range="-2.2 2.2" damping="{elbow_damping}" armature="0.05"
+                   frictionloss="0.1"/>
+            <geom type="capsule" fromto="0 0 0 0 0 0.25" size="0.03" mass="1.2"/>
+            <body name="hand" pos="0 0 0.25">
+              <joint name="wrist" axis="0 1 0" range="-2 2" damping="0.2" armature="0.02" frictionloss="0.05"/>
+              <geom type="box" pos="0 0 0.05" size="0.03 0.03 0.05" mass="{hand_mass}"/>
+            </body>
+          </body>
+        </body>
+      </body>
+    </body>
+  </worldbody>
+  <actuator>
+    <position name="lift" joint="lift" kp="3000" kv="150" ctrlrange="-0.15 0.15" forcerange="-300 300"/>
+    <position name="yaw" joint="yaw" kp="60" kv="4" ctrlrange="-2.5 2.5" forcerange="-40 40"/>
+    <motor name="shoulder" joint="shoulder" gear="1" ctrlrange="-40 40"/>
+    <position name="elbow" joint="elbow" kp="80" kv="4" ctrlrange="-2.2 2.2" forcerange="-30 30"/>
+    <motor name="wrist" joint="wrist" gear="1" ctrlrange="-5 5"/>
+  </actuator>
+  <keyframe>
+    <key name="home" qpos="0.05 0 0.5 0.8 -0.3" ctrl="0.05 0 0 0.8 0"/>
+  </keyframe>
+</mujoco>
+"""
+NOMINAL = {"shoulder_damping": 1.5, "shoulder_friction": 0.2, "elbow_damping": 0.8, "hand_mass": 0.6}
+REAL = {"shoulder_damping": 1.95, "shoulder_friction": 0.35, "elbow_damping": 1.04, "hand_mass": 0.8}
+PARAMS = "dof_damping[*],dof_frictionloss[shoulder],body_mass[hand]"
+#: The real arm's value of every fitted address (dampings the real arm shares with the model: the model's).
+TRUTH = {
+    "dof_damping[lift]": 40.0,
+    "dof_damping[yaw]": 1.2,
+    "dof_damping[shoulder]": 1.95,
+    "dof_damping[elbow]": 1.04,
+    "dof_damping[wrist]": 0.2,
+    "dof_frictionloss[shoulder]": 0.35,
+    "body_mass[hand]": 0.8,
+}
+JOINTS = ("lift", "yaw", "shoulder", "elbow", "wrist")
+SUBSTEPS = 2  # physics steps per control step (0.008 s / 0.004 s)
+HEADER = [
+    "t [ms]",
+    "lift_pos [mm]",
+    *(f"{j}_pos [deg]" for j in JOINTS[1:]),
+    "lift_vel [mm/s]",
+    *(f"{j}_vel [deg/s]" for j in JOINTS[1:]),
+    "lift_cmd_mm",
+    "yaw_cmd_deg",
+    "shoulder_tau [Nm]",
+    "elbow_cmd_deg",
+    "wrist_tau [Nm]",
+]
+COLUMN_MAP = {
+    "columns": {
+        "time": "t [ms]",
+        "qpos": ["lift_pos [mm]", *(f"{j}_pos [deg]" for j in JOINTS[1:])],
+        "qvel": "*_vel *",
+        "ctrl": ["lift_cmd_mm", "yaw_cmd_deg", "shoulder_tau [Nm]", "elbow_cmd_deg", "wrist_tau [Nm]"],
+    },
+    "units": {"lift_cmd_mm": "mm", "*_cmd_deg": "deg"},
+}
+
+
+@pytest.fixture(scope="module")
+def user(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The user's folder: the arm's MJCF and its column map."""
+    folder = tmp_path_factory.mktemp("journey4")
+    (folder / "arm.xml").write_text(ARM.format(**NOMINAL))
+    (folder / "map.yaml").write_text(yaml.safe_dump(COLUMN_MAP))
+    return folder
+
+
+def drive(steps: int = 300, seed: int = 0, noise: tuple[float, float] = (1e-3, 1e-2)) -> list[tuple]:
+    """The real arm under its driver: servo set-points and gravity-compensated PD torques around home, sent every
+    other control step from the measured state; rows ``(t, qpos, qvel, ctrl or None)`` with ``noise`` (position,
+    velocity SDs in SI units; the slide's in m and m/s) on the logged state, ``None`` where no command was sent."""
+    model = mujoco.MjModel.from_xml_string(ARM.format(**REAL))
+    data, probe = mujoco.MjData(model), mujoco.MjData(model)
+    rng = np.random.default_rng(seed)
+    home = model.key("home")
+    data.qpos[:], data.ctrl[:] = home.qpos, home.ctrl
+    freqs, phases = rng.uniform(0.3, 2.5, (5, 3)), rng.uniform(0, 2 * np.pi, (5, 3))
+    q0 = home.qpos
+    linear = np.array([model.jnt_type[j] == mujoco.mjtJoint.mjJNT_SLIDE for j in range(model.njnt)])
+    scale = np.where(linear, 0.01, 1.0)  # a linear encoder is finer than a hinge's
+    rows, u = [], np.zeros(model.nu)
+    for k in range(steps):
+        q = data.qpos + scale * rng.normal(0, noise[0], model.nq)
+        v = data.qvel + scale * rng.normal(0, noise[1], model.nv)
+        sent = k % 2 == 0
+        if sent:
+            w = np.sin(2 * np.pi * freqs * data.time + phases).sum(axis=1) / 3
+            probe.qpos[:], probe.qvel[:] = q, 0.0
+            mujoco.mj_forward(model, probe)
+            g = probe.qfrc_bias
+            u = np.array(
+                [
+                    q0[0] + 0.03 * w[0],
+                    q0[1] + 0.5 * w[1],
+                    g[2] + 30 * (q0[2] - q[2]) - 3 * v[2] + 4 * w[2],
+                    q0[3] + 0.4 * w[3],
+                    g[4] + 4 * (q0[4] - q[4]) - 0.3 * v[4] + 0.8 * w[4],
+                ]
+            )
+            u = np.clip(u, *model.actuator_ctrlrange.T)
+        rows.append((float(data.time), q, v, u.copy() if sent else None))
+        data.ctrl[:] = u
+        for _ in range(SUBSTEPS):
+            mujoco.mj_step(model, data)
+    return rows
+
+
+def driver_csv(path: Path, rows: list[tuple], *, drop: int = 151, start_ms: float = 12345.0) -> Path:
+    """What the driver writes: a comment row above the header and one among the data, time in ms since it booted,
+    hinges in degrees, the slide in mm, empty command cells when no command went out, row ``drop`` lost."""
+    to_driver = np.array([1000.0, *[180 / math.pi] * 4])
+    lines = ["# arm driver v2.3, 125 Hz states, 62.5 Hz commands", ",".join(HEADER)]
+    for k, (t, q, v, u) in enumerate(rows):
+        if k == drop:
+            continue
+        cells = [
+            f"{1000 * t + start_ms:.3f}",
+            *(f"{x:.6f}" for x in q * to_driver),
+            *(f"{x:.6f}" for x in v * to_driver),
+        ]
+        if u is None:
+            cells += [""] * 5
+        else:
+            cells += [f"{1000 * u[0]:.4f}", f"{math.degrees(u[1]):.5f}", f"{u[2]:.5f}", f"{math.degrees(u[3]):.5f}"]
+            cells += [f"{u[4]:.5f}"]
+        lines.append(",".join(cells))
+        if k == 2:
+            lines.append("# operator: e-stop test skipped")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def file_row(path: Path, prefix: str) -> int:
+    """The number in the file (1-based, as an editor shows it) of the row starting with ``prefix``."""
+    return next(n for n, line in enumerate(path.read_text().splitlines(), 1) if line.startswith(prefix))
+
+
+def meta() -> dict[str, float]:
+    return {"timestep": 0.004, "control_timestep": 0.008}
+
+
+def test_a_comment_row_above_the_header_is_skipped_and_rows_are_named_by_their_number_in_the_file(
+    tmp_path: Path, user: Path
+) -> None:
+    # Before: the first line was the header whatever it held: "`columns['time']` names column 't [ms]', which CSV
+    # file 'robot.csv' does not have. Received columns: '# arm driver v2.3', ' 125 Hz states', ..." (and a comment
+    # line without a comma made the file "neither a zip header nor a CSV header row" to the CLI). Gaps and errors
+    # named rows by their index in the table + 2, so every comment row and every merged or dropped row shifted them:
+    # the dropped row's gap was "before row 153" for a row an editor shows as 155.
+    model = mujoco.MjModel.from_xml_path(str(user / "arm.xml"))
+    rows = drive()
+    path = driver_csv(tmp_path / "robot.csv", rows)
+    after_gap = f"{1000 * rows[152][0] + 12345.0:.3f},"
+    columns, units = COLUMN_MAP["columns"], COLUMN_MAP["units"]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        log = sysid.load_csv(path, columns, meta(), model, units=units)
+    said = [str(w.message) for w in caught]
+    assert f"1 gap(s) in time column 't [ms]', the first before row {file_row(path, after_gap)} (0.016 s" in said[0]
+    assert "149 row(s) without a command hold the previous one" in said[1] and len(said) == 2
+    assert log.meta["csv"]["gaps"] == [{"row": file_row(path, after_gap), "dt_s": 0.016}]
+    assert log.time.shape == (299,) and log.meta["csv"]["segments"] == 2
+    np.testing.assert_allclose(log.qpos[0], rows[0][1], atol=1e-6)  # degrees and mm read back in rad and m
+    # the same rows under a comment line without a delimiter: a CSV all the same
+    text = path.read_text().splitlines()
+    path.write_text("\n".join(["# arm driver v2.3", "", *text[1:]]) + "\n")
+    assert sysid.log_format(path) == "csv"
+    # numpy.savetxt writes its header as a comment row: its names are the header
+    saved = tmp_path / "saved.csv"
+    np.savetxt(saved, [[0.0, 0.1, 0.0, 1.0], [0.008, 0.2, 0.0, 1.0]], delimiter=",", header="t,q,dq,u")
+    plain = sysid.load_csv(saved, {"time": "t", "qpos": "q", "qvel": "dq", "ctrl": "u"}, meta())
+    assert plain.qpos[:, 0].tolist() == [0.1, 0.2]
+    # an error names the row an editor shows: time going backwards at the 41st state row after the comments
+    lines = path.read_text().splitlines()
+    target = file_row(path, f"{1000 * rows[40][0] + 12345.0:.3f},")
+    cells = lines[target - 1].split(",")
+    cells[0] = f"{1000 * rows[38][0] + 12345.0:.3f}"
+    lines[target - 1] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(sysid.LogError, match=rf"row {target}, time column 't \[ms\]' must increase within a segment"):
+        sysid.load_csv(path, columns, meta(), model, units=units)
