@@ -67,9 +67,11 @@ def noise_select(env: Any) -> dict[str, Any] | None:
     :meth:`sysid.FitResult.to_effects` (``noise_select=``), or None when that is not known (the export then
     falls back to one noise level for the whole observation).
 
-    Known: a :class:`~sim2real.mjcf_env.MjcfEnv` (``qpos`` then ``qvel``: index lists), and observations with named
-    parts (dict spaces, dm-control's flattened parts) called ``qpos``/``position`` of the model's ``nq`` values or
-    ``qvel``/``velocity`` of its ``nv``; wrappers must keep the base env's observation space.
+    Known: a :class:`~sim2real.mjcf_env.MjcfEnv` (``qpos`` then ``qvel``: index lists; one entry per joint, e.g.
+    ``qpos[lift]``, when the joints differ in units: a slide's metres next to hinges' radians), and
+    observations with named parts (dict spaces, dm-control's flattened parts) called ``qpos``/``position`` of the
+    model's ``nq`` values or ``qvel``/``velocity`` of its ``nv``; wrappers must keep the base env's observation
+    space.
 
     Example:
         >>> import sim2real as s2r
@@ -88,7 +90,7 @@ def noise_select(env: Any) -> dict[str, Any] | None:
     from sim2real.mjcf_env import MjcfEnv
 
     if isinstance(base, MjcfEnv):
-        return {"qpos": list(range(nq)), "qvel": list(range(nq, nq + nv))}
+        return _by_joint(handle.model) or {"qpos": list(range(nq)), "qvel": list(range(nq, nq + nv))}
     space = base.observation_space
     if isinstance(space, gym.spaces.Dict):
         parts = [(k, int(np.prod(sub.shape))) for k, sub in space.spaces.items() if sub.shape is not None]
@@ -100,3 +102,24 @@ def noise_select(env: Any) -> dict[str, Any] | None:
         if len(hits) == 1:
             out[signal] = hits[0]
     return out or None
+
+
+def _by_joint(model: mujoco.MjModel) -> dict[str, list[int]] | None:
+    """One ``{channel: indices}`` entry per joint of an :class:`~sim2real.mjcf_env.MjcfEnv`'s ``qpos`` and ``qvel``
+    when slides (m) sit next to other joints (rad), else None. One level pooled over a linear axis and hinges
+    exported the hinges' ~1e-3 rad as the noise of a slide whose encoder the fit measured at 1e-5 m (and biased the
+    hinges' level). A free joint among hinges alone keeps the pooled levels (its position and quaternion are pooled
+    either way)."""
+    from sysid.logs import channel_names
+
+    kinds = {int(t) for t in model.jnt_type}
+    slide = int(mujoco.mjtJoint.mjJNT_SLIDE)
+    if slide not in kinds or kinds == {slide}:
+        return None
+    names = channel_names(model)
+    out: dict[str, list[int]] = {}
+    for key, offset in (("qpos", 0), ("qvel", int(model.nq))):
+        for index, channel in enumerate(names[key]):
+            joint = channel.split("]")[0] + "]"  # 'qpos[puck][3]' -> 'qpos[puck]'
+            out.setdefault(joint, []).append(offset + index)
+    return out

@@ -18,6 +18,7 @@ import mujoco
 import numpy as np
 import pytest
 import yaml
+from conftest import run_cli
 
 import sysid
 
@@ -224,3 +225,40 @@ def test_a_comment_row_above_the_header_is_skipped_and_rows_are_named_by_their_n
     path.write_text("\n".join(lines) + "\n")
     with pytest.raises(sysid.LogError, match=rf"row {target}, time column 't \[ms\]' must increase within a segment"):
         sysid.load_csv(path, columns, meta(), model, units=units)
+
+
+def fit_cli(log: Path, user: Path, out: Path, *extra: str) -> tuple[int, str, str]:
+    argv = ["sysid", "fit", str(log), "--model", str(user / "arm.xml"), "--params", PARAMS, "--quiet"]
+    return run_cli([*argv, "--out", str(out), *extra])
+
+
+def inside(fit: sysid.FitResult) -> list[str]:
+    """The fitted addresses whose 95% interval holds the real arm's value."""
+    return [a for a, (low, high) in zip(fit.addresses, fit.ci95, strict=True) if low <= TRUTH[a] <= high]
+
+
+def test_the_drivers_csv_fits_exports_per_joint_noise_in_its_own_units_and_builds_the_calibrated_env(
+    tmp_path: Path, user: Path
+) -> None:
+    # Before: the export pooled every qpos channel into one noise level, so the slide (its encoder fitted at 1e-5 m)
+    # got the hinges' ~9e-4 (rad) in the randomised env: 90x its noise, in the wrong unit.
+    path = driver_csv(tmp_path / "robot.csv", drive(seed=0))
+    out, export = tmp_path / "fit.json", tmp_path / "effects.yaml"
+    code, stdout, err = fit_cli(path, user, out, "--columns", str(user / "map.yaml"), "--export", str(export))
+    assert code == 0, err
+    assert "1 gap(s) in time column 't [ms]'" in err and "149 row(s) without a command" in err
+    fit = sysid.FitResult.from_json(out)
+    assert fit.ok and sorted(inside(fit)) == sorted(TRUTH)
+    assert fit.to_json() == sysid.FitResult.from_json(fit.to_json()).to_json()  # a fit kept on disk is the fit
+    effects = yaml.safe_load(export.read_text())
+    (noise,) = [s for s in effects["signals"] if s["type"] == "ObservationNoise"]
+    levels = {tuple(p["select"]): p["std"] for p in noise["processes"]}
+    assert sorted(levels) == [(i,) for i in range(10)]  # qpos then qvel, one joint each
+    for index, expected in ((0, 1e-5), (1, 1e-3), (3, 1e-3), (5, 1e-4), (7, 1e-2)):  # lift in m, m/s; hinges rad
+        assert levels[(index,)]["low"] < expected < levels[(index,)]["high"], index
+    assert {e["type"] for e in effects["effects"]} == {"Damping", "FrictionLoss", "Mass"}
+    code, stdout, err = run_cli(
+        ["demo", "--model", str(user / "arm.xml"), "--config", str(export), "--episodes", "1", "--quiet"]
+    )
+    assert code == 0, err
+    assert "obs_noise_std[0]" in stdout and "dof_frictionloss[shoulder]" in stdout
