@@ -105,6 +105,7 @@ class _JobResult:
     steps: int
     engine: str = "per-env"
     safety: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)  # policy -> quantity -> (count,)
+    reason: str | None = None  # why a per-env run did not use the batched engine
 
 
 #: Conditions per job: a job builds its envs once and reuses them for each of its conditions.
@@ -184,7 +185,7 @@ def _run_job(job: _Job) -> list[_JobResult]:
                 envs = [cond.wrap(b, seed=job.seed) for b in bases[0]]
                 try:
                     res = _episodes(job, cond, envs, seeds[f], policies, meter)
-                    results[cond.name, f] = dataclasses.replace(res, first=f)
+                    results[cond.name, f] = dataclasses.replace(res, first=f, reason=_batched_reason(job, cond))
                 finally:
                     for env, b in zip(envs, bases[0], strict=True):
                         _release(env, b)
@@ -476,7 +477,8 @@ def evaluate(
         progress: show a progress bar.
         engine: ``"auto"`` steps a condition's envs on the batched engine (:mod:`sim2real.batched`) when the
             task and its effects are supported and one by one otherwise; ``"per-env"`` always steps them one by
-            one. Both give bitwise the same results; ``Evaluation.engines`` says which ran each condition.
+            one. Both give bitwise the same results; ``Evaluation.engines`` says which ran each condition and
+            ``Evaluation.fallbacks`` why a condition ran per env.
         safety: a :class:`sim2real.safety.SafetyLimits`: also measure every episode's safety quantities (joint
             limit hits, effort ratio, contact force, end-effector speed, divergence; :mod:`sim2real.safety_probe`)
             into ``Evaluation.safety``, on either engine. Its names are resolved against the task's model before
@@ -602,6 +604,7 @@ def _collect(
         by_condition.setdefault(res.condition, []).append(res)
     steps = 0
     engines: dict[str, str] = {}
+    fallbacks: dict[str, str] = {}
     for cond in conditions:
         if not cond.simulated:
             assert cond.returns is not None and cond.successes is not None
@@ -614,6 +617,8 @@ def _collect(
         parts = sorted(by_condition[cond.name], key=lambda r: r.first)
         steps += sum(r.steps for r in parts)
         engines[cond.name] = parts[0].engine
+        if parts[0].reason is not None:
+            fallbacks[cond.name] = parts[0].reason
         for p in policies:
             returns[p][cond.name] = np.concatenate([r.returns[p] for r in parts])
             lengths[p][cond.name] = np.concatenate([r.lengths[p] for r in parts])
@@ -643,6 +648,7 @@ def _collect(
         seconds=seconds,
         engines=engines,
         safety=_safety_view(safety),
+        fallbacks=fallbacks,
     )
 
 

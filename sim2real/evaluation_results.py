@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -38,7 +38,23 @@ def _nested(data: Mapping[str, Mapping[str, Any]], dtype: Any) -> Mapping[str, M
     )
 
 
-@dataclass(frozen=True)
+def _same(a: Any, b: Any) -> bool:
+    """Whether two values of an :class:`Evaluation` field are equal: mappings key by key, arrays bitwise (the same
+    dtype, shape and values, NaN equal to NaN), anything else by ``==``."""
+    if isinstance(a, Mapping) or isinstance(b, Mapping):
+        return (
+            isinstance(a, Mapping)
+            and isinstance(b, Mapping)
+            and list(a) == list(b)
+            and all(_same(a[k], b[k]) for k in a)
+        )
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        a, b = np.asarray(a), np.asarray(b)
+        return a.dtype == b.dtype and a.shape == b.shape and bool(np.array_equal(a, b, equal_nan=a.dtype.kind == "f"))
+    return bool(a == b)
+
+
+@dataclass(frozen=True, eq=False)
 class Evaluation:
     """Episode returns of every policy on every condition, from :func:`~sim2real.evaluation.evaluate`.
 
@@ -63,6 +79,9 @@ class Evaluation:
         engines: simulated condition -> ``"batched"`` (stepped on :mod:`sim2real.batched`) or ``"per-env"``; how
             it ran, not what it computed (both engines give bitwise the same results), so not part of
             :meth:`to_dict` either.
+        fallbacks: simulated condition that ran ``"per-env"`` -> why the batched engine did not run it (e.g.
+            ``"no batched kernel for task 'gym/...'"``, ``"engine='per-env' was asked for"``); not part of
+            :meth:`to_dict`.
         safety: ``safety[policy][condition][quantity]``, a read-only ``(episodes,)`` float64 array per quantity of
             :data:`sim2real.safety.QUANTITIES`, when ``evaluate`` was given ``safety=`` limits (empty otherwise;
             :meth:`to_dict` has a ``"safety"`` key only when it is not empty).
@@ -82,6 +101,26 @@ class Evaluation:
     seconds: float = field(default=0.0, compare=False)
     engines: Mapping[str, str] = field(default_factory=dict, compare=False)
     safety: Mapping[str, Mapping[str, Mapping[str, np.ndarray]]] = field(default_factory=dict)
+    fallbacks: Mapping[str, str] = field(default_factory=dict, compare=False)
+
+    def __eq__(self, other: object) -> bool:
+        """Equal when every field but ``seconds``, ``engines`` and ``fallbacks`` (how it ran, not what it computed)
+        is: returns, successes, lengths, draws and safety bitwise (two runs of the same seed are; NaN draws too).
+
+        Example:
+            >>> from sim2real.conditions import nominal
+            >>> def run(seconds: float) -> Evaluation:
+            ...     return Evaluation(task="demo", seed=0, episodes=2, max_steps=None, policies=("p",),
+            ...                       conditions=(nominal(),), returns={"p": {"sim": np.array([1.0, 2.0])}},
+            ...                       successes={}, lengths={}, draws={}, seconds=seconds)
+            >>> run(1.0) == run(2.0)
+            True
+        """
+        if not isinstance(other, Evaluation):
+            return NotImplemented
+        return all(_same(getattr(self, f.name), getattr(other, f.name)) for f in fields(self) if f.compare)
+
+    __hash__ = None  # type: ignore[assignment]  # mutable-looking contents (arrays): as before, unhashable
 
     def condition(self, name: str) -> Condition:
         """The condition called ``name``."""

@@ -184,7 +184,8 @@ def test_errors_name_the_argument_and_what_is_allowed() -> None:
     batched.reset()
     with pytest.raises(ValueError, match=r"`actions` must have shape \(2, 2\). Received \(2,\)."):
         batched.step(np.zeros(2))
-    with pytest.raises(ValueError, match=r"`seed` must be None, an int or one seed per reset world \(2\). Received 1."):
+    with pytest.raises(ValueError, match=r"`seed` must be None, an int >= 0 or a sequence of one int >= 0 or None per "
+                       r"reset world \(2\). Received 1 seeds: \[1\].$"):  # fmt: skip
         batched.reset(seed=[1])
     batched.close()
 

@@ -3,7 +3,8 @@ below Python, with observations and rewards computed for all worlds in one numpy
 
 * :func:`make_batched` / :class:`BatchedEnv`: the engine (:mod:`sim2real.batched.engine`);
 * :mod:`sim2real.batched.worlds`: the worlds' physics on MuJoCo's thread-pooled ``mujoco.batch`` (one C call a step);
-* :mod:`sim2real.batched.kernels`: per-task observation and reward kernels (which tasks are supported);
+* :mod:`sim2real.batched.kernels`: per-task observation and reward kernels (which tasks are supported: the built-in
+  ones in ``KERNELS`` and any MJCF file as ``"model:<path>"``; an env with its own Python step is not);
 * :mod:`sim2real.batched.signals`: observation/action noise and observation latency for all worlds at once;
 * :class:`BatchedVectorEnv`: the engine as a gymnasium ``VectorEnv`` (next-step autoreset);
 * :class:`sim2real.batched.torchrl_env.BatchedTorchRLEnv`: the engine as one TorchRL ``EnvBase`` with

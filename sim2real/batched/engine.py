@@ -45,7 +45,7 @@ import mujoco
 import numpy as np
 
 from sim2real.batched.adr import BatchedADR, adr_of
-from sim2real.batched.kernels import KERNELS, Kernel, kernel_for
+from sim2real.batched.kernels import KERNELS, Kernel, kernel_factory, kernel_for
 from sim2real.batched.signals import BatchedSignals, signals_reason
 from sim2real.batched.worlds import BatchedPhysics, default_threads
 
@@ -65,9 +65,18 @@ def supports(task: Any, *effects: Any, options: Mapping[str, Any] | None = None)
     from randomizers import ADR, Effect, Interval, Push
     from sim2real.wrapping import _flatten
 
-    if not isinstance(task, str) or task not in KERNELS:
+    factory = kernel_factory(task)
+    if factory is None:
+        if not isinstance(task, str):
+            return f"no batched kernel for an env object ({type(task).__name__}): the engine builds its worlds from a task id"
+        if task.startswith(("gym/", "env:")):
+            return (
+                f"no batched kernel for task {task!r}: its observations, rewards and ends come from the env's own "
+                "Python step, which the engine cannot compute for all worlds at once (an MJCF file as "
+                "'model:<path>' can be batched)"
+            )
         return f"no batched kernel for task {task!r}"
-    allowed = KERNELS[task]().options
+    allowed = factory().options
     unknown = sorted(set(options or {}) - set(allowed))
     if unknown:
         return f"task options {unknown} are not batched (allowed: {list(allowed)})"
@@ -107,11 +116,54 @@ def _check_count(num_envs: Any) -> int:
     return int(num_envs)
 
 
+def _is_seed(value: Any) -> bool:
+    return not isinstance(value, bool) and isinstance(value, (int, np.integer)) and bool(value >= 0)
+
+
+def _reset_seeds(seed: Any, idx: np.ndarray) -> list[int | None]:
+    """The reset seed of each world of ``idx`` (see :meth:`BatchedEnv.reset`), or a ValueError naming ``seed``.
+
+    Example:
+        >>> _reset_seeds(5, np.arange(2)), _reset_seeds([None, 7], np.arange(2))
+        ([5, 6], [None, 7])
+        >>> _reset_seeds(1.5, np.arange(2))
+        Traceback (most recent call last):
+        ...
+        ValueError: `seed` must be None, an int >= 0 or a sequence of one int >= 0 or None per reset world (2). Received 1.5 (float).
+    """
+    if seed is None:
+        return [None] * len(idx)
+    if _is_seed(seed):
+        return [int(seed) + int(i) for i in idx]
+    allowed = f"None, an int >= 0 or a sequence of one int >= 0 or None per reset world ({len(idx)})"
+    if isinstance(seed, (Sequence, np.ndarray)) and not isinstance(seed, (str, bytes)):
+        seeds = list(seed)
+        wrong = [s for s in seeds if s is not None and not _is_seed(s)]
+        if len(seeds) == len(idx) and not wrong:
+            return [None if s is None else int(s) for s in seeds]
+        what = f"{len(seeds)} seeds" if len(seeds) != len(idx) else f"the entries {wrong!r}"
+        raise ValueError(f"`seed` must be {allowed}. Received {what}: {seed!r}.")
+    raise ValueError(f"`seed` must be {allowed}. Received {seed!r} ({type(seed).__name__}).")
+
+
+def _check_indices(indices: Any, n: int) -> np.ndarray:
+    """``indices`` as int64 world numbers in ``[0, n)``, or a ValueError naming ``indices``."""
+    idx = np.asarray(indices).reshape(-1)
+    if idx.dtype == bool or not (np.issubdtype(idx.dtype, np.integer) or idx.size == 0):
+        raise ValueError(f"`indices` must be world numbers (ints in [0, {n})). Received {indices!r}.")
+    idx = idx.astype(np.int64)
+    outside = idx[(idx < 0) | (idx >= n)]
+    if outside.size:
+        raise ValueError(f"`indices` must be world numbers in [0, {n}). Received {outside.tolist()} among them.")
+    return idx
+
+
 class BatchedEnv:
     """``num_envs`` worlds of one task stepped together (see the module docstring).
 
     Args:
-        task: a task id with a batched kernel (:data:`sim2real.batched.kernels.KERNELS`).
+        task: a task id with a batched kernel (:data:`sim2real.batched.kernels.KERNELS`) or an MJCF file as
+            ``"model:<path>"`` (:class:`~sim2real.batched.kernels.MjcfKernel`).
         num_envs: worlds N.
         effects: physics effects from :mod:`randomizers` (drawn per episode; per-step effects are refused), signal
             models, and at most one :class:`~randomizers.ADR` controller shared by all worlds (each pins its own
@@ -170,7 +222,8 @@ class BatchedEnv:
         reason = supports(task, *effects, options=options)
         if reason is not None:
             raise ValueError(
-                f"`task` and `effects` must be supported by the batched engine (tasks {sorted(KERNELS)}, physics "
+                f"`task` and `effects` must be supported by the batched engine (tasks {sorted(KERNELS)} or an MJCF "
+                f"model 'model:<path>', physics "
                 f"effects drawn per episode): {reason}. Received task {task!r}."
             )
         self.task = task
@@ -181,7 +234,8 @@ class BatchedEnv:
             if given is not None and len(given) != n:
                 raise ValueError(f"`{argument}` must hold one entry per world ({n}). Received {len(given)}.")
         self._owned = envs is None
-        built = {"textures": False, **options}
+        # Headless where the task can be built so (an MJCF model has no textures option).
+        built = {"textures": False, **options} if "textures" in self.kernel.options else dict(options)
         bases = [make(task, **built) for _ in range(n)] if envs is None else list(envs)
         roots = [(self.seed, i) for i in range(n)] if stream_seeds is None else list(stream_seeds)
         self.envs = [wrap(base, *effects, seed=root) for base, root in zip(bases, roots, strict=True)]
@@ -191,6 +245,7 @@ class BatchedEnv:
         # The single envs' MjData: the state a reset leaves, which BatchedPhysics.load reads.
         self._datas = [h.data for h in handles]  # type: ignore[union-attr]
         kernel = self.kernel
+        kernel.configure(self.envs[0])
         self._n_sub = kernel.substeps(self.envs[0])
         self.step_limit: float = kernel.step_limit(self.envs[0])
         m0 = self.models[0]
@@ -245,6 +300,12 @@ class BatchedEnv:
         self.params: dict[str, np.ndarray] = {}
         self._world_params: list[dict[str, float]] = [{} for _ in range(n)]
         self._end_diverged = bool(end_diverged) or kernel.diverged_reward == "zero"
+        # Without sim2real's wrappers, an env that ends its own episodes on some warnings (MjcfEnv: bad accelerations)
+        # still ends them there, with its own observation and reward of the state MuJoCo reset to.
+        self._bare_ends = not self._end_diverged and bool(kernel.bare_warnings)
+        if self._bare_ends:
+            self._watched = [int(w) for w in kernel.bare_warnings]
+        self._ends = self._end_diverged or self._bare_ends  # whether a warning during a step can end an episode
         # ActionLatency on the actuator command: each world applies its delayed command inside its physics step.
         self._delayed = self._signals is not None and self._signals.action_path == "ctrl"
         self._closed = False
@@ -279,21 +340,14 @@ class BatchedEnv:
             ``(N,)`` values in use.
         """
         self._check_open()
-        idx = np.arange(self.num_envs) if indices is None else np.asarray(indices, dtype=np.int64).reshape(-1)
-        if seed is None or isinstance(seed, (int, np.integer)):
-            seeds: list[int | None] = [None if seed is None else int(seed) + int(i) for i in idx]
-        else:
-            seeds = list(seed)
-            if len(seeds) != len(idx):
-                raise ValueError(
-                    f"`seed` must be None, an int or one seed per reset world ({len(idx)}). Received {len(seeds)}."
-                )
+        idx = np.arange(self.num_envs) if indices is None else _check_indices(indices, self.num_envs)
+        seeds = _reset_seeds(seed, idx)  # every seed checked before any world is reset
         for i, s in zip(idx.tolist(), seeds, strict=True):
             obs, info = self.envs[i].reset(seed=s)
             self._out[i] = obs
             inner = self._inner[i]  # the layer under the signal models: its observation is the clean one
             clean = getattr(inner, "_last_obs", None)  # RandomizePhysics, the dm-control adapter
-            self._obs[i] = inner.unwrapped._get_obs() if clean is None else clean  # a bare gymnasium task
+            self._obs[i] = self.kernel.observe(inner) if clean is None else clean  # a bare gymnasium task
             if self._signals is not None:
                 self._signals.reset_world(i, self.envs[i], self._out[i], self._datas[i].ctrl)
             report = info["sim2real"]
@@ -348,7 +402,7 @@ class BatchedEnv:
         else:
             physics.step(None, controls)
         raised = warnings[:, watched].sum(axis=1) > before
-        if self._end_diverged and raised.any():
+        if self._ends and raised.any():
             every = np.ones(self.num_envs, bool)
             return self._finish(every, every.copy(), np.zeros(self.num_envs, bool), True, raised)
         # Kernels return fresh arrays: the observation is handed out as it is, and the reward and termination of a
@@ -403,9 +457,11 @@ class BatchedEnv:
         # ran out of room. dm-control raises PhysicsError there and the adapter ends the episode with reward 0; a
         # gymnasium env's own step returns what it computes, and RandomizePhysics ends the episode. Both keep the
         # last observation.
-        diverged = active & raised if self._end_diverged else np.zeros(n, bool)
+        diverged = active & raised if self._ends else np.zeros(n, bool)
         fresh, reward, terminated = kernel.outputs(physics.qpos, physics.qvel, physics.gathered)
         keep = active & ~diverged
+        if self._bare_ends:  # the bare env returns the observation of the state MuJoCo reset to
+            self._obs[active] = fresh[active]
         self._obs[keep] = fresh[keep]
         paid = keep if kernel.diverged_reward == "zero" else active
         reward = np.where(paid, reward, 0.0)
@@ -501,7 +557,7 @@ def make_batched(task: str, num_envs: int, *effects: Any, seed: int = 0, **optio
     ``sim2real.wrap(sim2real.make(task), *effects, seed=(seed, i))`` (draws, observations, rewards, ends).
 
     Args:
-        task: a task id with a batched kernel (``sim2real.batched.kernels.KERNELS``).
+        task: a task id with a batched kernel (``sim2real.batched.kernels.KERNELS``) or ``"model:<path>"``.
         num_envs: worlds N.
         *effects: physics effects from :mod:`randomizers` drawn per episode (lists are flattened).
         seed: root seed of every world's streams.

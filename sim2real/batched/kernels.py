@@ -26,7 +26,17 @@ from typing import Any
 import mujoco
 import numpy as np
 
-__all__ = ["KERNELS", "ArmReachKernel", "Kernel", "ManipulatorKernel", "ReacherKernel", "kernel_for"]
+__all__ = [
+    "KERNELS",
+    "MODEL_KERNEL",
+    "ArmReachKernel",
+    "Kernel",
+    "ManipulatorKernel",
+    "MjcfKernel",
+    "ReacherKernel",
+    "kernel_factory",
+    "kernel_for",
+]
 
 Outputs = tuple[np.ndarray, np.ndarray, np.ndarray]
 
@@ -45,6 +55,8 @@ class Kernel:
             ``"computed"`` (gymnasium envs: the env's own reward of the state MuJoCo fell back to).
         reports_success: whether the single env reports ``info["is_success"]`` (then equal to ``terminated``).
         options: the :func:`sim2real.make` options a batched world may take (others change what is computed).
+        bare_warnings: MuJoCo warnings (``mjtWarning`` values) on which the task env itself, without sim2real's
+            wrappers, ends an episode (``truncated``, its own observation and reward; MjcfEnv: bad accelerations).
     """
 
     options: tuple[str, ...] = ()
@@ -54,9 +66,17 @@ class Kernel:
     jacobian_site: str | None = None
     diverged_reward: str = "zero"
     reports_success: bool = False
+    bare_warnings: tuple[int, ...] = ()
+
+    def configure(self, env: Any) -> None:
+        """Reads what the kernel's shapes depend on from world 0's single env ``env`` (once, before any reset)."""
 
     def bind(self, models: Sequence[mujoco.MjModel], envs: Sequence[Any]) -> None:
         """Reads what stays fixed over an episode (called after every reset of any world)."""
+
+    def observe(self, env: Any) -> np.ndarray:
+        """The single env ``env``'s own (clean) observation of its current state, as its ``step`` would return it."""
+        return np.asarray(env.unwrapped._get_obs())
 
     def substeps(self, env: Any) -> int:
         """Physics steps per control step of the single env ``env``."""
@@ -254,7 +274,52 @@ class ManipulatorKernel(Kernel):
         return obs, reward, np.zeros(n, bool)
 
 
-#: Task id -> kernel factory: the tasks the batched engine runs (others fall back to per-env stepping).
+class MjcfKernel(Kernel):
+    """An MJCF model as ``sim2real.make("model:<path>")`` builds it (:class:`sim2real.mjcf_env.MjcfEnv`): actions
+    clipped to the actuators' control ranges into ``ctrl``, ``mj_step`` over the substeps then ``mj_forward``;
+    observation ``[qpos, qvel]`` (float32), reward ``-sum((qpos - home)**2)`` over the hinge and slide joints; never
+    terminates. Its shapes come from the model (:meth:`configure`)."""
+
+    options = ("max_episode_steps", "control_timestep", "reset_noise")
+    scheme = "forward"
+    diverged_reward = "computed"
+    bare_warnings = (int(mujoco.mjtWarning.mjWARN_BADQACC),)  # MjcfEnv.step's `diverged`
+
+    def __init__(self) -> None:
+        self._low = self._high = self._home = np.zeros(0)
+        self._scored = np.zeros(0, np.int64)
+
+    def configure(self, env: Any) -> None:
+        base = env.unwrapped
+        self.obs_dim = int(base.model.nq + base.model.nv)
+        self._low, self._high = base._low, base._high
+        self._scored = base._scored
+        self._home = base.home[base._scored]
+
+    def substeps(self, env: Any) -> int:
+        return int(env.unwrapped.n_substeps)
+
+    def step_limit(self, env: Any) -> float:
+        return float(env.unwrapped.max_episode_steps)
+
+    def observe(self, env: Any) -> np.ndarray:
+        return np.asarray(env.unwrapped._obs())
+
+    def controls(self, actions: np.ndarray, qpos: np.ndarray, gathered: dict[str, np.ndarray]) -> np.ndarray:
+        return np.clip(actions, self._low, self._high)
+
+    def outputs(self, qpos: np.ndarray, qvel: np.ndarray, gathered: dict[str, np.ndarray]) -> Outputs:
+        obs = np.concatenate([qpos, qvel], axis=1).astype(np.float32)
+        # C order: a column gather comes out in Fortran order, whose strided rows take another BLAS dot kernel.
+        error = np.ascontiguousarray(qpos[:, self._scored] - self._home)
+        # MjcfEnv's `error @ error` is a BLAS dot whose last bit depends on the CPU's kernel: the same call per world,
+        # each on a contiguous row as the single env's.
+        reward = np.array([-float(row @ row) for row in error])
+        return obs, reward, np.zeros(len(qpos), bool)
+
+
+#: Task id -> kernel factory: the tasks the batched engine runs besides ``model:<path>`` ids (:data:`MODEL_KERNEL`);
+#: others fall back to per-env stepping.
 KERNELS: dict[str, Callable[[], Kernel]] = {
     "dmc/reacher-easy": ReacherKernel,
     "dmc/reacher-hard": ReacherKernel,
@@ -266,13 +331,34 @@ KERNELS: dict[str, Callable[[], Kernel]] = {
 }
 
 
+#: The kernel of every ``model:<path>`` id (an MJCF file as :class:`sim2real.mjcf_env.MjcfEnv`).
+MODEL_KERNEL: Callable[[], Kernel] = MjcfKernel
+
+
+def kernel_factory(task_id: Any) -> Callable[[], Kernel] | None:
+    """The kernel factory of ``task_id``: :data:`KERNELS`' entry, :data:`MODEL_KERNEL` for a ``model:<path>`` id,
+    else None (an env with a step of its own: a ``gym/*`` or ``env:`` id, an env object).
+
+    Example:
+        >>> kernel_factory("model:robot.xml") is MjcfKernel, kernel_factory("gym/Reacher-v5")
+        (True, None)
+    """
+    if not isinstance(task_id, str):
+        return None
+    if task_id.startswith("model:") and len(task_id) > len("model:"):
+        return MODEL_KERNEL
+    return KERNELS.get(task_id)
+
+
 def kernel_for(task_id: str) -> Kernel:
     """A fresh kernel for ``task_id``.
 
     Raises:
         ValueError: a task without a batched kernel (the message lists those that have one).
     """
-    factory = KERNELS.get(task_id) if isinstance(task_id, str) else None
+    factory = kernel_factory(task_id)
     if factory is None:
-        raise ValueError(f"`task` must be one of {sorted(KERNELS)} for the batched engine. Received {task_id!r}.")
+        raise ValueError(
+            f"`task` must be one of {sorted(KERNELS)} or 'model:<path>' for the batched engine. Received {task_id!r}."
+        )
     return factory()

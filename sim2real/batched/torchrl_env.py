@@ -28,7 +28,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from sim2real.batched.engine import BatchedEnv
+from sim2real.batched.engine import BatchedEnv, _is_seed
 
 __all__ = ["BatchedTorchRLEnv"]
 
@@ -40,7 +40,7 @@ class BatchedTorchRLEnv(EnvBase):
     """``num_envs`` batched worlds of ``task`` as one TorchRL env with ``batch_size=[num_envs]``.
 
     Args:
-        task: a task id with a batched kernel.
+        task: a task id with a batched kernel, or ``"model:<path>"`` (an MJCF file).
         num_envs: worlds N.
         *effects: physics effects drawn per episode.
         seed: root seed; world ``i`` is the single env ``wrap(make(task), *effects, seed=(seed, i))``.
@@ -161,6 +161,8 @@ class BatchedTorchRLEnv(EnvBase):
 
     def _set_seed(self, seed: int | None) -> None:
         # The next full reset seeds world i with seed + i (gymnasium's vector convention, as BatchedEnv.reset).
+        if seed is not None and not _is_seed(seed):
+            raise ValueError(f"`seed` must be None or an int >= 0. Received {seed!r} ({type(seed).__name__}).")
         self._reset_seed = None if seed is None else int(seed)
 
     def close(self, *, raise_if_closed: bool = True) -> None:

@@ -38,7 +38,7 @@ class BatchedVectorEnv(gym.vector.VectorEnv):
     """``num_envs`` batched worlds of ``task`` behind gymnasium's ``VectorEnv`` API (next-step autoreset).
 
     Args:
-        task: a task id with a batched kernel.
+        task: a task id with a batched kernel, or ``"model:<path>"`` (an MJCF file).
         num_envs: worlds N.
         *effects: physics effects drawn per episode.
         seed: root seed; world ``i`` is the single env ``wrap(make(task), *effects, seed=(seed, i))``.
@@ -64,8 +64,6 @@ class BatchedVectorEnv(gym.vector.VectorEnv):
         """Resets every world; ``seed`` is None, an int (world ``i`` gets ``seed + i``) or one per world."""
         if options:
             raise ValueError(f"`options` is not supported by BatchedVectorEnv. Received {options!r}.")
-        if seed is not None and not isinstance(seed, (int, np.integer)):
-            seed = list(seed)
         obs, params = self.engine.reset(seed=seed)
         self._autoreset[:] = False
         self._started = True
