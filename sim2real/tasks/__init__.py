@@ -317,6 +317,8 @@ def _make(task_id: str, **options: Any) -> gym.Env:
         hint = f" Close matches: {', '.join(repr(c) for c in close)}." if close else ""
         if task_id in gym.registry:  # the user's own gym.register'ed env, named as gymnasium names it
             hint = f" {task_id!r} is registered with gymnasium: use 'gym/{task_id}'."
+        elif task_id.lower().endswith((".xml", ".mjcf")) or os.path.isfile(task_id):  # a bare model path
+            hint = f" An MJCF file is 'model:<path>': use 'model:{task_id}'."
         raise ValueError(
             "`task_id` must be one of the ids listed by `sim2real tasks` or 'gym/<gymnasium id>'. "
             f"Received {task_id!r}.{hint}"
