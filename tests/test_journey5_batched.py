@@ -318,6 +318,13 @@ def test_the_registered_mujoco_env_falls_back_with_the_reason(gym_task: str) -> 
 # -- errors ---------------------------------------------------------------------------------------------------------
 
 
+def test_a_bare_model_path_is_pointed_to_its_model_id(arm_path: str) -> None:
+    with pytest.raises(ValueError) as err:
+        s2r.make(arm_path)
+    assert str(err.value).endswith(f"Received {arm_path!r}. An MJCF file is 'model:<path>': use 'model:{arm_path}'.")
+    assert s2r.make(f"model:{arm_path}").observation_space.shape == (10,)
+
+
 def test_bad_counts_seeds_and_indices_name_the_argument(arm_path: str) -> None:
     task = f"model:{arm_path}"
     for bad in (0, -3, 2.0, True):
