@@ -47,6 +47,48 @@ _ALIASES = {
 }
 
 
+_BRACKETS = re.compile(r"[\[(]\s*([^\[\]()]+?)\s*[\])]\s*$")  # what a header's name ends with in brackets
+#: Units a driver writes that :data:`UNITS` does not convert: a time, position or velocity column whose header names
+#: one (``lift [in]``) is refused rather than read as SI (inches read as metres: 39x too large, silently).
+_UNREAD = frozenset(
+    "in inch inches ft feet yd cm dm um µm nm mrad urad µrad rev revs turn turns grad gon arcmin arcsec rpm min h hr "  # noqa: SIM905
+    "tick ticks count counts cnt enc step steps".split()
+)
+
+
+def unread_unit(name: str) -> str | None:
+    """The unit a column's header names in brackets that :data:`UNITS` cannot convert (``lift [in]``, ``j1 [rev/s]``,
+    any rate not in the table), else None (no brackets, a unit it reads, or an index or name such as ``q[0]``).
+
+    Example:
+        >>> unread_unit("lift [in]"), unread_unit("j1 (rev/min)"), unread_unit("q [deg]"), unread_unit("qpos[elbow]")
+        ('in', 'rev/min', None, None)
+    """
+    found = _BRACKETS.search(name)
+    if found is None or _header_unit(name) is not None:
+        return None
+    unit = found.group(1)
+    return unit if unit.lower() in _UNREAD or "/" in unit else None
+
+
+#: The SI units a time, qpos or qvel column is read in (what `scale` converts a unit the loader cannot read into).
+_SI_OF_KEY = {"time": "s", "qpos": "m or rad", "qvel": "m/s or rad/s"}
+
+
+def check_header_units(header: list[str], mapped: dict[int, str], declared: set[int], where: str) -> None:
+    """Refuses a time, qpos or qvel column whose header names a unit the loader cannot convert
+    (:func:`unread_unit`), unless ``declared`` (the columns the user gave a unit or a scale) holds it."""
+    for i in sorted(mapped):
+        unread = unread_unit(header[i]) if mapped[i] in _SI_OF_KEY else None
+        if unread is not None and i not in declared:
+            raise LogError(
+                f"column {header[i]!r} of CSV file {where} names the unit {unread!r} in its header, which the loader "
+                f"does not convert; it reads {', '.join(UNITS)}. Convert it with scale: {{{header[i]!r}: "
+                f"<{_SI_OF_KEY[mapped[i]]} per {unread}>}}, or give units: {{{header[i]!r}: <its unit>}} if the header "
+                "is wrong."
+            )
+
+
 def _header_unit(name: str) -> str | None:
     """The unit of :data:`UNITS` a column's name ends with in brackets (``j1_vel [deg/s]``, ``t (ns)``), else None.
 
@@ -54,7 +96,7 @@ def _header_unit(name: str) -> str | None:
         >>> _header_unit("j1_vel [deg/s]"), _header_unit("stamp (ns)"), _header_unit("q[0]"), _header_unit("u [Nm]")
         ('deg/s', 'ns', None, None)
     """
-    found = re.search(r"[\[(]\s*([^\[\]()]+?)\s*[\])]\s*$", name)
+    found = _BRACKETS.search(name)
     if found is None:
         return None
     unit = _ALIASES.get(found.group(1).lower(), found.group(1).lower())

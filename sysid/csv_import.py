@@ -63,6 +63,7 @@ from sysid._csv_units import (
     _check_velocity_units,
     _header_unit,
     _time_origin,
+    check_header_units,
     data_rows,
     header_row,
     row_numbers,
@@ -601,6 +602,7 @@ def load_csv(
                 f"`units` of column {header[i]!r} must agree with the unit its header names ({said!r}) in CSV file "
                 f"{where}. Received {unit_of[i]!r}; drop it from `units` (the header's unit is used)."
             )
+    check_header_units(header, mapped, set(unit_of) | set(_per_column(scale, "scale", header, mapped, where)), where)
     factors = np.ones(len(header))
     for i, unit in unit_of.items():
         if unit not in UNITS:

@@ -11,6 +11,7 @@ a dropped row, read through ``--columns map.yaml``. Each test pins what a user s
 from __future__ import annotations
 
 import math
+import re
 import warnings
 from pathlib import Path
 
@@ -262,3 +263,95 @@ def test_the_drivers_csv_fits_exports_per_joint_noise_in_its_own_units_and_build
     )
     assert code == 0, err
     assert "obs_noise_std[0]" in stdout and "dof_frictionloss[shoulder]" in stdout
+
+
+def test_each_mistake_in_a_driver_csv_or_an_output_path_is_one_line_and_exit_2_and_writes_nothing(
+    tmp_path: Path, user: Path
+) -> None:
+    # Before: a header naming a unit the loader does not convert ('lift_pos [in]') was read as SI without a word:
+    # inches taken as metres, the fit "not ok" with a held-out fit of -994%.
+    rows = drive(steps=120)
+    good = driver_csv(tmp_path / "robot.csv", rows, drop=-1)
+    column_map = user / "map.yaml"
+    inches = tmp_path / "inches.csv"
+    lines = good.read_text().splitlines()
+    header = lines[1].replace("lift_pos [mm]", "lift_pos [in]")
+    data = [r if r.startswith("#") else ",".join([r.split(",")[0], f"{float(r.split(',')[1]) / 25.4:.6f}",
+            *r.split(",")[2:]]) for r in lines[2:]]  # fmt: skip
+    inches.write_text("\n".join([lines[0], header, *data]) + "\n")
+    inch_map = tmp_path / "inch_map.yaml"
+    columns = {**COLUMN_MAP["columns"], "qpos": ["lift_pos [in]", *COLUMN_MAP["columns"]["qpos"][1:]]}
+    inch_map.write_text(yaml.safe_dump({**COLUMN_MAP, "columns": columns}))
+    backwards = tmp_path / "backwards.csv"
+    lines = good.read_text().splitlines()
+    row = file_row(good, f"{1000 * rows[60][0] + 12345.0:.3f},")
+    cells = lines[row - 1].split(",")
+    cells[0] = f"{1000 * rows[58][0] + 12345.0:.3f}"
+    backwards.write_text("\n".join([*lines[: row - 1], ",".join(cells), *lines[row:]]) + "\n")
+    missing_map = tmp_path / "missing.yaml"
+    missing_map.write_text(yaml.safe_dump({**COLUMN_MAP, "columns": {**COLUMN_MAP["columns"], "qvel": "*_speed *"}}))
+    blocker = tmp_path / "a_file"
+    blocker.write_text("mine")
+    before = good.read_bytes()
+    cases = [
+        (
+            inches,
+            inch_map,
+            "out.json",
+            r"^sim2real sysid: error: column 'lift_pos \[in\]' of CSV file '.*inches\.csv' "
+            r"names the unit 'in' in its header, which the loader does not convert; it reads s, ms, us, ns, rad, deg, m, "
+            r"mm, rad/s, deg/s, m/s, mm/s\. Convert it with scale: \{'lift_pos \[in\]': <m or rad per in>\}",
+        ),
+        (
+            good,
+            missing_map,
+            "out.json",
+            r"^sim2real sysid: error: `columns\['qvel'\]` names column '\*_speed \*', "
+            r"which CSV file '.*robot\.csv' does not have\. Received columns: 't \[ms\]', ",
+        ),
+        (
+            backwards,
+            column_map,
+            "out.json",
+            rf"^sim2real sysid: error: CSV file '.*backwards\.csv' row {row}, time "
+            r"column 't \[ms\]' must increase within a segment\. Received 12\.809 s after 12\.817 s\.$",
+        ),
+        (
+            good,
+            column_map,
+            "a_file/fit.json",
+            r"^sim2real sysid: error: --out must be in a folder that exists or can be "
+            r"created; '.*a_file' is a file\.",
+        ),
+        (
+            good,
+            column_map,
+            str(good),
+            r"^sim2real sysid: error: --out must not be the input `log`, which it would "
+            r"overwrite\.",
+        ),
+    ]
+    for log, mapping, out, message in cases:
+        target = out if out == str(good) else str(tmp_path / out)
+        code, stdout, err = fit_cli(
+            log, user, Path(target), "--columns", str(mapping), "--export", str(tmp_path / "e.yaml")
+        )
+        assert code == 2 and stdout == "" and len(err.splitlines()) == 1, (log.name, err)
+        assert re.match(message, err), err
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        ["a_file", "backwards.csv", "inch_map.yaml", "inches.csv", "missing.yaml", "robot.csv"]
+    )  # no JSON, no export, no temporary file
+    assert good.read_bytes() == before and blocker.read_text() == "mine"
+    # the inch column with its conversion given: read as the same metres as the mm column
+    inch_map.write_text(yaml.safe_dump({**COLUMN_MAP, "columns": columns, "scale": {"lift_pos [in]": 0.0254}}))
+    model = mujoco.MjModel.from_xml_path(str(user / "arm.xml"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", sysid.CsvWarning)
+        read = sysid.load_csv(
+            inches, columns, meta(), model, units=COLUMN_MAP["units"], scale={"lift_pos [in]": 0.0254}
+        )
+        reference = sysid.load_csv(good, COLUMN_MAP["columns"], meta(), model, units=COLUMN_MAP["units"])
+    np.testing.assert_allclose(read.qpos, reference.qpos, atol=1e-7)
+    # a folder that does not exist yet is created for --out, as for every command (sim2real.output_paths)
+    code, _, err = fit_cli(good, user, tmp_path / "new" / "fit.json", "--columns", str(column_map))
+    assert code in (0, 4) and (tmp_path / "new" / "fit.json").is_file(), err
