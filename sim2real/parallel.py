@@ -398,6 +398,14 @@ def _blame(failed: list[int], started: Any, procs: dict[int, Any]) -> list[tuple
         return charged
     seen = sorted({c for c in codes.values() if c is not None})
     unknown = f"worker pool broke, could not tell which worker died (exit codes {seen})"
+    if dead and set(dead.values()) == {1} and not any(started[i] for i in range(len(started))):
+        # A worker that raises while it starts exits with 1 before it takes an item. The usual cause: a spawned
+        # worker imports the script that started the pool (as __mp_main__) and that script starts one at its top level.
+        unknown = (
+            f"every worker that died exited with code 1 before it ran an item (exit codes {seen}): a worker failed "
+            "while starting (its traceback is on stderr). The usual cause: a spawned worker first imports the script "
+            "that started it, so a script must start workers under `if __name__ == '__main__':`, not at its top level"
+        )
     running = [(i, unknown) for i in failed if started[i] != 0]
     return running or [(i, unknown) for i in failed]
 
