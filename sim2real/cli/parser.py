@@ -216,6 +216,16 @@ def build_parser() -> argparse.ArgumentParser:
         "--params", required=True, help="comma-separated addresses, e.g. 'dof_damping[*],geom_friction[*][0]'"
     )
     fit.add_argument(
+        "--bounds",
+        action="append",
+        default=[],
+        metavar="ADDRESS=LOW,HIGH",
+        help=(
+            "search range of a fitted parameter, repeatable, e.g. 'dof_frictionloss[wrist]=0,0.5' (default: its "
+            "model value /10 to x10; required where that value is 0)"
+        ),
+    )
+    fit.add_argument(
         "--latency",
         action="store_true",
         help="also estimate the action latency (and the sensor latency when the log has sensors): 0-5 control steps",
