@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
+import re
 import sys
 import warnings
 from collections.abc import Iterator
@@ -169,6 +170,42 @@ def _latency(args: argparse.Namespace) -> int | bool | None:
     return True if args.latency else None
 
 
+def _bounds(given: list[str]) -> dict[str, tuple[float, float]] | None:
+    """``sysid.fit``'s ``bounds`` from ``--bounds ADDRESS=LOW,HIGH`` (repeatable); None when none is given.
+
+    Example:
+        >>> _bounds(["dof_frictionloss[wrist]=0,0.5"])
+        {'dof_frictionloss[wrist]': (0.0, 0.5)}
+    """
+    out: dict[str, tuple[float, float]] = {}
+    for text in given or ():
+        address, _, pair = text.partition("=")
+        try:
+            low, high = (float(v) for v in pair.split(","))
+        except ValueError:
+            address = ""
+        if not address.strip():
+            raise UsageError(
+                f"--bounds must look like 'dof_frictionloss[wrist]=0,0.5' (ADDRESS=LOW,HIGH). Received {text!r}."
+            )
+        out[address.strip()] = (low, high)
+    return out or None
+
+
+def _bounds_error(err: ValueError) -> UsageError:
+    """``sysid.fit``'s message on its ``bounds`` argument, in the CLI's words (``--bounds``, with an example)."""
+    text = str(err)
+    needed = re.match(r"`bounds` must be given for '([^']+)': (.*) Received none\.$", text)
+    if needed is not None:
+        return UsageError(
+            f"--bounds must be given for {needed.group(1)!r}: {needed.group(2)} Give its search range, e.g. "
+            f"--bounds '{needed.group(1)}=0,1'. Received none."
+        )
+    if text.startswith("`bounds"):
+        return UsageError(f"--bounds: {text}")
+    return UsageError(text)
+
+
 def _fit_report_html(result: Any, task: str, log_path: str) -> str:
     import base64
     import html
@@ -230,6 +267,7 @@ def cmd_sysid(args: argparse.Namespace, out: TextIO) -> int:
                 log,
                 handle.model,
                 params,
+                bounds=_bounds(getattr(args, "bounds", [])),
                 latency=_latency(args),
                 seed=args.seed,
                 progress=not args.quiet,
@@ -245,7 +283,7 @@ def cmd_sysid(args: argparse.Namespace, out: TextIO) -> int:
     except FileNotFoundError as err:
         raise UsageError(f"cannot read {err}") from err
     except (TypeError, ValueError) as err:  # LogError is a ValueError
-        raise UsageError(str(err)) from err
+        raise _bounds_error(err) if isinstance(err, ValueError) else UsageError(str(err)) from err
     finally:
         close = getattr(env, "close", None)
         if callable(close):
