@@ -209,6 +209,8 @@ class MjcfEnv(gym.Env[np.ndarray, np.ndarray]):
         return self._obs(), {}
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        # sim2real.batched.kernels.MjcfKernel repeats this arithmetic for all batched worlds at once: change both
+        # (tests/test_journey5_batched.py holds them bitwise equal).
         data = self.data
         data.ctrl[:] = np.clip(np.asarray(action, dtype=np.float64).reshape(-1), self._low, self._high)
         self._simulate(self.n_substeps)
