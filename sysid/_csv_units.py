@@ -7,7 +7,9 @@ import csv
 import math
 import os
 import re
+from collections.abc import Collection
 
+import mujoco
 import numpy as np
 
 from sysid.logs import LogError
@@ -183,6 +185,28 @@ def _time_origin(table: np.ndarray, column: int, path: str | os.PathLike[str], d
     return cells[0] if cells else repr(first)
 
 
+def _velocity_of(model: mujoco.MjModel | None, nq: int, nv: int) -> list[int | None]:
+    """Per ``qpos`` column, the ``qvel`` column holding its derivative (a hinge's or a slide's), else None (free and
+    ball joints: a quaternion's derivative is not a velocity column). Without a model, ``nq == nv`` means every
+    joint is a hinge or a slide."""
+    if model is None:
+        return list(range(nq)) if nq == nv else [None] * nq
+    out: list[int | None] = [None] * nq
+    smooth = {int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)}
+    for j in range(model.njnt):
+        if int(model.jnt_type[j]) in smooth:
+            k, d = int(model.jnt_qposadr[j]), int(model.jnt_dofadr[j])
+            if k < nq and d < nv:
+                out[k] = d
+    return out
+
+
+def _slide_columns(model: mujoco.MjModel) -> set[int]:
+    """The ``qpos`` columns of the model's slide joints (lengths in m, velocities in m/s)."""
+    slide = mujoco.mjtJoint.mjJNT_SLIDE
+    return {int(model.jnt_qposadr[j]) for j in range(model.njnt) if model.jnt_type[j] == slide}
+
+
 def _check_velocity_units(
     arrays: dict[str, np.ndarray],
     episode: np.ndarray | None,
@@ -191,10 +215,12 @@ def _check_velocity_units(
     declared: set[str],
     dt: float,
     where: str,
+    slides: Collection[int] = (),
 ) -> None:
     """Refuses velocities in deg/s against positions in rad (and positions in degrees against rad/s) when neither
     says its unit: a hinge's logged velocity about 57.3x (or 1/57.3 of) the rate of change of its logged position.
-    Read as rad/s, deg/s velocities made the fit of a 7-DoF arm unstable and "not ok" without saying why."""
+    Read as rad/s, deg/s velocities made the fit of a 7-DoF arm unstable and "not ok" without saying why. A slide's
+    (``slides``: its ``qpos`` columns) are judged against 1000: mm/s against metres read its 0.26 m/s as 261 m/s."""
     t, q, v = arrays["time"], arrays["qpos"], arrays["qvel"]
     step = np.diff(t)
     pair = (step > 0) & (step < _GAP * dt)
@@ -202,8 +228,7 @@ def _check_velocity_units(
         pair &= np.diff(episode) == 0
     if pair.sum() < 4:
         return
-    fast: list[tuple[str, str]] = []
-    slow: list[tuple[str, str]] = []
+    found: dict[tuple[str, str], list[tuple[str, str]]] = {}
     for k, d in enumerate(velocity_of):
         if d is None:
             continue
@@ -215,19 +240,25 @@ def _check_velocity_units(
             continue
         ratio = float(mid @ rate) / float(rate @ rate)
         position, velocity = names[0][k], names[1][d]
-        if abs(ratio * math.pi / 180 - 1) < 0.25 and velocity not in declared:
-            fast.append((velocity, position))
-        elif abs(ratio * 180 / math.pi - 1) < 0.25 and position not in declared:
-            slow.append((velocity, position))
-    if fast:
+        unit, factor = ("mm", 1000.0) if k in slides else ("deg", 180 / math.pi)
+        if abs(ratio / factor - 1) < 0.25 and velocity not in declared:
+            found.setdefault(("fast", unit), []).append((velocity, position))
+        elif abs(ratio * factor - 1) < 0.25 and position not in declared:
+            found.setdefault(("slow", unit), []).append((velocity, position))
+    for side, unit in (("fast", "deg"), ("fast", "mm"), ("slow", "deg"), ("slow", "mm")):
+        pairs = found.get((side, unit))
+        if not pairs:
+            continue
+        times, si = ("57.3x", "rad") if unit == "deg" else ("1000x", "m")
+        velocities, positions = ", ".join(repr(a) for a, _ in pairs), ", ".join(repr(b) for _, b in pairs)
+        if side == "fast":
+            raise LogError(
+                f"{where}: velocity column(s) {velocities} hold {times} the rate of change of their position "
+                f"column(s) ({positions}): they look like {unit}/s against positions in {si}; add units: "
+                f"{{{pairs[0][0]}: {unit}/s}} (a pattern may name them all)."
+            )
         raise LogError(
-            f"{where}: velocity column(s) {', '.join(repr(a) for a, _ in fast)} hold 57.3x the rate of change of "
-            f"their position column(s) ({', '.join(repr(b) for _, b in fast)}): they look like deg/s against positions "
-            f"in rad; add units: {{{fast[0][0]}: deg/s}} (a pattern may name them all)."
-        )
-    if slow:
-        raise LogError(
-            f"{where}: position column(s) {', '.join(repr(b) for _, b in slow)} change 57.3x faster than their "
-            f"velocity column(s) ({', '.join(repr(a) for a, _ in slow)}) say: they look like degrees against rad/s; "
-            f"add units: {{{slow[0][1]}: deg}} (a pattern may name them all)."
+            f"{where}: position column(s) {positions} change {times} faster than their velocity column(s) "
+            f"({velocities}) say: they look like {'degrees' if unit == 'deg' else 'millimetres'} against {si}/s; "
+            f"add units: {{{pairs[0][1]}: {unit}}} (a pattern may name them all)."
         )

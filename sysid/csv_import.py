@@ -62,7 +62,9 @@ from sysid._csv_units import (
     UNITS,
     _check_velocity_units,
     _header_unit,
+    _slide_columns,
     _time_origin,
+    _velocity_of,
     check_header_units,
     data_rows,
     header_row,
@@ -441,22 +443,6 @@ def _hermite(grid: np.ndarray, t: np.ndarray, y: np.ndarray, slope: np.ndarray) 
     )
 
 
-def _velocity_of(model: mujoco.MjModel | None, nq: int, nv: int) -> list[int | None]:
-    """Per ``qpos`` column, the ``qvel`` column holding its derivative (a hinge's or a slide's), else None (free and
-    ball joints: a quaternion's derivative is not a velocity column). Without a model, ``nq == nv`` means every
-    joint is a hinge or a slide."""
-    if model is None:
-        return list(range(nq)) if nq == nv else [None] * nq
-    out: list[int | None] = [None] * nq
-    smooth = {int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)}
-    for j in range(model.njnt):
-        if int(model.jnt_type[j]) in smooth:
-            k, d = int(model.jnt_qposadr[j]), int(model.jnt_dofadr[j])
-            if k < nq and d < nv:
-                out[k] = d
-    return out
-
-
 def _resample(
     arrays: dict[str, np.ndarray], bounds: list[tuple[int, int]], dt: float, velocity_of: list[int | None]
 ) -> tuple[dict[str, np.ndarray], np.ndarray, float, int, int]:
@@ -645,6 +631,7 @@ def load_csv(
         explicit = {header[i] for i in unit_of if mapped[i] == "qpos"}
         _check_degrees(arrays["qpos"], names, explicit, model, f"CSV file {where}")
     velocity_of = _velocity_of(model, arrays["qpos"].shape[1], arrays["qvel"].shape[1])
+    slides = _slide_columns(model) if model is not None else set()
     declared = {header[i] for i in (*unit_of, *scales)}
     _check_velocity_units(
         arrays,
@@ -654,6 +641,7 @@ def load_csv(
         declared,
         dt,
         f"CSV file {where}",
+        slides,
     )
     bounds, gaps = _segments(arrays["time"], episode, dt, time_column, f"CSV file {where}", lines)
     resampled, segment, jitter, dropped, filled = _resample(arrays, bounds, dt, velocity_of)

@@ -442,3 +442,34 @@ def test_a_wildcard_over_a_joint_without_friction_takes_its_search_range_from_bo
     assert fit.bounds[fit.addresses.index("dof_frictionloss[wrist]")].tolist() == [0.0, 0.5]
     held = [a for a, (low, high) in zip(fit.addresses, fit.ci95, strict=True) if low <= truth[a] <= high]
     assert "dof_frictionloss[wrist]" in held and len(held) >= 10  # 10 of 11 here (elbow damping 1.04 just above)
+
+
+def test_a_slides_velocity_in_mm_per_s_against_metres_is_refused_naming_the_unit(tmp_path: Path, user: Path) -> None:
+    # Before: loaded without a word, the linear axis moving at 261 m/s for its 0.26 m/s (the 57.3x check of deg/s
+    # against rad had no counterpart for a slide's 1000x).
+    rows = drive(steps=120)
+    header = ["t", *(f"q_{j}" for j in JOINTS), *(f"v_{j}" for j in JOINTS), *(f"u_{j}" for j in JOINTS)]
+    lines = [",".join(header)]
+    for t, q, v, u in rows:
+        velocity = [1000 * v[0], *v[1:]]  # the driver's slide speed in mm/s, its position in m
+        lines.append(",".join(str(x) for x in [t, *q, *velocity, *(u if u is not None else [""] * 5)]))
+    path = tmp_path / "mm.csv"
+    path.write_text("\n".join(lines) + "\n")
+    mapping = tmp_path / "map.yaml"
+    mapping.write_text(yaml.safe_dump({"columns": {"time": "t", "qpos": "q_*", "qvel": "v_*", "ctrl": "u_*"}}))
+    code, stdout, err = fit_cli(path, user, tmp_path / "fit.json", "--columns", str(mapping))
+    assert (code, stdout) == (2, "") and not (tmp_path / "fit.json").exists()
+    assert err.endswith(
+        "velocity column(s) 'v_lift' hold 1000x the rate of change of their position column(s) ('q_lift'): they look "
+        "like mm/s against positions in m; add units: {v_lift: mm/s} (a pattern may name them all).\n"
+    )
+    assert len(err.splitlines()) == 1
+    mapping.write_text(yaml.safe_dump({"columns": {"time": "t", "qpos": "q_*", "qvel": "v_*", "ctrl": "u_*"},
+                                       "units": {"v_lift": "mm/s"}}))  # fmt: skip
+    model = mujoco.MjModel.from_xml_path(str(user / "arm.xml"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", sysid.CsvWarning)
+        log = sysid.load_csv(
+            path, yaml.safe_load(mapping.read_text())["columns"], meta(), model, units={"v_lift": "mm/s"}
+        )
+    np.testing.assert_allclose(log.qvel[0], rows[0][2], rtol=1e-12)
