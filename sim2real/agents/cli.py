@@ -192,9 +192,11 @@ def cli_train(argv: Sequence[str] | None = None, out: TextIO | None = None) -> i
             log_dir=args.log_dir,
         )
         result.save(args.out)
-    except KeyboardInterrupt:  # what every other command says on Ctrl-C; the checkpoint is written atomically
-        print(f"{parser.prog}: interrupted; no checkpoint was written to {args.out!r}", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as err:  # as every other command says it (SIGTERM too); the checkpoint is atomic
+        from sim2real.cli._common import interrupted_exit, interrupted_line
+
+        print(interrupted_line(parser.prog, err, f"no checkpoint was written to {args.out!r}"), file=sys.stderr)
+        return interrupted_exit(err)
     except OSError as err:  # the atomic writer has removed its temporary file
         return _fail(parser, f"cannot write {args.out!r}: {err.strerror or err}.")
     returns = [r for r in result.metrics.get("episode_return", ()) if r == r]

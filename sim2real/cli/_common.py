@@ -15,18 +15,25 @@ Example:
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
-from collections.abc import Callable
+import signal
+import threading
+from collections.abc import Callable, Iterator
 from typing import Any, NoReturn
 
 from sim2real.sources import Source, SourceError, resolve_source
 
 __all__ = [
+    "Interrupted",
     "OneLineParser",
     "UsageError",
     "add_source_arguments",
     "check_outputs",
     "int_at_least",
+    "interrupted_exit",
+    "interrupted_line",
+    "kills_interrupt",
     "source_inputs",
     "source_of",
     "writing",
@@ -59,6 +66,71 @@ class OneLineParser(argparse.ArgumentParser):
 
 class UsageError(Exception):
     """Bad input found after parsing; ``main`` prints it and returns 2."""
+
+
+#: Signals that end a command as Ctrl-C does (SIGINT is Python's KeyboardInterrupt already).
+KILL_SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name))
+
+
+class Interrupted(KeyboardInterrupt):
+    """A kill (``SIGTERM``, ``SIGHUP``) raised in the main thread as Ctrl-C is, so that what runs on Ctrl-C runs
+    on a kill too: temporary files and staging folders are removed, worker processes are stopped. Without it
+    the process died at once and left its staging folder (inside an empty ``--out`` folder, which the next
+    ``study`` then refused as not empty) and its pool workers running, holding the terminal's pipes open.
+
+    Attributes:
+        signum: the signal's number.
+    """
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def interrupted_exit(err: BaseException) -> int:
+    """The exit code of a command ended by ``err`` (a ``KeyboardInterrupt``): 128 + the signal's number, as a
+    shell reports a process the signal ended (130 for Ctrl-C / SIGINT, 143 for SIGTERM, 129 for SIGHUP).
+
+    Example:
+        >>> interrupted_exit(KeyboardInterrupt()), interrupted_exit(Interrupted(signal.SIGTERM))
+        (130, 143)
+    """
+    return 128 + int(getattr(err, "signum", signal.SIGINT))
+
+
+def interrupted_line(command: str, err: BaseException, what: str = "no partial output was left behind") -> str:
+    """The one line an interrupted command prints on stderr.
+
+    Example:
+        >>> interrupted_line("sim2real study", KeyboardInterrupt())
+        'sim2real study: interrupted; no partial output was left behind'
+        >>> interrupted_line("sim2real study", Interrupted(signal.SIGTERM))
+        'sim2real study: interrupted by SIGTERM; no partial output was left behind'
+    """
+    by = f" by {signal.Signals(err.signum).name}" if isinstance(err, Interrupted) else ""
+    return f"{command}: interrupted{by}; {what}"
+
+
+@contextlib.contextmanager
+def kills_interrupt() -> Iterator[None]:
+    """While the block runs (in the main thread), ``SIGTERM`` and ``SIGHUP`` raise :class:`Interrupted`; a signal
+    the caller ignores (``nohup`` ignores SIGHUP) stays ignored. The previous handlers are restored after."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum: int, frame: Any) -> None:
+        raise Interrupted(signum)
+
+    previous = {}
+    for signum in KILL_SIGNALS:
+        if signal.getsignal(signum) is not signal.SIG_IGN:
+            previous[signum] = signal.signal(signum, interrupt)
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, signal.SIG_DFL if handler is None else handler)
 
 
 def check_outputs(
