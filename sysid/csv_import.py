@@ -309,22 +309,33 @@ def _hold_commands(
 
 
 def _check_degrees(qpos: np.ndarray, names: list[str], explicit: set[str], model: mujoco.MjModel, where: str) -> None:
+    """Warns when a limited hinge's column passes 2π (degrees, it looks like) or a limited slide's passes 100x the
+    reach of its range (millimetres: a 5 cm axis read as 50 m passed every other check when its velocity was in
+    mm/s too)."""
+    hinge, slide = int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)
     for j in range(model.njnt):
-        if model.jnt_type[j] != mujoco.mjtJoint.mjJNT_HINGE or not model.jnt_limited[j]:
+        if int(model.jnt_type[j]) not in (hinge, slide) or not model.jnt_limited[j]:
             continue
         k = int(model.jnt_qposadr[j])
         if k >= qpos.shape[1] or names[k] in explicit:
             continue
         peak = float(np.max(np.abs(qpos[:, k])))
-        if peak > 2 * math.pi:
-            joint = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or f"#{j}"
-            low, high = model.jnt_range[j]
-            warnings.warn(
-                f"{where}: column {names[k]!r} (qpos of hinge {joint!r}, range [{low:.3g}, {high:.3g}] rad) reaches "
-                f"|q| = {peak:.4g} > 2π: it looks like degrees; add units: {{{names[k]}: deg}}.",
-                CsvWarning,
-                stacklevel=3,
-            )
+        joint = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or f"#{j}"
+        low, high = model.jnt_range[j]
+        if model.jnt_type[j] == hinge and peak > 2 * math.pi:
+            said = f"(qpos of hinge {joint!r}, range [{low:.3g}, {high:.3g}] rad) reaches |q| = {peak:.4g} > 2π"
+            unit = "deg"
+        elif model.jnt_type[j] == slide and peak > 100 * max(abs(low), abs(high)) > 0:
+            said = f"(qpos of slide {joint!r}, range [{low:.3g}, {high:.3g}] m) reaches |q| = {peak:.4g} m"
+            unit = "mm"
+        else:
+            continue
+        warnings.warn(
+            f"{where}: column {names[k]!r} {said}: it looks like {'degrees' if unit == 'deg' else 'millimetres'}; "
+            f"add units: {{{names[k]}: {unit}}}.",
+            CsvWarning,
+            stacklevel=3,
+        )
 
 
 def _owners(model: mujoco.MjModel, key: str) -> list[list[str]]:

@@ -473,3 +473,25 @@ def test_a_slides_velocity_in_mm_per_s_against_metres_is_refused_naming_the_unit
             path, yaml.safe_load(mapping.read_text())["columns"], meta(), model, units={"v_lift": "mm/s"}
         )
     np.testing.assert_allclose(log.qvel[0], rows[0][2], rtol=1e-12)
+
+
+def test_a_slide_in_mm_read_as_metres_warns_naming_the_column(tmp_path: Path, user: Path) -> None:
+    # Before: positions and speeds both in mm (so their ratio looks right) loaded without a word: a 5 cm axis at 50 m.
+    rows = drive(steps=60)
+    header = ["t", *(f"q_{j}" for j in JOINTS), *(f"v_{j}" for j in JOINTS), *(f"u_{j}" for j in JOINTS)]
+    lines = [",".join(header)]
+    for t, q, v, u in rows:
+        lines.append(
+            ",".join(str(x) for x in [t, 1000 * q[0], *q[1:], 1000 * v[0], *v[1:], *(u if u is not None else [""] * 5)])
+        )
+    path = tmp_path / "mm.csv"
+    path.write_text("\n".join(lines) + "\n")
+    model = mujoco.MjModel.from_xml_path(str(user / "arm.xml"))
+    columns = {"time": "t", "qpos": "q_*", "qvel": "v_*", "ctrl": "u_*"}
+    with pytest.warns(sysid.CsvWarning, match=r"column 'q_lift' \(qpos of slide 'lift', range \[-0\.15, 0\.15\] m\) "
+                      r"reaches \|q\| = 49\.99 m: it looks like millimetres; add units: \{q_lift: mm\}\."):  # fmt: skip
+        sysid.load_csv(path, columns, meta(), model)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", sysid.CsvWarning)
+        with pytest.raises(sysid.CsvWarning, match="commands logged at another rate"):  # the only other warning
+            sysid.load_csv(path, columns, meta(), model, units={"q_lift": "mm", "v_lift": "mm/s"})
