@@ -30,9 +30,13 @@ Example:
 
 from __future__ import annotations
 
+import contextlib
 import os
-from collections.abc import Mapping
+import signal
+import threading
+from collections.abc import Iterator, Mapping
 from pathlib import Path
+from typing import Any
 
 __all__ = [
     "OutputPathError",
@@ -41,6 +45,7 @@ __all__ = [
     "check_folder",
     "check_not_inputs",
     "free_folder",
+    "held_signals",
     "publish_folder",
     "staging_folder",
 ]
@@ -143,6 +148,19 @@ def check_folder(path: str | os.PathLike[str], argument: str = "`out`", *, new: 
     return target
 
 
+def _entry(path: str | os.PathLike[str]) -> str:
+    """The directory entry a write of ``path`` replaces (by a rename in its folder): its folder resolved as the OS
+    resolves it (another spelling, a linked folder, ``link/..`` is the parent of the link's *target*), and its
+    last component as it is (renaming onto a symlink or a hard link replaces that entry, not the target).
+
+    Example:
+        >>> _entry("a/./b/../r.json") == os.path.join(os.path.realpath("a"), "r.json")
+        True
+    """
+    folder, name = os.path.split(_text(path))
+    return os.path.join(os.path.realpath(folder or os.curdir), name)
+
+
 def check_distinct(outputs: Mapping[str, str | os.PathLike[str]]) -> None:
     """Checks that the outputs of one command (argument -> path) are different files.
 
@@ -151,7 +169,7 @@ def check_distinct(outputs: Mapping[str, str | os.PathLike[str]]) -> None:
     """
     seen: dict[str, str] = {}
     for argument, path in outputs.items():
-        key = os.path.abspath(_text(path))
+        key = _entry(path)
         if key in seen:
             raise OutputPathError(f"{argument} must differ from {seen[key]}. Received {_text(path)!r} for both.")
         seen[key] = argument
@@ -171,15 +189,9 @@ def check_not_inputs(
         sim2real.output_paths.OutputPathError: --out must not be the input `log`, which it would overwrite. Received 'a/../log.npz' for both.
     """
 
-    def entry(path: str | os.PathLike[str]) -> str:
-        # The directory entry the atomic rename replaces: its folder resolved (another spelling, a linked folder),
-        # not its last component (renaming onto a symlink or a hard link replaces that entry, not the target).
-        text = os.path.abspath(_text(path))
-        return os.path.join(os.path.realpath(os.path.dirname(text)), os.path.basename(text))
-
     for argument, path in outputs.items():
         for source, given in inputs.items():
-            if given is not None and entry(path) == entry(given):
+            if given is not None and _entry(path) == _entry(given):
                 raise OutputPathError(
                     f"{argument} must not be the input {source}, which it would overwrite. Received {_text(path)!r} for "
                     "both."
@@ -217,6 +229,46 @@ def free_folder(path: str | os.PathLike[str]) -> Path:
     return base.with_name(f"{base.name}-{number}")
 
 
+@contextlib.contextmanager
+def held_signals() -> Iterator[None]:
+    """Holds Ctrl-C (SIGINT) and the kills (SIGTERM, SIGHUP) until the block ends, then delivers the first one
+    that came: the renames that move finished outputs into an existing folder run to the end, so an interruption
+    leaves the old outputs or the new ones, never a mix (a new ``report.md`` beside the old ``report.html``).
+
+    Only for a few renames: the signal waits, it is not lost. Outside the main thread (where Python runs signal
+    handlers) it does nothing. A signal the process ignores stays ignored.
+
+    Example:
+        >>> import signal
+        >>> try:
+        ...     with held_signals():
+        ...         signal.raise_signal(signal.SIGINT)
+        ...         print("the block ran to its end")
+        ... except KeyboardInterrupt:
+        ...     print("then Ctrl-C")
+        the block ran to its end
+        then Ctrl-C
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+
+    def hold(signum: int, frame: Any) -> None:
+        caught.append(signum)
+
+    names = ("SIGINT", "SIGTERM", "SIGHUP")
+    held = [getattr(signal, name) for name in names if hasattr(signal, name)]
+    previous = {s: signal.signal(s, hold) for s in held if signal.getsignal(s) is not signal.SIG_IGN}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, signal.SIG_DFL if handler is None else handler)
+        if caught:
+            signal.raise_signal(caught[0])  # to the handler it was meant for, now that the outputs are whole
+
+
 def staging_folder(target: Path) -> Path:
     """A hidden staging folder for the outputs that go to the folder ``target`` (checked with ``new=True``),
     with the usual permissions (``0o777`` minus the umask, not ``mkdtemp``'s ``0o700``).
@@ -246,9 +298,17 @@ def publish_folder(staging: Path, target: Path) -> Path:
             final = free_folder(target)
             staging.rename(final)
             return final
-        for entry in entries:
-            entry.rename(target / entry.name)
-        staging.rmdir()
+        moved: list[str] = []
+        with held_signals():  # all the entries or none: never a study without its report in the user's folder
+            try:
+                for entry in entries:
+                    entry.rename(target / entry.name)
+                    moved.append(entry.name)
+            except OSError:
+                for name in reversed(moved):  # back into the staging folder, which the caller removes
+                    (target / name).rename(staging / name)
+                raise
+            staging.rmdir()
         return target
     try:
         staging.rename(target)  # fails (and changes nothing) unless target is missing or an empty folder

@@ -20,9 +20,11 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from sim2real import cli
+from sim2real.output_paths import OutputPathError, check_distinct, check_not_inputs, held_signals
 
 ROOT = Path(__file__).resolve().parents[1]
 ARM = "sim2real/arm-reach"
@@ -208,3 +210,264 @@ def test_main_restores_the_signal_handlers_and_leaves_an_ignored_hangup_ignored(
         signal.signal(signal.SIGHUP, old)
     assert seen[0][0] is signal.SIG_IGN and callable(seen[0][1])  # SIGTERM interrupts while the command runs
     capsys.readouterr()
+
+
+def test_held_signals_delivers_ctrl_c_after_the_block() -> None:
+    done = []
+    with pytest.raises(KeyboardInterrupt), held_signals():
+        signal.raise_signal(signal.SIGINT)
+        done.append("renamed")
+    assert done == ["renamed"]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+# ------------------------------------------------------------------------------------ the report folder
+
+
+@pytest.fixture(scope="module")
+def reports() -> tuple[object, object]:
+    """Two gap reports of the same shape (a new one replaces an old one in a folder)."""
+    from sim2real.evaluation import Evaluation, nominal, real
+    from sim2real.report import GapReport
+
+    made = []
+    for shift in (10.0, 20.0):
+        rng = np.random.default_rng(0)
+        sim = rng.normal(100.0, 5.0, 12)
+        evaluation = Evaluation(
+            task="demo", seed=0, episodes=12, max_steps=None, policies=("ppo",),
+            conditions=(nominal(), real(params={"body_mass[arm]": 1.2})),
+            returns={"ppo": {"sim": sim, "real": sim - shift}}, successes={}, lengths={}, draws={},
+        )  # fmt: skip
+        made.append(GapReport.build(evaluation, rng=0, num_resamples=200))
+    return made[0], made[1]
+
+
+def _with_user_files(out: Path, old: object) -> dict[str, bytes | None]:
+    old.write(out)  # type: ignore[attr-defined]
+    (out / "notes.txt").write_text("mine")
+    (out / "figures" / "mine.png").write_bytes(b"my figure")
+    return _tree(out)
+
+
+def test_ctrl_c_while_a_report_replaces_another_leaves_the_whole_new_one(
+    tmp_path: Path, reports: tuple[object, object], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Before: Ctrl-C between the renames left a mix: the old report.json removed, new figures and report.md beside
+    # the old report.html.
+    import sim2real.report.files as report_files
+
+    old, new = reports
+    out = tmp_path / "out"
+    _with_user_files(out, old)
+    real_replace = os.replace
+
+    def replace(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> None:
+        if Path(dst).parent in (out, out / "figures") and not replace.sent:  # type: ignore[attr-defined]
+            replace.sent = True  # type: ignore[attr-defined]
+            signal.raise_signal(signal.SIGINT)
+        real_replace(src, dst)
+
+    replace.sent = False  # type: ignore[attr-defined]
+    monkeypatch.setattr(report_files.os, "replace", replace)
+    with pytest.raises(KeyboardInterrupt):
+        new.write(out)  # type: ignore[attr-defined]
+    monkeypatch.undo()
+    assert replace.sent  # type: ignore[attr-defined]
+    expected = tmp_path / "expected"
+    new.write(expected)  # type: ignore[attr-defined]
+    user = {"notes.txt": b"mine", "figures/mine.png": b"my figure"}
+    assert _tree(out) == {**_tree(expected), **user}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["expected", "out"]  # no staging folder left
+
+
+def test_a_rename_failing_midway_puts_the_old_report_back(
+    tmp_path: Path, reports: tuple[object, object], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Before: a failure after the first rename left the old report.json deleted and new files beside old ones.
+    import sim2real.report.files as report_files
+
+    old, new = reports
+    out = tmp_path / "out"
+    before = _with_user_files(out, old)
+    real_replace = os.replace
+    failed = []
+
+    def replace(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> None:
+        if Path(dst) == out / "report.html" and not failed:  # the new report.html, once
+            failed.append(dst)
+            raise OSError(28, "No space left on device")
+        real_replace(src, dst)
+
+    monkeypatch.setattr(report_files.os, "replace", replace)
+    with pytest.raises(OSError, match="No space left"):
+        new.write(out)  # type: ignore[attr-defined]
+    assert _tree(out) == before
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]
+
+
+def test_a_report_file_that_became_a_folder_during_the_work_changes_nothing(
+    tmp_path: Path, reports: tuple[object, object]
+) -> None:
+    old, new = reports
+    out = tmp_path / "out"
+    _with_user_files(out, old)
+    (out / "report.html").unlink()
+    (out / "report.html").mkdir()  # what the API cannot check before the caller's work
+    before = _tree(out)
+    with pytest.raises(OSError, match=r"report\.html' is a folder, where a report file goes; nothing in"):
+        new.write(out)  # type: ignore[attr-defined]
+    assert _tree(out) == before
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]
+
+
+@pytest.mark.parametrize(
+    ("make", "problem"),
+    [
+        (lambda out: (out / "report.html").mkdir(), "'out/report.html' is a folder, where a report file goes"),
+        (lambda out: (out / "figures").write_text("mine"), "'out/figures' is a file, where the figures go"),
+    ],
+    ids=["report-is-a-folder", "figures-is-a-file"],
+)
+def test_evaluate_refuses_a_report_folder_it_could_only_half_replace_before_any_episode(
+    make: Callable[[Path], object],
+    problem: str,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # Before: found after the whole evaluation, by the renames: "cannot write 'out': Is a directory." with the old
+    # report.json already gone and new figures and report.md in the folder.
+    import sim2real.spec as spec_module
+
+    def no_work(*args: object, **kwargs: object) -> None:
+        raise AssertionError("evaluated before checking --out")
+
+    monkeypatch.setattr(spec_module.EvaluationSpec, "run", no_work)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "spec.yaml").write_text(SPEC)
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "report.json").write_text("old")
+    make(tmp_path / "out")
+    before = _tree(tmp_path)
+    assert cli.main(["evaluate", "--config", "spec.yaml", "--backend", "serial", "--quiet", "--out", "out"]) == 2
+    captured = capsys.readouterr()
+    assert captured.err == (
+        f"sim2real evaluate: error: --out must be a folder whose report files can be replaced; {problem}. "
+        "Received 'out'.\n"
+    )
+    assert captured.out == ""
+    assert _tree(tmp_path) == before
+
+
+def test_evaluate_progress_goes_to_stderr_and_quiet_silences_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "spec.yaml").write_text(SPEC)
+    outs = {}
+    for quiet in ([], ["--quiet"]):
+        out = f"out{len(quiet)}"
+        assert cli.main(["evaluate", "--config", "spec.yaml", "--backend", "serial", *quiet, "--out", out]) == 0
+        outs[bool(quiet)] = capsys.readouterr()
+    assert "evaluate" in outs[False].err and outs[True].err == ""
+    assert outs[False].out == outs[True].out.replace("out1", "out0")  # stdout: the summary, the same either way
+    assert "\r" not in outs[False].out and "it/s" not in outs[False].out
+
+
+# ------------------------------------------------------------------------------------ the study folder
+
+
+def test_a_study_moved_into_an_empty_folder_is_all_or_nothing(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Before: the entries were moved up one by one; a failure midway left sysid/ in the user's folder without the
+    # report, and the rest was deleted with the staging folder.
+    import sim2real.study as study
+    import sim2real.study.run as study_run
+
+    def run(profile, budget, staging, backend, seed, workers, progress, log):  # type: ignore[no-untyped-def]
+        (staging / "sysid").mkdir()
+        (staging / "sysid" / "fit.json").write_text("{}")
+        (staging / "report.html").write_text("<html></html>")
+        return study.StudyResult(staging, staging / "report.html", "summary", {}, {}, None, None)
+
+    real_rename = Path.rename
+
+    def rename(self: Path, target: str | os.PathLike[str]) -> Path:
+        if Path(target).name == "report.html":
+            raise OSError(28, "No space left on device")
+        return real_rename(self, target)
+
+    monkeypatch.setattr(study_run, "_run", run)
+    monkeypatch.setattr(Path, "rename", rename)
+    (tmp_path / "s").mkdir()
+    code = cli.main(["study", "--budget", "quick", "--backend", "serial", "--quiet", "--out", str(tmp_path / "s")])
+    assert code == 2
+    assert capsys.readouterr().err == (
+        f"sim2real study: error: cannot write {str(tmp_path / 's')!r}: No space left on device.\n"
+    )
+    assert _tree(tmp_path) == {"s": None}
+
+
+@pytest.mark.parametrize("flag", ["--force", "--resume", "--overwrite", "--clean"])
+def test_no_study_flag_can_reuse_a_folder_that_holds_anything(
+    flag: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # The study once deleted an existing folder: no flag may bring that back.
+    (tmp_path / "s").mkdir()
+    (tmp_path / "s" / "keep.txt").write_text("user data")
+    before = _tree(tmp_path)
+    assert (
+        cli.main(["study", "--budget", "quick", "--backend", "serial", "--quiet", flag, "--out", str(tmp_path / "s")])
+        == 2
+    )
+    err = capsys.readouterr().err
+    assert err.startswith("sim2real: error: unrecognized arguments: ") and err.count("\n") == 1
+    assert _tree(tmp_path) == before
+
+
+# ------------------------------------------------------------------------------------ paths through '..' and links
+
+
+def test_an_output_through_a_link_and_dotdot_is_matched_as_the_os_resolves_it(tmp_path: Path) -> None:
+    # Before: 'link/..' was collapsed as text (to the folder holding the link), but the OS goes to the parent of
+    # the link's target, so an output there overwrote the input while the check saw two different files.
+    (tmp_path / "real" / "sub").mkdir(parents=True)
+    (tmp_path / "work").mkdir()
+    (tmp_path / "work" / "link").symlink_to(tmp_path / "real" / "sub")
+    config = tmp_path / "work" / "link" / ".." / "cfg.yaml"  # is tmp_path/real/cfg.yaml
+    with pytest.raises(OutputPathError, match="--out must not be the input --config"):
+        check_not_inputs({"--out": tmp_path / "real" / "cfg.yaml"}, {"--config": config})
+    check_not_inputs({"--out": tmp_path / "work" / "cfg.yaml"}, {"--config": config})  # another file: allowed
+    with pytest.raises(OutputPathError, match="--report must differ from --out"):
+        check_distinct({"--out": config, "--report": tmp_path / "real" / "cfg.yaml"})
+
+
+def test_train_refuses_to_write_its_checkpoint_over_its_config_spelled_through_a_link(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "real" / "sub").mkdir(parents=True)
+    (tmp_path / "work").mkdir()
+    (tmp_path / "work" / "link").symlink_to(tmp_path / "real" / "sub")
+    (tmp_path / "real" / "cfg.yaml").write_text("effects: []\n")
+    monkeypatch.chdir(tmp_path / "work")
+    argv = ["train", "--task", ARM, "--frames", "1", "--no-log", "--quiet", "--config", "link/../cfg.yaml"]
+    assert cli.main([*argv, "--out", "../real/cfg.yaml"]) == 2
+    assert capsys.readouterr().err == (
+        "sim2real train: error: --out must not be the input --config, which it would overwrite. Received "
+        "'../real/cfg.yaml' for both.\n"
+    )
+    assert (tmp_path / "real" / "cfg.yaml").read_text() == "effects: []\n"
+
+
+def test_a_relative_out_with_dotdot_writes_where_it_points(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "here").mkdir()
+    (tmp_path / "spec.yaml").write_text(SPEC)
+    monkeypatch.chdir(tmp_path / "here")
+    assert cli.main(["evaluate", "--config", "../spec.yaml", "--backend", "serial", "--quiet", "--out", "../r"]) == 0
+    capsys.readouterr()
+    assert sorted(p.name for p in (tmp_path / "r").iterdir()) == ["figures", "report.html", "report.json", "report.md"]
+    assert list((tmp_path / "here").iterdir()) == []

@@ -36,7 +36,8 @@ def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
     try:
         spec = load_spec(Path(args.config))
         options = dict(spec.report)
-        fit = FitResult.from_json(Path(options.pop("fit"))) if "fit" in options else None
+        fit_path = options.pop("fit", None)
+        fit = FitResult.from_json(Path(fit_path)) if fit_path is not None else None
     except FileNotFoundError as err:
         raise UsageError(str(err)) from err
     except (SpecError, ValueError) as err:
@@ -44,7 +45,7 @@ def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
     limits = _limits(args.safety)
     if args.task is not None or args.model is not None or args.env is not None:
         spec = dataclasses.replace(spec, task=source_of(args).id)  # the command line overrides the spec's source
-    check_outputs({}, ("--out", args.out, False))
+    _check_out(args.out, {"--config": args.config, "--safety": args.safety, "the spec's fit": fit_path})
     try:  # effects that do not fit the model, a constant action of the wrong size: one line, before any episode
         spec.check()
     except SpecError as err:
@@ -87,6 +88,20 @@ def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
     for violation in table.violations:  # one line each, for a CI log; exit 3 gates the pipeline
         print(f"sim2real evaluate: safety: {violation.message}", file=sys.stderr)
     return 3
+
+
+def _check_out(out: str, inputs: dict[str, str | None]) -> None:
+    """``--out``, before any episode: a folder whose report files can be replaced (none of them is a folder, nor
+    ``figures`` a file: found after the evaluation, that stopped the write midway, with the old ``report.json``
+    gone and some new files beside old ones), and none of them one of the command's input files."""
+    from sim2real.output_paths import OutputPathError, check_not_inputs
+    from sim2real.report.files import REPORT_FILES, check_out
+
+    try:
+        check_out(out, "--out")
+        check_not_inputs({f"--out's {name}": Path(out) / name for name in REPORT_FILES}, inputs)
+    except OutputPathError as err:
+        raise UsageError(str(err)) from err
 
 
 def _substeps(task: Any) -> int | None:

@@ -428,10 +428,11 @@ class GapReport:
         Everything is rendered in memory, written into a temporary sibling directory and then moved into
         place (``report.json`` last, so its presence marks a complete report): an error or Ctrl-C leaves no
         half-written file and no temporary directory. A new ``out_dir`` appears in one rename; in an existing one
-        the files are replaced one by one (the old ``report.json`` is removed first) and other files are left
-        alone.
+        the report's files are replaced all or nothing (the old ones are moved aside first and put back if a
+        rename fails; Ctrl-C waits for the renames) and other files are left alone.
 
         Raises:
             NotADirectoryError: ``out_dir`` exists and is not a directory.
+            OSError: in an existing ``out_dir``, a report file is a folder or ``figures`` a file (nothing changed).
         """
         return _files.write(self, out_dir)
