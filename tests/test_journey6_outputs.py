@@ -471,3 +471,24 @@ def test_a_relative_out_with_dotdot_writes_where_it_points(
     capsys.readouterr()
     assert sorted(p.name for p in (tmp_path / "r").iterdir()) == ["figures", "report.html", "report.json", "report.md"]
     assert list((tmp_path / "here").iterdir()) == []
+
+
+@pytest.mark.parametrize("log_dir", [["--log-dir", "x"], []], ids=["given", "default"])
+def test_train_refuses_a_checkpoint_named_as_its_log_folder_before_training(
+    log_dir: list[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Before: the logger made the folder as training started and the checkpoint's rename onto it failed after the
+    # whole training: "cannot write 'x': Is a directory."
+    import sim2real.agents.training as training
+
+    def no_training(*args: object, **kwargs: object) -> None:
+        raise AssertionError("trained before checking --out")
+
+    monkeypatch.setattr(training, "train", no_training)
+    monkeypatch.chdir(tmp_path)
+    out = "x" if log_dir else "sim2real_runs"
+    assert cli.main(["train", "--task", ARM, "--frames", "1", "--quiet", *log_dir, "--out", out]) == 2
+    assert capsys.readouterr().err == (
+        f"sim2real train: error: --log-dir must differ from --out. Received {out!r} for both.\n"
+    )
+    assert list(tmp_path.iterdir()) == []

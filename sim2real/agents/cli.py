@@ -67,7 +67,7 @@ def _check_paths(args: argparse.Namespace) -> str | None:
     """The checkpoint file and the logger folder, checked before training (see :mod:`sim2real.output_paths`);
     returns the error message, or None."""
     from sim2real.cli._common import source_inputs
-    from sim2real.output_paths import OutputPathError, check_file, check_folder, check_not_inputs
+    from sim2real.output_paths import OutputPathError, check_distinct, check_file, check_folder, check_not_inputs
 
     try:
         check_file(args.out, "--out")
@@ -79,7 +79,10 @@ def _check_paths(args: argparse.Namespace) -> str | None:
         }
         check_not_inputs({"--out": args.out}, inputs)
         if not args.no_log:  # the logger's root, ./sim2real_runs by default
-            check_folder(args.log_dir if args.log_dir is not None else "sim2real_runs", "--log-dir")
+            log_dir = args.log_dir if args.log_dir is not None else "sim2real_runs"
+            check_folder(log_dir, "--log-dir")
+            # The logger makes that folder as training starts; a checkpoint of the same name failed only at the end.
+            check_distinct({"--out": args.out, "--log-dir": log_dir})
     except OutputPathError as err:
         return str(err)
     return None
