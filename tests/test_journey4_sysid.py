@@ -495,3 +495,24 @@ def test_a_slide_in_mm_read_as_metres_warns_naming_the_column(tmp_path: Path, us
         warnings.simplefilter("error", sysid.CsvWarning)
         with pytest.raises(sysid.CsvWarning, match="commands logged at another rate"):  # the only other warning
             sysid.load_csv(path, columns, meta(), model, units={"q_lift": "mm", "v_lift": "mm/s"})
+
+
+def test_a_driver_faster_than_the_models_default_period_is_told_where_to_declare_it(tmp_path: Path, user: Path) -> None:
+    # Before: "... has a median spacing of 0.008 s, but meta['control_timestep'] is 0.02 s (the log must hold one row
+    # per control step)." and nothing on where that 0.02 s came from (the MJCF's 50 Hz default) or where to set it.
+    undeclared = tmp_path / "arm_50hz.xml"
+    undeclared.write_text("\n".join(line for line in ARM.format(**NOMINAL).splitlines() if "<custom>" not in line))
+    path = driver_csv(tmp_path / "robot.csv", drive(steps=60), drop=-1)
+    argv = ["sysid", "fit", str(path), "--model", str(undeclared), "--params", "dof_damping[*]", "--quiet"]
+    code, _, err = run_cli([*argv, "--columns", str(user / "map.yaml"), "--out", str(tmp_path / "fit.json")])
+    assert code == 2 and len(err.splitlines()) == 1
+    assert err.endswith(
+        "has a median spacing of 0.008 s, but meta['control_timestep'] is 0.02 s (the log must hold one row per "
+        "control step). That 0.02 s is the model's control period (a --model MJCF runs at 50 Hz unless it declares "
+        '<custom><numeric name="sim2real_control_timestep" data="..."/></custom>): declare the driver\'s period '
+        f"there, or give meta: {{control_timestep: ...}} in {user / 'map.yaml'}.\n"
+    )
+    mapping = tmp_path / "map.yaml"
+    mapping.write_text(yaml.safe_dump({**COLUMN_MAP, "meta": {"control_timestep": 0.008}}))
+    code, _, err = run_cli([*argv, "--columns", str(mapping), "--out", str(tmp_path / "fit.json")])
+    assert code in (0, 4) and sysid.FitResult.from_json(tmp_path / "fit.json").control_timestep == 0.008, err

@@ -117,16 +117,27 @@ def _load(path: str, columns: str | None, model: Any, substeps: int | None) -> A
         meta.setdefault("control_timestep", float(model.opt.timestep) * (substeps or 1))
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", sysid.CsvWarning)
-            log = sysid.load_csv(
-                path,
-                mapping["columns"],
-                meta=meta,
-                model=model,
-                units=mapping.get("units"),
-                scale=mapping.get("scale"),
-                offset=mapping.get("offset"),
-                delimiter=mapping.get("delimiter", ","),
-            )
+            try:
+                log = sysid.load_csv(
+                    path,
+                    mapping["columns"],
+                    meta=meta,
+                    model=model,
+                    units=mapping.get("units"),
+                    scale=mapping.get("scale"),
+                    offset=mapping.get("offset"),
+                    delimiter=mapping.get("delimiter", ","),
+                )
+            except sysid.LogError as err:
+                told = "meta['control_timestep']" in str(err) and "It looks like" not in str(err)  # not a unit
+                if "control_timestep" in mapping.get("meta", {}) or not told:
+                    raise
+                # The period came from the model, not from the user: say where it came from and where to set it.
+                raise UsageError(
+                    f"{err} That {meta['control_timestep']:g} s is the model's control period (a --model MJCF runs at 50 Hz "
+                    'unless it declares <custom><numeric name="sim2real_control_timestep" data="..."/></custom>): '
+                    f"declare the driver's period there, or give meta: {{control_timestep: ...}} in {columns}."
+                ) from err
         for item in caught:
             print(f"sim2real sysid fit: warning: {item.message}", file=sys.stderr)
         return log
