@@ -492,3 +492,35 @@ def test_train_refuses_a_checkpoint_named_as_its_log_folder_before_training(
         f"sim2real train: error: --log-dir must differ from --out. Received {out!r} for both.\n"
     )
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_second_ctrl_c_does_not_cut_the_clean_up_short(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Before: a second Ctrl-C while the first one's clean-up ran raised again inside it: the study's staging folder
+    # was not removed (and the pool's workers not killed, when they were being killed).
+    import sim2real.study.run as study_run
+
+    def run(profile, budget, staging, backend, seed, workers, progress, log):  # type: ignore[no-untyped-def]
+        (staging / "sysid").mkdir()
+        (staging / "sysid" / "fit.json").write_text("{}")
+        signal.raise_signal(signal.SIGINT)  # Ctrl-C while the study works
+        raise AssertionError("Ctrl-C did not interrupt")
+
+    real_rmtree = study_run.shutil.rmtree
+
+    def rmtree(path: str | os.PathLike[str], **kwargs: object) -> None:
+        signal.raise_signal(signal.SIGINT)  # the user presses Ctrl-C again
+        real_rmtree(path, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(study_run, "_run", run)
+    monkeypatch.setattr(study_run.shutil, "rmtree", rmtree)
+    (tmp_path / "s").mkdir()
+    try:
+        code = cli.main(["study", "--budget", "quick", "--backend", "serial", "--quiet", "--out", str(tmp_path / "s")])
+    except KeyboardInterrupt:
+        pytest.fail("the second Ctrl-C escaped main")
+    assert code == 130
+    assert capsys.readouterr().err == "sim2real study: interrupted; no partial output was left behind\n"
+    assert _tree(tmp_path) == {"s": None}
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler

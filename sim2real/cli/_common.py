@@ -113,17 +113,24 @@ def interrupted_line(command: str, err: BaseException, what: str = "no partial o
 
 @contextlib.contextmanager
 def kills_interrupt() -> Iterator[None]:
-    """While the block runs (in the main thread), ``SIGTERM`` and ``SIGHUP`` raise :class:`Interrupted`; a signal
-    the caller ignores (``nohup`` ignores SIGHUP) stays ignored. The previous handlers are restored after."""
+    """While the block runs (in the main thread), ``SIGTERM`` and ``SIGHUP`` raise :class:`Interrupted` and
+    Ctrl-C its ``KeyboardInterrupt``, once: a second signal while the first one's clean-up runs (a second Ctrl-C
+    in a hurry) is ignored, so it cannot cut the clean-up short (workers left running, a staging folder half
+    removed, a traceback). A signal the caller ignores (``nohup`` ignores SIGHUP) stays ignored. The previous
+    handlers are restored after."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    fired: list[int] = []
 
     def interrupt(signum: int, frame: Any) -> None:
-        raise Interrupted(signum)
+        if fired:  # already interrupting: let the clean-up finish
+            return
+        fired.append(signum)
+        raise KeyboardInterrupt if signum == signal.SIGINT else Interrupted(signum)
 
     previous = {}
-    for signum in KILL_SIGNALS:
+    for signum in (signal.SIGINT, *KILL_SIGNALS):
         if signal.getsignal(signum) is not signal.SIG_IGN:
             previous[signum] = signal.signal(signum, interrupt)
     try:
