@@ -51,6 +51,10 @@ __all__ = [
 ]
 
 
+#: How the staging folder inside an existing empty output folder is named: ``.sim2real-study.<random>.partial``.
+STAGING_PREFIX, STAGING_SUFFIX = ".sim2real-study.", ".partial"
+
+
 class OutputPathError(ValueError):
     """An output path that cannot be written, or that would overwrite a folder; raised before any work."""
 
@@ -133,12 +137,20 @@ def check_folder(path: str | os.PathLike[str], argument: str = "`out`", *, new: 
         raise OutputPathError(f"{argument} must name a folder, not an existing file. Received {text!r}.")
     if target.is_dir():
         if new:
-            entries = sum(1 for _ in target.iterdir())
-            if entries:
+            names = [entry.name for entry in target.iterdir()]
+            if names:
+                entries = len(names)
+                left = [n for n in names if n.startswith(STAGING_PREFIX) and n.endswith(STAGING_SUFFIX)]
+                why = (
+                    f" ({left[0]!r} is the staging folder of a study that was killed before it could remove it "
+                    "(SIGKILL, a crash): delete it to use this folder)"
+                    if left
+                    else ""
+                )
                 raise OutputPathError(
                     f"{argument} must be a new or empty folder (an existing folder is never overwritten). Received "
-                    f"{text!r}, which holds {entries} {'entry' if entries == 1 else 'entries'}; choose another "
-                    f"{argument}, e.g. {str(free_folder(target))!r}."
+                    f"{text!r}, which holds {entries} {'entry' if entries == 1 else 'entries'}{why}; choose "
+                    f"another {argument}, e.g. {str(free_folder(target))!r}."
                 )
         if not _writable(target):
             raise OutputPathError(f"{argument} must be a writable folder. Received {text!r}, which is not writable.")
@@ -280,9 +292,9 @@ def staging_folder(target: Path) -> Path:
     from randomizers.files import make_temp_dir
 
     if target.is_dir():
-        return make_temp_dir(target, prefix=".sim2real-study.", suffix=".partial")
+        return make_temp_dir(target, prefix=STAGING_PREFIX, suffix=STAGING_SUFFIX)
     target.parent.mkdir(parents=True, exist_ok=True)
-    return make_temp_dir(target.parent, prefix=f".{target.name}.", suffix=".partial")
+    return make_temp_dir(target.parent, prefix=f".{target.name}.", suffix=STAGING_SUFFIX)
 
 
 def publish_folder(staging: Path, target: Path) -> Path:

@@ -524,3 +524,21 @@ def test_a_second_ctrl_c_does_not_cut_the_clean_up_short(
     assert capsys.readouterr().err == "sim2real study: interrupted; no partial output was left behind\n"
     assert _tree(tmp_path) == {"s": None}
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_a_study_folder_holding_only_a_killed_studys_staging_folder_says_so(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # After a SIGKILL (nothing can clean up) the hidden staging folder stays in the user's empty folder, which `ls`
+    # shows empty; before, the refusal said only "which holds 1 entry".
+    out = tmp_path / "s"
+    (out / ".sim2real-study.0123abcd4567.partial" / "sysid").mkdir(parents=True)
+    before = _tree(tmp_path)
+    assert cli.main(["study", "--budget", "quick", "--backend", "serial", "--quiet", "--out", str(out)]) == 2
+    assert capsys.readouterr().err == (
+        f"sim2real study: error: --out must be a new or empty folder (an existing folder is never overwritten). "
+        f"Received {str(out)!r}, which holds 1 entry ('.sim2real-study.0123abcd4567.partial' is the staging folder "
+        "of a study that was killed before it could remove it (SIGKILL, a crash): delete it to use this folder); "
+        f"choose another --out, e.g. {str(tmp_path / 's-2')!r}.\n"
+    )
+    assert _tree(tmp_path) == before
