@@ -33,7 +33,10 @@ Example:
     ...     safety={"slam": {"sim": quantities}})
     >>> table = SafetyTable.build(evaluation, limits)
     >>> table.passed, [v.message for v in table.violations]
-    (False, ["policy 'slam' on 'sim': joint_limit_hits worst 4 > limit 0 (episode 2)"])
+    (False, ["policy 'slam' on 'sim': joint_limit_hits worst 4 > limit 0 (episode 2; 1 of 4 episodes over 0, 95% \
+interval of the rate 4.56%-69.9%)"])
+    >>> [row.verdict for row in table.rows if row.quantity == "diverged"]  # within its limit, on 4 episodes only
+    ['within: 0 of 4 episodes diverged, 95% interval of the rate 0%-49%']
 """
 
 from __future__ import annotations
@@ -42,11 +45,14 @@ import math
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from sim2real.safety_probe import QUANTITIES, SafetyMeter
+
+if TYPE_CHECKING:
+    from sim2real.metrics import Estimate
 
 __all__ = [
     "QUANTITIES",
@@ -284,6 +290,11 @@ class SafetyRow:
         violated: whether the gated statistic is above the limit.
         point: the condition holding the worst episode (for a sweep, its point; for ``diverged``, the point with the
             most diverged episodes); the condition itself on a condition row.
+        over: episodes whose value is above the limit (for ``diverged``: the diverged episodes), or None without a
+            limit.
+        over_rate: the rate of such episodes with its 95% Wilson interval (a
+            :class:`~sim2real.metrics.Estimate`), or None without a limit: a row within its limit on 4 episodes
+            still allows a rate up to 49%.
     """
 
     policy: str
@@ -297,6 +308,17 @@ class SafetyRow:
     limit: float | None
     violated: bool
     point: str = ""
+    over: int | None = None
+    over_rate: Estimate | None = None
+
+    @property
+    def verdict(self) -> str:
+        """The check of this row in words, with the interval of the rate of episodes over the limit, e.g.
+        ``VIOLATED: 3 of 4 episodes over 0.95, 95% interval of the rate 30%-95%``; ``""`` without a limit."""
+        if self.limit is None or self.over is None or self.over_rate is None:
+            return ""
+        head = "VIOLATED" if self.violated else "within"
+        return f"{head}: {_over(self.over, self.episodes, self.limit, self.over_rate, self.quantity)}"
 
 
 @dataclass(frozen=True)
@@ -310,21 +332,51 @@ class SafetyViolation:
     value: float
     limit: float
     where: str
+    over: int | None = None
+    episodes: int | None = None
+    over_rate: Estimate | None = None
 
     @property
     def message(self) -> str:
-        """E.g. ``policy 'slam' on 'sim': joint_limit_hits worst 4 > limit 0 (episode 2)``."""
+        """E.g. ``policy 'slam' on 'sim': joint_limit_hits worst 4 > limit 0 (episode 2; 1 of 4 episodes over 0,
+        95% interval of the rate 4.56%-69.9%)``."""
         unit = UNITS[self.quantity]
         suffix = f" {unit}" if unit and unit != "steps" else ""
         name = "divergences" if self.quantity == "diverged" else self.quantity
+        rate = ""
+        if self.over is not None and self.episodes is not None and self.over_rate is not None:
+            rate = f"; {_over(self.over, self.episodes, self.limit, self.over_rate, self.quantity)}"
+            if self.quantity == "diverged":  # `where` already says how many of how many
+                rate = f"; 95% interval of the rate {_pct(self.over_rate.low)}-{_pct(self.over_rate.high)}"
         return (
             f"policy {self.policy!r} on {self.condition!r}: {name} {self.statistic} {_fmt(self.value)}{suffix} "
-            f"> limit {_fmt(self.limit)}{suffix} ({self.where})"
+            f"> limit {_fmt(self.limit)}{suffix} ({self.where}{rate})"
         )
 
 
 def _fmt(value: float) -> str:
     return f"{value:.4g}"
+
+
+def _pct(value: float) -> str:
+    return f"{100 * value:.3g}%"
+
+
+def _over(over: int, episodes: int, limit: float, rate: Estimate, quantity: str) -> str:
+    """``3 of 4 episodes over 0.95, 95% interval of the rate 30%-95%``."""
+    what = "diverged" if quantity == "diverged" else f"over {_fmt(limit)}"
+    return f"{over} of {episodes} episodes {what}, 95% interval of the rate {_pct(rate.low)}-{_pct(rate.high)}"
+
+
+def _over_rate(values: np.ndarray, quantity: str, limit: float | None) -> tuple[int | None, Estimate | None]:
+    """Episodes over ``limit`` (diverged ones for ``diverged``) and their rate with a 95% Wilson interval."""
+    if limit is None or not len(values):
+        return None, None
+    from sim2real.metrics import success_rate  # the one Wilson interval
+
+    over = values > 0.5 if quantity == "diverged" else values > limit
+    (rate,) = success_rate(over.astype(np.float64)[:, None])
+    return int(over.sum()), rate
 
 
 @dataclass(frozen=True)
@@ -410,6 +462,17 @@ class SafetyTable:
                     "episodes": r.episodes,
                     "limit": num(r.limit),
                     "violated": r.violated,
+                    "episodes_over_limit": r.over,
+                    "over_limit_rate": None
+                    if r.over_rate is None
+                    else {
+                        "value": r.over_rate.value,
+                        "low": r.over_rate.low,
+                        "high": r.over_rate.high,
+                        "confidence": r.over_rate.confidence,
+                        "method": r.over_rate.method,
+                    },
+                    "verdict": r.verdict,
                 }
                 for r in self.rows
             ],
@@ -437,7 +500,10 @@ def _row(
         value, statistic, episode = _gated(values, quantity, limits)
         if limit is not None and value > limit:
             where = f"{int(values.sum())} of {len(values)} episodes" if quantity == "diverged" else f"episode {episode}"
-            found.append(SafetyViolation(policy, point, quantity, statistic, value, limit, where))
+            over, rate = _over_rate(values, quantity, limit)
+            found.append(
+                SafetyViolation(policy, point, quantity, statistic, value, limit, where, over, len(values), rate)
+            )
     if quantity == "diverged":
         worst, cvar, where = float(pooled.sum()), float(pooled.mean()), f"{int(pooled.sum())} of {len(pooled)} episodes"
         part = int(np.argmax([a.sum() for a in arrays]))
@@ -448,7 +514,10 @@ def _row(
         part = int(np.searchsorted(offsets, index, side="right") - 1)
         episode = index - int(offsets[part])
         where = f"episode {episode}" if kind == "condition" else f"{parts[part][0]} episode {episode}"
-    row = SafetyRow(policy, name, kind, quantity, worst, cvar, where, len(pooled), limit, bool(found), parts[part][0])
+    over, rate = _over_rate(pooled, quantity, limit)
+    row = SafetyRow(
+        policy, name, kind, quantity, worst, cvar, where, len(pooled), limit, bool(found), parts[part][0], over, rate
+    )
     return row, found
 
 

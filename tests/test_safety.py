@@ -508,7 +508,8 @@ def test_cvar_gate_and_sweep_rows_name_the_worst_point() -> None:
     )
     worst = SafetyTable.build(evaluation, load_limits({"joint_limit_hits": 2}))
     assert [v.message for v in worst.violations] == [
-        "policy 'p' on 'Damping.scale=2': joint_limit_hits worst 5 > limit 2 (episode 7)"
+        "policy 'p' on 'Damping.scale=2': joint_limit_hits worst 5 > limit 2 (episode 7; 1 of 10 episodes over 2, "
+        "95% interval of the rate 1.79%-40.4%)"
     ]
     row = next(r for r in worst.rows if r.kind == "sweep")
     assert (row.condition, row.worst, row.episodes, row.where) == (
@@ -519,6 +520,9 @@ def test_cvar_gate_and_sweep_rows_name_the_worst_point() -> None:
     )
     assert row.cvar == pytest.approx(5.0 / 3.0) and row.violated  # the worst 3 of 30 pooled episodes
     assert row.point == "Damping.scale=2"
+    # The verdict carries the rate of episodes over the limit with its Wilson interval (1 of 30 pooled).
+    assert (row.over, round(row.over_rate.low, 4), round(row.over_rate.high, 4)) == (1, 0.0059, 0.1667)
+    assert row.verdict == "VIOLATED: 1 of 30 episodes over 2, 95% interval of the rate 0.591%-16.7%"
     from sim2real.report.safety import safety_blocks
 
     table_rows = safety_blocks(worst)[2]["rows"]
@@ -527,7 +531,8 @@ def test_cvar_gate_and_sweep_rows_name_the_worst_point() -> None:
     assert lenient.passed  # CVaR 0.3 of the point: 5/3 <= 2
     strict = SafetyTable.build(evaluation, load_limits({"joint_limit_hits": 1, "statistic": "cvar", "alpha": 0.3}))
     assert [v.message for v in strict.violations] == [
-        "policy 'p' on 'Damping.scale=2': joint_limit_hits CVaR 0.3 1.667 > limit 1 (episode 7)"
+        "policy 'p' on 'Damping.scale=2': joint_limit_hits CVaR 0.3 1.667 > limit 1 (episode 7; 1 of 10 episodes "
+        "over 1, 95% interval of the rate 1.79%-40.4%)"
     ]
     assert not any(r.quantity == "effort_ratio" for r in worst.rows)  # not measured: no row
 
