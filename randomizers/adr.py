@@ -281,7 +281,11 @@ Correlated effect (ADR scales its covariance). Received Gravity(add=Normal(mean=
             lim = (float(self.limit_low[i]), float(self.limit_high[i]))
             if key in initial:
                 raw = initial[key]
-                if isinstance(raw, Sequence) and not isinstance(raw, str) and len(raw) == 2:
+                if isinstance(raw, Sequence) and not isinstance(raw, str):
+                    if len(raw) != 2:
+                        raise ValueError(
+                            f"`initial[{key!r}]` of ADR must be a point or a range (low, high). Received {raw!r}."
+                        )
                     lo, hi = _real(f"initial[{key!r}]", raw[0]), _real(f"initial[{key!r}]", raw[1])
                 else:
                     lo = hi = _real(f"initial[{key!r}]", raw)
@@ -297,6 +301,11 @@ Correlated effect (ADR scales its covariance). Received Gravity(add=Normal(mean=
                         "without the model. Received none."
                     )
                 lo = hi = 1.0 if op == "scale" else 0.0
+                if not lim[0] <= lo <= lim[1]:  # the user gave no start: say which default is outside
+                    raise ValueError(
+                        f"`initial` of ADR must give a start for {key!r} inside the effect's limits [{lim[0]}, "
+                        f"{lim[1]}]: the default start, the nominal point ({op} {lo}), is outside them. Received none."
+                    )
             if not lim[0] <= lo <= hi <= lim[1]:
                 raise ValueError(
                     f"`initial[{key!r}]` of ADR must be a point or a range (low, high) with low <= high inside the "
@@ -353,6 +362,39 @@ Correlated effect (ADR scales its covariance). Received Gravity(add=Normal(mean=
             fields["distribution" if self._cov[i] else effect.operation] = self._dists[i]  # type: ignore[attr-defined]
             out.append(type(effect)(**fields))
         return tuple(out)
+
+    def parameter_ranges(self, model: Any) -> dict[str, tuple[float, float]]:
+        """The current ranges in ``model``'s own units: parameter address -> ``(low, high)`` of the values an episode
+        can write there (e.g. ``dof_damping[elbow]`` in N·m·s/rad, ``body_mass[hand]`` in kg), where :attr:`ranges`
+        holds each effect's factor (``scale``) or offset (``add``). Addresses are those of the episode reports
+        (``info["sim2real"]["params"]``). A Correlated dimension is left out: its range is a spread, not bounds.
+
+        Args:
+            model: the ``mujoco.MjModel`` the effects are applied to (read only; its nominal values).
+
+        Raises:
+            ValueError: an effect that selects nothing in ``model`` (the effect's own message).
+
+        Example:
+            >>> import mujoco
+            >>> from randomizers import Damping
+            >>> model = mujoco.MjModel.from_xml_string(
+            ...     '<mujoco><worldbody><body><joint name="elbow" damping="1.5"/><geom size=".1"/></body>'
+            ...     '</worldbody></mujoco>')
+            >>> adr = ADR([Damping(scale=Uniform(0.0, 4.0))], delta=0.5, m=1, t_low=0.2, t_high=0.8)
+            >>> _ = adr.record(Pin("Damping[joints=*]", "high", 1.0), 1.0)
+            >>> adr.ranges["Damping[joints=*]"], adr.parameter_ranges(model)
+            ((1.0, 1.5), {'dof_damping[elbow]': (1.5, 2.25)})
+        """
+        out: dict[str, tuple[float, float]] = {}
+        for i, effect in enumerate(self.effects):
+            if self._cov[i]:
+                continue
+            binding = effect.bind(model)  # resolves and snapshots the targets; writes nothing
+            ends = [binding.values(np.full(binding.size, bound[i])) for bound in (self.low, self.high)]
+            for address, a, b in zip(binding.addresses, ends[0].tolist(), ends[1].tolist(), strict=True):
+                out[str(address)] = (min(a, b), max(a, b))  # a scale of a negative nominal swaps the ends
+        return out
 
     def pinned(self, index: int, value: float, rng: np.random.Generator, count: int) -> np.ndarray:
         """The draws of a pinned episode: ``value`` for every target; for a Correlated effect, one point at ``value``

@@ -1,0 +1,360 @@
+"""User journey 7, "let ADR choose the ranges, train from scratch at full speed, and read the safety table before
+touching hardware", on an arm nobody here designed, through the public API and the CLI only.
+
+The arm is written here: four hinges under gravity with joint limits, position servos (``kp``, ``forcerange`` in
+N·m), a ``home`` keyframe and 5 ms physics steps, run as ``--model robot.xml`` / ``sim2real.make("model:<path>")``
+(50 Hz control: 4 physics steps per control step).
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import io
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+import pytest
+import yaml
+
+import sim2real as s2r
+from randomizers import ADR
+
+ARM = """
+<mujoco model="journey7_arm">
+  <compiler angle="radian"/>
+  <option timestep="0.005" gravity="0 0 -9.81"/>
+  <default><geom contype="0" conaffinity="0"/></default>
+  <worldbody>
+    <body name="base" pos="0 0 0.2">
+      <joint name="turn" axis="0 0 1" range="-2 2" damping="0.8" armature="0.02"/>
+      <geom type="cylinder" size="0.05 0.04" mass="2"/>
+      <body name="link1" pos="0 0 0.06">
+        <joint name="lift" axis="0 1 0" range="-1.2 1.2" damping="1.2" armature="0.02"/>
+        <geom type="capsule" fromto="0 0 0 0.25 0 0" size="0.03" mass="1.2"/>
+        <body name="link2" pos="0.25 0 0">
+          <joint name="bend" axis="0 1 0" range="-2.0 2.0" damping="0.6" armature="0.01"/>
+          <geom type="capsule" fromto="0 0 0 0.2 0 0" size="0.025" mass="0.8"/>
+          <body name="tool" pos="0.2 0 0">
+            <joint name="twist" axis="1 0 0" range="-1.5 1.5" damping="0.2" armature="0.005"/>
+            <geom type="box" size="0.03 0.02 0.02" mass="0.3"/>
+            <site name="tip" pos="0.04 0 0"/>
+          </body>
+        </body>
+      </body>
+    </body>
+  </worldbody>
+  <actuator>
+    <position name="turn" joint="turn" kp="40" kv="2" ctrlrange="-2 2" forcerange="-20 20"/>
+    <position name="lift" joint="lift" kp="80" kv="4" ctrlrange="-1.2 1.2" forcerange="-30 30"/>
+    <position name="bend" joint="bend" kp="40" kv="2" ctrlrange="-2 2" forcerange="-15 15"/>
+    <position name="twist" joint="twist" kp="8" kv="0.3" ctrlrange="-1.5 1.5" forcerange="-4 4"/>
+  </actuator>
+  <keyframe>
+    <key name="home" qpos="0.3 -0.4 0.9 0"/>
+  </keyframe>
+</mujoco>
+"""
+HOME = np.array([0.3, -0.4, 0.9, 0.0], np.float32)  # the servos' set points at the home keyframe
+SLAM = [2.0, 1.2, 2.0, 1.5]  # every servo to its upper control limit: into the joint limits at full torque
+
+# A tiny PPO from scratch: 2 batched worlds x 200 steps per batch, so every batch ends one episode per world (an MJCF
+# episode is 200 control steps) and ADR sees results.
+TINY_PPO = """algo: ppo
+frames: 800
+frames_per_batch: 400
+num_envs: 2
+minibatch_size: 100
+epochs: 1
+obs_norm_frames: 64
+hidden_sizes: [16, 16]
+"""
+
+
+@pytest.fixture(scope="module")
+def arm(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("journey7") / "robot.xml"
+    path.write_text(ARM)
+    return path
+
+
+# -- ADR on the arm ------------------------------------------------------------------------------------------------
+def test_adr_widens_only_where_the_held_arm_copes_and_reports_model_units(arm: Path) -> None:
+    # Holding home under gravity: the return hardly depends on the joints' damping, but heavier links sag more.
+    # ADR must open damping to its hard limits and stop the mass where the arm stops coping (a return of -0.2
+    # over 25 steps; 1.5x the masses sits between the thresholds, so that boundary stays).
+    adr = ADR(
+        [s2r.Damping(scale=s2r.Uniform(0.2, 5.0)), s2r.Mass(scale=s2r.Uniform(0.5, 3.0))],
+        delta={"Damping[joints=*]": 1.0, "Mass[bodies=*]": 0.25},
+        t_low=-0.4,
+        t_high=-0.2,
+        m=1,
+        p_boundary=1.0,
+        metric="return",
+    )
+    env = s2r.wrap(s2r.make(f"model:{arm}", max_episode_steps=25), adr=adr, seed=0)
+    nominal_mass = {name: float(m) for name, m in (("link1", 1.2), ("tool", 0.3))}
+    pins: list[tuple[str, str, float]] = []
+    for _ in range(40):
+        env.reset()
+        for _ in range(25):
+            _, _, _, _, info = env.step(HOME)
+        key, side, value = info["sim2real"]["adr"]["pin"]
+        pins.append((key, side, value))
+        params = info["sim2real"]["params"]
+        if key == "Mass[bodies=*]":  # the pinned boundary is written into every target, reported in kg
+            for body, kg in nominal_mass.items():
+                assert params[f"body_mass[{body}]"] == kg * value
+        else:  # in N·m·s/rad
+            assert params["dof_damping[lift]"] == 1.2 * value
+    env.close()
+    assert adr.ranges == {"Damping[joints=*]": (0.2, 5.0), "Mass[bodies=*]": (0.5, 1.5)}
+    assert ("Mass[bodies=*]", "high", 1.5) in pins[-10:]  # still tried at 1.5; 1.75 was never reached
+    history = adr.history
+    assert history.frames[0] == 0 and adr.frames == 40 * 25
+    assert all(b >= a for a, b in zip(history.entropy[1:], history.entropy[2:], strict=False))  # only widened
+
+    # The same ranges in the model's own units (what a datasheet says), addressed like the episode reports.
+    model = mujoco.MjModel.from_xml_path(str(arm))
+    ranges = adr.parameter_ranges(model)
+    assert ranges["dof_damping[lift]"] == (1.2 * 0.2, 1.2 * 5.0)
+    assert ranges["dof_damping[twist]"] == (0.2 * 0.2, 0.2 * 5.0)
+    assert ranges["body_mass[tool]"] == (0.3 * 0.5, 0.3 * 1.5)
+    assert set(ranges) == set(info["sim2real"]["params"])
+    assert np.array_equal(model.dof_damping, [0.8, 1.2, 0.6, 0.2])  # read, never written
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        # The nominal start (scale 1) outside the limits: said so, not "Received (1.0, 1.0)" for nothing given.
+        (
+            {"effects": [s2r.Damping(scale=s2r.Uniform(2.0, 5.0))]},
+            "`initial` of ADR must give a start for 'Damping[joints=*]' inside the effect's limits [2.0, 5.0]: the "
+            "default start, the nominal point (scale 1.0), is outside them. Received none.",
+        ),
+        (
+            {"initial": {"Damping[joints=*]": [0.5, 1.5, 2.0]}},
+            "`initial['Damping[joints=*]']` of ADR must be a point or a range (low, high). Received [0.5, 1.5, 2.0].",
+        ),
+        (
+            {"initial": {"Damping[joints=*]": 7.0}},
+            "`initial['Damping[joints=*]']` of ADR must be a point or a range (low, high) with low <= high inside the "
+            "effect's limits [0.2, 5.0]. Received 7.0.",
+        ),
+        (
+            {"metric": "sucess"},
+            "`metric` of ADR must be one of ['auto', 'return', 'success'] or a callable. Received 'sucess'.",
+        ),
+        ({"p_boundary": 1.5}, "`p_boundary` of ADR must be in [0, 1]. Received 1.5."),
+        ({"m": 0}, "`m` of ADR must be an int >= 1. Received 0."),
+        ({"t_low": 0.0, "t_high": -1.0}, "`t_low` of ADR must be < `t_high`. Received t_low=0.0, t_high=-1.0."),
+        (
+            {"delta": {"Damping": 0.1}},
+            "`delta` of ADR must give one step per effect key ['Damping[joints=*]']. Received unknown ['Damping'], "
+            "missing ['Damping[joints=*]'].",
+        ),
+    ],
+)
+def test_bad_adr_arguments_name_the_argument_the_allowed_values_and_what_was_received(
+    kwargs: dict[str, Any], message: str
+) -> None:
+    args: dict[str, Any] = {
+        "effects": [s2r.Damping(scale=s2r.Uniform(0.2, 5.0))],
+        "delta": 0.2,
+        "t_low": -30.0,
+        "t_high": -2.0,
+        **kwargs,
+    }
+    effects = args.pop("effects")
+    with pytest.raises((TypeError, ValueError), match=f"^{re.escape(message)}$"):
+        ADR(effects, **args)
+
+
+def test_bad_adr_file_is_one_line_and_exit_2_before_training(
+    arm: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from sim2real.cli import main
+
+    adr = tmp_path / "adr.yaml"
+    adr.write_text("effects: [{type: Damping, scale: [2.0, 5.0]}]\ndelta: 0.1\nt_low: -30\nt_high: -2\n")
+    out = tmp_path / "never.pt"
+    code = main(["train", "--model", str(arm), "--adr", str(adr), "--out", str(out), "--no-log", "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and not out.exists()
+    assert err.strip() == (
+        "sim2real train: error: --adr: `initial` of ADR must give a start for 'Damping[joints=*]' inside the "
+        "effect's limits [2.0, 5.0]: the default start, the nominal point (scale 1.0), is outside them. Received none."
+    )
+
+
+# -- train from scratch, export, train again, evaluate -------------------------------------------------------------
+def test_train_adr_on_the_arm_is_batched_and_its_ranges_export_into_train_config(arm: Path, tmp_path: Path) -> None:
+    from sim2real.agents import load_checkpoint
+    from sim2real.agents.cli import cli_train
+    from sim2real.evaluation import evaluate, nominal, randomized
+
+    agent = tmp_path / "ppo.yaml"
+    agent.write_text(TINY_PPO)
+    adr_file = tmp_path / "adr.yaml"  # thresholds every return clears: each pinned boundary widens
+    adr_file.write_text(
+        "effects:\n  - {type: Damping, scale: [0.2, 5.0]}\n"
+        "  - {type: Mass, scale: {type: LogUniform, low: 0.5, high: 2.0}, bodies: '*'}\n"
+        "delta: 0.2\nt_low: -5000\nt_high: -4000\np_boundary: 1.0\nm: 1\nmetric: return\n"
+    )
+    ckpt = tmp_path / "adr.pt"
+    base = ["--model", str(arm), "--algo", "ppo", "--agent-config", str(agent), "--no-log", "--quiet"]
+    out = io.StringIO()
+    assert cli_train([*base, "--adr", str(adr_file), "--out", str(ckpt)], out=out) == 0
+    summary = out.getvalue()
+    assert "collection: batched engine, 2 worlds x 200 steps per batch" in summary  # the engine it used, said
+    checkpoint = load_checkpoint(ckpt)
+    adr = ADR.from_state(checkpoint.adr)
+    assert adr.frames == 800  # four 200-step episodes, two per batch ending on the same step
+    # Each was pinned and widened its boundary, unless the other world's result of that step had moved it (stale).
+    assert len(adr.history.frames) == 1 + 4 - adr.stale
+    assert adr.ranges["Damping[joints=*]"][1] > 1.0 and adr.ranges["Mass[bodies=*]"][0] < 1.0  # widened
+    ranges = ", ".join(f"{key} [{lo:g}, {hi:g}]" for key, (lo, hi) in adr.ranges.items())
+    assert f"adr: entropy {adr.entropy():.3f} nats/dim; {ranges}" in summary
+
+    # The ranges ADR chose, as an effects file for `train --config` (what the next run trains under).
+    exported = tmp_path / "adr_ranges.yaml"
+    exported.write_text(s2r.dump_config(list(adr.effects_at_ranges())))
+    assert list(s2r.load_config(exported)) == list(adr.effects_at_ranges())
+    ckpt2 = tmp_path / "ranges.pt"
+    out = io.StringIO()
+    assert cli_train([*base, "--config", str(exported), "--out", str(ckpt2)], out=out) == 0
+    assert "collection: batched engine, 2 worlds x 200 steps per batch" in out.getvalue()
+    second = load_checkpoint(ckpt2)
+    assert list(s2r.load_config(second.effects)) == list(adr.effects_at_ranges())
+
+    # Both checkpoints load and evaluate on the arm, batched (no fallback), under the chosen ranges too.
+    result = evaluate(
+        {"adr": str(ckpt), "ranges": str(ckpt2)},
+        f"model:{arm}",
+        [nominal(), randomized(list(adr.effects_at_ranges()))],
+        episodes=2,
+        seed=0,
+        max_steps=20,
+    )
+    assert not result.fallbacks
+    for policy in ("adr", "ranges"):
+        for condition in ("sim", "randomized"):
+            returns = result.returns[policy][condition]
+            assert returns.shape == (2,) and np.isfinite(returns).all() and (returns < 0).all()
+
+
+def test_sac_from_scratch_on_the_arm_says_its_engine_and_evaluates(arm: Path, tmp_path: Path) -> None:
+    from sim2real.agents import load_checkpoint
+    from sim2real.agents.cli import cli_train
+    from sim2real.evaluation import evaluate, nominal
+
+    ckpt = tmp_path / "sac.pt"
+    out = io.StringIO()
+    argv = ["--model", str(arm), "--algo", "sac", "--frames", "300", "--no-log", "--quiet", "--out", str(ckpt)]
+    assert cli_train(argv, out=out) == 0
+    assert "collection: per-env" in out.getvalue() and "SAC steps one env" in out.getvalue()
+    assert load_checkpoint(ckpt).config.algo == "sac"
+    result = evaluate({"sac": str(ckpt)}, f"model:{arm}", [nominal()], episodes=2, seed=0, max_steps=10)
+    assert np.isfinite(result.returns["sac"]["sim"]).all()
+
+
+# -- the safety table before the hardware ---------------------------------------------------------------------------
+LIMITS = """joint_limit_hits: 0
+max_effort_ratio: 0.95
+max_ee_speed: {site: tip, m_per_s: 2.0}
+divergences: 0
+"""
+
+
+def _spec(folder: Path, arm: Path, policies: str) -> Path:
+    spec = folder / "spec.yaml"
+    spec.write_text(f"model: {arm}\nepisodes: 4\nmax_steps: 60\nbatch: 4\npolicies: {policies}\n")
+    (folder / "limits.yaml").write_text(LIMITS)
+    return spec
+
+
+def test_slamming_into_the_limits_exits_3_with_intervals_and_the_report_written(
+    arm: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from sim2real.cli import main
+
+    policies = f"{{hold: {{constant: {HOME.tolist()}}}, slam: {{constant: {SLAM}}}}}"
+    spec = _spec(tmp_path, arm, policies)
+    out = tmp_path / "report"
+    argv = ["evaluate", "--config", str(spec), "--safety", str(tmp_path / "limits.yaml"), "--out", str(out)]
+    code = main([*argv, "--backend", "serial", "--quiet"])
+    captured = capsys.readouterr()
+    assert code == 3
+    lines = captured.err.strip().splitlines()
+    assert all(line.startswith("sim2real evaluate: safety: policy 'slam' on 'sim': ") for line in lines)
+    # Every slam episode drives the arm into its limits: 4 of 4, and the interval says what 4 episodes can say.
+    hits = next(line for line in lines if "joint_limit_hits" in line)
+    assert hits.endswith("; 4 of 4 episodes over 0, 95% interval of the rate 51%-100%)")
+    safety = json.loads((out / "report.json").read_text())["safety"]
+    rows = {(r["policy"], r["quantity"]): r for r in safety["rows"]}
+    assert rows[("slam", "joint_limit_hits")]["violated"] and rows[("slam", "joint_limit_hits")]["worst"] > 0
+    held = rows[("hold", "joint_limit_hits")]
+    assert (held["violated"], held["worst"], held["episodes_over_limit"]) == (False, 0.0, 0)
+    assert held["verdict"] == "within: 0 of 4 episodes over 0, 95% interval of the rate 0%-49%"
+    low, high = held["over_limit_rate"]["low"], held["over_limit_rate"]["high"]
+    assert (low, round(high, 4), held["over_limit_rate"]["confidence"]) == (0.0, 0.4899, 0.95)
+    # Units are the model's: the tip speed in m/s, the effort against the servo's forcerange in N·m (a clamped
+    # servo reaches exactly 1), the sampling every 4 physics steps (50 Hz control over 5 ms steps).
+    assert rows[("hold", "ee_speed")]["unit"] == "m/s" and rows[("slam", "effort_ratio")]["worst"] == 1.0
+    assert safety["physics_steps_per_sample"] == 4
+    assert "## Safety" in (out / "report.md").read_text()
+
+
+def test_holding_home_passes_with_exit_0_and_the_effort_is_the_servo_torque_over_its_limit(
+    arm: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from sim2real.cli import main
+    from sim2real.evaluation import episode_seed
+
+    spec = _spec(tmp_path, arm, f"{{hold: {{constant: {HOME.tolist()}}}}}")
+    out = tmp_path / "report"
+    argv = ["evaluate", "--config", str(spec), "--safety", str(tmp_path / "limits.yaml"), "--out", str(out)]
+    code = main([*argv, "--backend", "serial", "--quiet"])
+    captured = capsys.readouterr()
+    assert code == 0 and captured.err == ""
+    assert f"safety: every policy within {tmp_path / 'limits.yaml'} on every condition" in captured.out
+    rows = {r["quantity"]: r for r in json.loads((out / "report.json").read_text())["safety"]["rows"]}
+    # The effort ratio is the peak |actuator_force| (N·m) over the servo's forcerange, stepping the env by hand.
+    env = s2r.make(f"model:{arm}", max_episode_steps=60)
+    model = mujoco.MjModel.from_xml_path(str(arm))
+    limit = np.abs(model.actuator_forcerange).max(axis=1)
+    data = env.unwrapped.data
+    peaks = []
+    for episode in range(4):
+        env.reset(seed=episode_seed(0, episode))
+        peak = 0.0
+        for _ in range(60):
+            env.step(HOME)
+            peak = max(peak, float((np.abs(data.actuator_force) / limit).max()))
+        peaks.append(peak)
+    env.close()
+    assert rows["effort_ratio"]["worst"] == pytest.approx(max(peaks), rel=1e-12)
+    assert 0.0 < rows["effort_ratio"]["worst"] < 0.95 and rows["effort_ratio"]["verdict"].startswith("within: 0 of 4")
+
+
+def test_a_site_the_arm_does_not_have_is_exit_2_before_any_episode(
+    arm: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from sim2real.cli import main
+
+    spec = _spec(tmp_path, arm, f"{{hold: {{constant: {HOME.tolist()}}}}}")
+    (tmp_path / "limits.yaml").write_text("max_ee_speed: {site: tipp, m_per_s: 2.0}\n")
+    out = tmp_path / "report"
+    argv = ["evaluate", "--config", str(spec), "--safety", str(tmp_path / "limits.yaml"), "--out", str(out)]
+    code = main([*argv, "--backend", "serial", "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "tipp" in err and "'tip'" in err
+    assert not out.exists()
+    assert yaml.safe_load((tmp_path / "limits.yaml").read_text())["max_ee_speed"]["site"] == "tipp"  # untouched
