@@ -445,54 +445,82 @@ def fit(
         st = lm(
             final, st, lower, upper, max_iter=max_iter, stage="local", atol=1.0 if loose else COST_ATOL, **lm_kwargs
         )
-        for _ in range(2):
-            if all(name in known for name in final.channels):
+
+        def reweigh(st: State, loose: bool) -> State:
+            """Noise levels re-estimated from the residuals and the problem re-solved with them (twice at most)."""
+            for _ in range(2):
+                if all(name in known for name in final.channels):
+                    break
+                new_sigma, new_dof = residual_sigma(final, st.theta, st.delay, st.obs, st.x0, unknowns)
+                for c, name in enumerate(final.channels):
+                    if name not in known:
+                        sigma[c], noise_dof[c] = new_sigma[c], new_dof[c]
+                change = float(np.max(np.abs(np.log(final.weights * sigma))))
+                old_weights, final.weights = final.weights, 1.0 / sigma
+                # Residuals and Jacobians scale per channel with the weights: rescaled, not rolled out again (a
+                # whole Jacobian is ~10% of a manipulator fit). Equal to recomputing up to rounding (~1e-16 relative).
+                factor = (final.weights / old_weights)[final.channel_of_residual()]
+                if st.r is not None and st.jac is not None:
+                    st.r, st.jac = st.r * factor, st.jac * factor[:, None]
+                if st.last_r is not None and st.prior_jac is not None:
+                    st.last_r, st.prior_jac = st.last_r * factor, st.prior_jac * factor[:, None]
+                if change < _REWEIGHT_CHANGE:
+                    # Weights a little off cost a sliver of efficiency, not consistency (the sandwich covariance
+                    # below is computed with the new weights), so the problem is only polished, not solved again.
+                    if loose:
+                        st = lm(final, st, lower, upper, max_iter=max_iter, stage="polish", **lm_kwargs)
+                    break
+                st = lm(final, st, lower, upper, max_iter=max_iter, stage="reweight", **lm_kwargs)
+                loose = False
+            return st
+
+        st = reweigh(st, loose)
+        # Latency refinement, repeated while it moves. A delay one control step off is always refitted: the
+        # parameters compensate for the delay they were fitted with, so its cost at the current estimate says
+        # nothing (journey 4's servo arm, recorded 2 steps late: 82737 there, 298 refitted, against 770 at 3
+        # steps, which the short-horizon global stage had picked). Other neighbours (a physics step either way)
+        # are refitted only when close: one whose cost at the estimate is more than twice as high does not
+        # overtake once refitted.
+        tried = {(st.delay, st.obs)}
+        for _ in range(len(delays) + len(ranges["obs"])):
+            candidates: list[int] = []
+            if len(ranges["action"]) > 1:
+                lo_d, hi_d = min(delays), max(delays)
+                stride = 1 if substep_latency else n_sub
+                candidates = [
+                    d
+                    for d in range(st.delay - n_sub, st.delay + n_sub + 1, stride)
+                    if lo_d <= d <= hi_d and d != st.delay
+                ]
+            trial_costs = []
+            for d in candidates:
+                r = final.residuals(st.theta, d, st.obs, st.x0)[0]
+                trial_costs.append((0.5 * float(r @ r), d, st.obs))
+            if len(ranges["obs"]) > 1:
+                for o in (st.obs - 1, st.obs + 1):
+                    if min(ranges["obs"]) <= o <= max(ranges["obs"]):
+                        r = final.residuals(st.theta, st.delay, o, st.x0)[0]
+                        trial_costs.append((0.5 * float(r @ r), st.delay, o))
+            trial_costs.sort(key=lambda t: t[0])
+            whole = [(d, o) for _, d, o in trial_costs if abs(d - st.delay) == n_sub or o != st.obs]
+            close = [(d, o) for c, d, o in trial_costs[:1] if c < 2.0 * st.cost]
+            best = st
+            for d, o in dict.fromkeys(close + whole):
+                if (d, o) in tried:
+                    continue
+                tried.add((d, o))
+                # a whole control step away: a few iterations tell (770 -> 298 above), the winner is then finished
+                steps = 10 if (d, o) in close else 3
+                cand = lm(
+                    final, State(st.theta, st.x0, d, o), lower, upper, max_iter=steps, stage="latency", **lm_kwargs
+                )
+                if cand.cost < best.cost and steps < 10:
+                    cand = lm(final, cand, lower, upper, max_iter=10, stage="latency", **lm_kwargs)
+                if cand.cost < best.cost:
+                    best = cand
+            if best is st:
                 break
-            new_sigma, new_dof = residual_sigma(final, st.theta, st.delay, st.obs, st.x0, unknowns)
-            for c, name in enumerate(final.channels):
-                if name not in known:
-                    sigma[c], noise_dof[c] = new_sigma[c], new_dof[c]
-            change = float(np.max(np.abs(np.log(final.weights * sigma))))
-            old_weights, final.weights = final.weights, 1.0 / sigma
-            # Residuals and Jacobians scale per channel with the weights: rescaled, not rolled out again (a whole
-            # Jacobian is ~10% of a manipulator fit). Equal to recomputing up to rounding (~1e-16 relative).
-            factor = (final.weights / old_weights)[final.channel_of_residual()]
-            if st.r is not None and st.jac is not None:
-                st.r, st.jac = st.r * factor, st.jac * factor[:, None]
-            if st.last_r is not None and st.prior_jac is not None:
-                st.last_r, st.prior_jac = st.last_r * factor, st.prior_jac * factor[:, None]
-            if change < _REWEIGHT_CHANGE:
-                # Weights a little off cost a sliver of efficiency, not consistency (the sandwich covariance
-                # below is computed with the new weights), so the problem is only polished, not solved again.
-                if loose:
-                    st = lm(final, st, lower, upper, max_iter=max_iter, stage="polish", **lm_kwargs)
-                break
-            st = lm(final, st, lower, upper, max_iter=max_iter, stage="reweight", **lm_kwargs)
-            loose = False
-        candidates: list[int] = []
-        if len(ranges["action"]) > 1:
-            lo_d, hi_d = min(delays), max(delays)
-            reach = n_sub
-            stride = 1 if substep_latency else n_sub
-            candidates = [
-                d for d in range(st.delay - reach, st.delay + reach + 1, stride) if lo_d <= d <= hi_d and d != st.delay
-            ]
-        trial_costs = []
-        for d in candidates:
-            r = final.residuals(st.theta, d, st.obs, st.x0)[0]
-            trial_costs.append((0.5 * float(r @ r), d, st.obs))
-        if len(ranges["obs"]) > 1:
-            for o in (st.obs - 1, st.obs + 1):
-                if min(ranges["obs"]) <= o <= max(ranges["obs"]):
-                    r = final.residuals(st.theta, st.delay, o, st.x0)[0]
-                    trial_costs.append((0.5 * float(r @ r), st.delay, o))
-        trial_costs.sort(key=lambda t: t[0])
-        # Refit only a close alternative: a latency whose cost at the current estimate is more than twice as
-        # high cannot overtake after refitting the parameters (the refit removes far less than that).
-        for _, d, o in [t for t in trial_costs[:1] if t[0] < 2.0 * st.cost]:
-            cand = lm(final, State(st.theta, st.x0, d, o), lower, upper, max_iter=10, stage="latency", **lm_kwargs)
-            if cand.cost < st.cost:
-                st = cand
+            st = reweigh(best, True)  # the noise levels were estimated with the wrong delay
     iterations, converged = st.iterations, st.converged
 
     # ---- statistics at the estimate
