@@ -194,6 +194,32 @@ def test_bad_adr_file_is_one_line_and_exit_2_before_training(
     )
 
 
+def test_a_success_metric_on_an_arm_without_success_is_refused_before_training(
+    arm: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # The bare MJCF arm reports no success flag. Before, a run long enough to end an episode died in a traceback
+    # from inside the collector ("the episode reports no success flag", exit 1) after collecting for nothing; a
+    # shorter one exited 0 without the metric ever being checked.
+    from sim2real.agents import PPOConfig, SACConfig, train
+    from sim2real.cli import main
+
+    adr_text = "effects: [{type: Damping, scale: [0.2, 5.0]}]\ndelta: 0.1\nt_low: 0.2\nt_high: 0.8\nmetric: success\n"
+    adr = tmp_path / "adr.yaml"
+    adr.write_text(adr_text)
+    out = tmp_path / "never.pt"
+    argv = ["train", "--model", str(arm), "--adr", str(adr), "--frames", "400", "--out", str(out), "--no-log"]
+    assert main([*argv, "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and not out.exists()
+    assert err.strip().endswith(
+        "`metric` of ADR must be 'return' or 'auto' (its return, here) on this task: its episodes report no success "
+        "flag. Received 'success'."
+    )
+    for config in (PPOConfig(frames=400, adr=adr_text), SACConfig(frames=400, adr=adr_text)):
+        with pytest.raises(ValueError, match=re.escape(f"on 'model:{arm}': its episodes report no success flag")):
+            train(f"model:{arm}", config)
+
+
 # -- train from scratch, export, train again, evaluate -------------------------------------------------------------
 def test_train_adr_on_the_arm_is_batched_and_its_ranges_export_into_train_config(arm: Path, tmp_path: Path) -> None:
     from sim2real.agents import load_checkpoint

@@ -38,7 +38,7 @@ import numpy as np
 from randomizers.adr import ADR, Episode
 from randomizers.adr_randomizer import ADRRandomizer
 
-__all__ = ["BatchedADR", "adr_of"]
+__all__ = ["BatchedADR", "adr_of", "check_success_metric"]
 
 
 def adr_of(effects: Sequence[Any]) -> ADR | None:
@@ -47,6 +47,35 @@ def adr_of(effects: Sequence[Any]) -> ADR | None:
 
     found = [e for e in _flatten(effects) if isinstance(e, ADR)]
     return found[0] if found else None
+
+
+def check_success_metric(adr: ADR, reports_success: bool, task: object = None) -> None:
+    """Refuses ``metric="success"`` on a task whose episodes report no success flag, before any episode runs:
+    otherwise the first finished episode raises from inside training (a whole batch collected for nothing).
+
+    Args:
+        adr: the controller.
+        reports_success: whether the task reports ``info["is_success"]`` (:attr:`sim2real.batched.Kernel.reports_success`).
+        task: the task, for the message (None: "this task").
+
+    Raises:
+        ValueError: naming ``metric``, the values that fit the task and what was received.
+
+    Example:
+        >>> import sim2real as s2r
+        >>> adr = s2r.ADR([s2r.Damping(scale=s2r.Uniform(0.5, 2.0))], delta=0.1, t_low=0.2, t_high=0.8,
+        ...               metric="success")
+        >>> check_success_metric(adr, reports_success=False, task="model:robot.xml")
+        Traceback (most recent call last):
+        ...
+        ValueError: `metric` of ADR must be 'return' or 'auto' (its return, here) on 'model:robot.xml': its episodes report no success flag. Received 'success'.
+    """
+    if adr.metric == "success" and not reports_success:
+        where = "this task" if task is None else repr(task)
+        raise ValueError(
+            f"`metric` of ADR must be 'return' or 'auto' (its return, here) on {where}: its episodes report no "
+            "success flag. Received 'success'."
+        )
 
 
 class BatchedADR:
@@ -70,6 +99,8 @@ class BatchedADR:
                     f"Received {type(physics[i]).__name__}."
                 )
         self.randomizers: list[ADRRandomizer] = randomizers  # type: ignore[assignment]
+        for randomizer in {id(r.adr): r.adr for r in self.randomizers}.values():
+            check_success_metric(randomizer, reports_success)
         n = len(randomizers)
         self.reports_success = bool(reports_success)
         self.returns = np.zeros(n)
