@@ -207,14 +207,21 @@ def test_a_success_metric_on_an_arm_without_success_is_refused_before_training(
     adr = tmp_path / "adr.yaml"
     adr.write_text(adr_text)
     out = tmp_path / "never.pt"
-    argv = ["train", "--model", str(arm), "--adr", str(adr), "--frames", "400", "--out", str(out), "--no-log"]
-    assert main([*argv, "--quiet"]) == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and not out.exists()
-    assert err.strip().endswith(
-        "`metric` of ADR must be 'return' or 'auto' (its return, here) on this task: its episodes report no success "
-        "flag. Received 'success'."
-    )
+    for algo in ("ppo", "sac"):
+        argv = ["train", "--model", str(arm), "--algo", algo, "--adr", str(adr), "--frames", "400", "--out", str(out)]
+        assert main([*argv, "--no-log", "--quiet"]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and not out.exists()
+        assert err.strip() == (
+            "sim2real train: error: the effects of --adr do not fit 'robot.xml': `metric` of ADR must be 'return' or "
+            f"'auto' (its return, here) on 'model:{arm}': its episodes report no success flag. Received 'success'."
+        )
+    # The batched engine refuses it too, whoever builds the worlds.
+    from sim2real.batched import make_batched
+
+    controller = ADR.from_config(yaml.safe_load(adr_text))
+    with pytest.raises(ValueError, match=re.escape("on this task: its episodes report no success flag.")):
+        make_batched(f"model:{arm}", 2, controller, seed=0)
     for config in (PPOConfig(frames=400, adr=adr_text), SACConfig(frames=400, adr=adr_text)):
         with pytest.raises(ValueError, match=re.escape(f"on 'model:{arm}': its episodes report no success flag")):
             train(f"model:{arm}", config)
@@ -248,6 +255,12 @@ def test_train_adr_on_the_arm_is_batched_and_its_ranges_export_into_train_config
     assert adr.ranges["Damping[joints=*]"][1] > 1.0 and adr.ranges["Mass[bodies=*]"][0] < 1.0  # widened
     ranges = ", ".join(f"{key} [{lo:g}, {hi:g}]" for key, (lo, hi) in adr.ranges.items())
     assert f"adr: entropy {adr.entropy():.3f} nats/dim; {ranges}" in summary
+    # ... and what they mean on this arm, in its units (N·m·s/rad, kg), one range per joint and body.
+    in_units = adr.parameter_ranges(mujoco.MjModel.from_xml_path(str(arm)))
+    low, high = in_units["dof_damping[lift]"]
+    assert (low, high) == (1.2 * adr.ranges["Damping[joints=*]"][0], 1.2 * adr.ranges["Damping[joints=*]"][1])
+    line = ", ".join(f"{address} [{lo:.4g}, {hi:.4g}]" for address, (lo, hi) in in_units.items())
+    assert f"adr ranges in the model's units: {line}\n" in summary and "body_mass[tool] [" in line
 
     # The ranges ADR chose, as an effects file for `train --config` (what the next run trains under).
     exported = tmp_path / "adr_ranges.yaml"

@@ -102,6 +102,10 @@ def _check_effects(
     flags = " and ".join(f for f, v in (("--config", args.config), ("--adr", args.adr)) if v is not None)
     try:
         plain, adr = with_adr(effects, config)
+        if adr is not None:  # e.g. metric 'success' on an arm that reports none: now, not after a batch
+            from sim2real.batched.adr import check_task_metric
+
+            check_task_metric(adr, task)
         if plain or adr is not None:
             env = sim2real.wrap(env, *plain, adr=adr, seed=args.seed)
             env.reset(seed=args.seed)
@@ -117,6 +121,22 @@ def _check_effects(
     except (TypeError, ValueError) as err:
         return f"the effects of {flags} do not fit {label!r} as TorchRL sees it (PPO's collection env): {err}"
     return None
+
+
+def _adr_parameter_ranges(adr: Any, source: Any) -> str:
+    """``dof_damping[lift] [0.24, 6], body_mass[tool] [0.15, 0.45], ...``: the final ADR ranges as the values they
+    write into the model (:meth:`randomizers.ADR.parameter_ranges`), or ``""`` when the env has no MuJoCo model."""
+    from sim2real.physics import find_physics
+
+    env = source.make()
+    try:
+        handle = find_physics(env)
+        if handle is None:
+            return ""
+        found = adr.parameter_ranges(handle.model)
+    finally:
+        env.close()
+    return ", ".join(f"{address} [{lo:.4g}, {hi:.4g}]" for address, (lo, hi) in found.items())
 
 
 def cli_train(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
@@ -219,6 +239,9 @@ def cli_train(argv: Sequence[str] | None = None, out: TextIO | None = None) -> i
         adr = ADR.from_state(result.adr)
         ranges = ", ".join(f"{key} [{lo:g}, {hi:g}]" for key, (lo, hi) in adr.ranges.items())
         print(f"adr: entropy {adr.entropy():.3f} nats/dim; {ranges}", file=out)
+        units = _adr_parameter_ranges(adr, source)
+        if units:
+            print(f"adr ranges in the model's units: {units}", file=out)
     print(f"run id: {result.run_id}", file=out)
     if result.log_dir is not None:
         print(f"log: {result.log_dir}", file=out)

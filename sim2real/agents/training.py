@@ -172,12 +172,9 @@ def train(
     plain, adr = with_adr(effects, config)  # an ADR in effects, or config.adr; logged with every batch
     effects = [*plain, adr] if adr is not None else plain
     if adr is not None:  # a success metric on a task without success: refused now, not after a batch (any engine)
-        from sim2real.batched.adr import check_success_metric
-        from sim2real.batched.kernels import kernel_factory
+        from sim2real.batched.adr import check_task_metric
 
-        factory = kernel_factory(task_or_env)
-        if factory is not None:
-            check_success_metric(adr, factory().reports_success, task)
+        check_task_metric(adr, task_or_env)
     collection = (
         choose_collection(task_or_env, effects, config)
         if isinstance(config, PPOConfig)

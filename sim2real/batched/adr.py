@@ -38,7 +38,7 @@ import numpy as np
 from randomizers.adr import ADR, Episode
 from randomizers.adr_randomizer import ADRRandomizer
 
-__all__ = ["BatchedADR", "adr_of", "check_success_metric"]
+__all__ = ["BatchedADR", "adr_of", "check_success_metric", "check_task_metric"]
 
 
 def adr_of(effects: Sequence[Any]) -> ADR | None:
@@ -76,6 +76,31 @@ def check_success_metric(adr: ADR, reports_success: bool, task: object = None) -
             f"`metric` of ADR must be 'return' or 'auto' (its return, here) on {where}: its episodes report no "
             "success flag. Received 'success'."
         )
+
+
+def check_task_metric(adr: ADR, task: Any) -> None:
+    """:func:`check_success_metric` for ``task`` when it has a batched kernel (a built-in task or ``model:<path>``),
+    which says whether its episodes report success; other tasks are left to their first episode.
+
+    Raises:
+        ValueError: ``metric="success"`` on a task that reports no success flag.
+
+    Example:
+        >>> import sim2real as s2r
+        >>> adr = s2r.ADR([s2r.Damping(scale=s2r.Uniform(0.5, 2.0))], delta=0.1, t_low=0.2, t_high=0.8,
+        ...               metric="success")
+        >>> check_task_metric(adr, "sim2real/arm-reach")  # the reach task reports success
+        >>> check_task_metric(adr, "dmc/reacher-easy")
+        Traceback (most recent call last):
+        ...
+        ValueError: `metric` of ADR must be 'return' or 'auto' (its return, here) on 'dmc/reacher-easy': its episodes \
+report no success flag. Received 'success'.
+    """
+    from sim2real.batched.kernels import kernel_factory
+
+    factory = kernel_factory(task)
+    if factory is not None:
+        check_success_metric(adr, factory().reports_success, task)
 
 
 class BatchedADR:
