@@ -542,3 +542,29 @@ def test_a_study_folder_holding_only_a_killed_studys_staging_folder_says_so(
         f"choose another --out, e.g. {str(tmp_path / 's-2')!r}.\n"
     )
     assert _tree(tmp_path) == before
+
+
+def test_a_report_folder_that_appeared_during_the_work_gets_the_report_beside_the_users_files(
+    tmp_path: Path, reports: tuple[object, object], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A folder of that name made by the user while the evaluation ran is an existing folder like any: the report's
+    # files go beside the user's, and the evaluation is not lost to a rename onto a folder that is not empty.
+    import sim2real.report.files as report_files
+
+    _, new = reports
+    out = tmp_path / "out"
+    real_make = report_files.make_temp_dir
+
+    def make_temp_dir(parent: Path, **kwargs: str) -> Path:
+        out.mkdir()  # the user made the folder while the report was computed
+        (out / "notes.txt").write_text("mine")
+        return real_make(parent, **kwargs)
+
+    monkeypatch.setattr(report_files, "make_temp_dir", make_temp_dir)
+    files = new.write(out)  # type: ignore[attr-defined]
+    monkeypatch.undo()
+    expected = tmp_path / "expected"
+    new.write(expected)  # type: ignore[attr-defined]
+    assert _tree(out) == {**_tree(expected), "notes.txt": b"mine"}
+    assert files.html == out / "report.html"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["expected", "out"]
