@@ -222,7 +222,8 @@ def excitation_log(
     Torque-driven arms (motors): ``u = g(q̃) + Kp (q_home - q̃) - Kd q̃̇ + a(t)`` where ``q̃`` is the measured
     (noisy) state, ``g`` MuJoCo's gravity torque, the PD gains are soft (a few Hz) and ``a(t)`` is a multisine
     (peak ``amplitude`` × half the torque limit, 0.2–3 Hz); position servos get set-points
-    ``q_home + amplitude · multisine(t)`` (peak ``amplitude`` rad). Commands are clipped to ``ctrlrange`` and logged as sent. The arm
+    ``q_home + amplitude · multisine(t)`` (peak ``amplitude`` rad); an arm that mixes them drives each actuator as
+    its kind. Commands are clipped to ``ctrlrange`` and logged as sent. The arm
     starts near home (true state drawn with ``initial_std`` = (rad, rad/s) around it); every logged row,
     the first included, carries Gaussian measurement noise.
 
@@ -274,21 +275,21 @@ def excitation_log(
     t = np.arange(steps) * control_timestep
     home = home_pose(model)
     nu = model.nu
-    servo = bool(np.all(model.actuator_biastype[:nu] == mujoco.mjtBias.mjBIAS_AFFINE))
+    # Per actuator: a position servo takes a set-point, a motor a torque (an arm may mix them; each was once
+    # driven as the kind all of them were, so a mixed arm's servos got gravity torques as set-points).
+    servo = model.actuator_biastype[:nu] == mujoco.mjtBias.mjBIAS_AFFINE
     joint_of = model.actuator_trnid[:nu, 0]
     dof_of = model.jnt_dofadr[joint_of]
     qpos_of = model.jnt_qposadr[joint_of]
     lo, hi = model.actuator_ctrlrange[:nu].T
     limited = model.actuator_ctrllimited[:nu].astype(bool)
     wave = _multisine(rng, t, nu, (0.2, 3.0))
-    if servo:
-        reference = home[qpos_of][None] + amplitude * wave
-    else:
-        torque = np.where(limited, np.maximum(np.abs(lo), np.abs(hi)), 20.0)
-        reference = 0.5 * amplitude * torque[None] * wave
-        # Soft PD (full torque at 1 rad error, about critically damped on the joint's own inertia).
-        kp = torque
-        kd = 2 * 0.7 * np.sqrt(kp * (model.dof_armature[dof_of] + 0.1))
+    setpoint = home[qpos_of][None] + amplitude * wave
+    torque = np.where(limited, np.maximum(np.abs(lo), np.abs(hi)), 20.0)
+    reference = np.where(servo[None], setpoint, 0.5 * amplitude * torque[None] * wave)
+    # Soft PD on the motors (full torque at 1 rad error, about critically damped on the joint's own inertia).
+    kp = torque
+    kd = 2 * 0.7 * np.sqrt(kp * (model.dof_armature[dof_of] + 0.1))
     data = mujoco.MjData(model)
     probe = mujoco.MjData(model)
     data.qpos[:] = home + rng.normal(0.0, initial_std[0], model.nq)
@@ -302,14 +303,14 @@ def excitation_log(
         time[k] = data.time
         qpos[k] = data.qpos + rng.normal(0.0, sigma["qpos"], model.nq)
         qvel[k] = data.qvel + rng.normal(0.0, sigma["qvel"], model.nv)
-        if servo:
-            u = reference[k].copy()
-        else:
+        u = reference[k].copy()
+        if not servo.all():
             probe.qpos[:] = qpos[k]
             probe.qvel[:] = 0.0
             mujoco.mj_forward(model, probe)
             gravity = probe.qfrc_bias[dof_of]
-            u = gravity + kp * (home[qpos_of] - qpos[k, qpos_of]) - kd * qvel[k, dof_of] + reference[k]
+            pd = gravity + kp * (home[qpos_of] - qpos[k, qpos_of]) - kd * qvel[k, dof_of] + reference[k]
+            u = np.where(servo, u, pd)
         u = np.where(limited, np.clip(u, lo, hi), u)
         ctrl[k] = u
         data.ctrl[:] = u

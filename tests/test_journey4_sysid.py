@@ -537,3 +537,22 @@ def test_a_latency_one_control_step_off_after_the_global_stage_is_corrected(tmp_
     truth = sysid.load_log(log).meta["true_params"]
     held = [a for a, (low, high) in zip(fit.addresses, fit.ci95, strict=True) if low <= truth[a] <= high]
     assert len(held) >= 6, held  # 6 of 7 here (the lift's damping, 52, just outside)
+
+
+def test_the_synthetic_excitation_drives_a_mixed_arm_servos_by_set_points_and_motors_by_torques() -> None:
+    # Before: sysid.synthetic.excitation_log drove every actuator as the kind all of them were; on this arm (servos
+    # and motors) it sent the servos gravity-compensated PD torques as set-points: the elbow servo's command 3 rad
+    # from its home set-point (clipped at its range), the elbow swinging 0.72 rad for an amplitude of 0.1.
+    from sysid.synthetic import excitation_log, home_pose
+
+    real = mujoco.MjModel.from_xml_string(ARM.format(**REAL))
+    log = excitation_log(real, duration=2.0, control_timestep=0.008, seed=0, amplitude=0.1)
+    home = home_pose(real)
+    servos = [0, 1, 3]  # lift, yaw, elbow: their commands are positions (qpos columns 0, 1, 3)
+    assert np.abs(log.ctrl[:, servos] - home[servos]).max() <= 0.1 + 1e-12
+    assert np.abs(log.qpos[:, 3] - home[3]).max() < 0.2
+    probe = mujoco.MjData(real)
+    probe.qpos[:] = home
+    mujoco.mj_forward(real, probe)
+    holding = probe.qfrc_bias[2]  # the shoulder motor's command is a torque around the one that holds the arm
+    assert abs(float(np.mean(log.ctrl[:, 2])) - holding) < 0.3 * abs(holding)
