@@ -120,6 +120,14 @@ class SafetyMeter:
         self._any_limited = bool(np.any(model.jnt_limited))
         limit = actuator_limits(model)
         self._act = np.flatnonzero(np.isfinite(limit))
+        if limits.max_effort_ratio is not None and not self._act.size:
+            # Unmeasured, the declared limit would never be checked and every policy would "pass" it.
+            names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, k) or f"#{k}" for k in range(model.nu)]
+            raise ValueError(
+                f"{limits.source}: `max_effort_ratio` needs an actuator with a declared force limit (forcelimited "
+                "with a forcerange, or a motor with a limited ctrlrange); none of the model's actuators "
+                f"{names} has one. Received max_effort_ratio={limits.max_effort_ratio!r}."
+            )
         self._scales = tuple((int(k), 1.0 / float(limit[k])) for k in self._act)
         self._geoms = np.zeros(0, np.intp)
         self._object: tuple[int, int] | None = None

@@ -397,3 +397,36 @@ def test_a_site_the_arm_does_not_have_is_exit_2_before_any_episode(
     assert code == 2 and err.count("\n") == 1 and "tipp" in err and "'tip'" in err
     assert not out.exists()
     assert yaml.safe_load((tmp_path / "limits.yaml").read_text())["max_ee_speed"]["site"] == "tipp"  # untouched
+
+
+def test_an_effort_limit_on_servos_without_a_force_limit_is_exit_2_not_a_pass(
+    arm: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # The same arm with its servos' forceranges left out: no actuator declares a limit to divide by. Before, the
+    # effort was not measured, its row left out, and `max_effort_ratio: 0.9` "passed": exit 0 and "every policy
+    # within limits.yaml" for a policy slamming every servo to its stop.
+    bare = tmp_path / "bare.xml"
+    bare.write_text(re.sub(r' forcerange="[^"]*"', "", ARM))
+    spec = _spec(tmp_path, bare, f"{{slam: {{constant: {SLAM}}}}}")
+    limits = tmp_path / "limits.yaml"
+    limits.write_text("max_effort_ratio: 0.9\n")
+    out = tmp_path / "report"
+    code = main_evaluate(["--config", str(spec), "--safety", str(limits), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and not out.exists()
+    assert err.strip() == (
+        f"sim2real evaluate: error: --safety: {limits}: `max_effort_ratio` needs an actuator with a declared force "
+        "limit (forcelimited with a forcerange, or a motor with a limited ctrlrange); none of the model's actuators "
+        "['turn', 'lift', 'bend', 'twist'] has one. Received max_effort_ratio=0.9."
+    )
+    from sim2real.safety import LimitsError, load_limits
+
+    with pytest.raises(LimitsError, match=re.escape("none of the model's actuators")):
+        load_limits({"max_effort_ratio": 0.9}).meter(mujoco.MjModel.from_xml_path(str(bare)), 1)
+    load_limits({"joint_limit_hits": 0}).meter(mujoco.MjModel.from_xml_path(str(bare)), 1)  # no effort limit: fine
+
+
+def main_evaluate(argv: list[str]) -> int:
+    from sim2real.cli import main
+
+    return main(["evaluate", *argv, "--backend", "serial", "--quiet"])
