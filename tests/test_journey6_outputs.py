@@ -568,3 +568,9 @@ def test_a_report_folder_that_appeared_during_the_work_gets_the_report_beside_th
     assert _tree(out) == {**_tree(expected), "notes.txt": b"mine"}
     assert files.html == out / "report.html"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["expected", "out"]
+
+
+def test_evaluate_help_says_the_report_is_replaced_all_or_nothing(capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main(["evaluate", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "are replaced, all or none of them (also on Ctrl-C), nothing else in it is touched" in text

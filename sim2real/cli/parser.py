@@ -277,7 +277,8 @@ def build_parser() -> argparse.ArgumentParser:
         required=True,
         help=(
             "report folder (created with its parents); in an existing folder only report.html, report.md, "
-            "report.json and figures/*.png are replaced, nothing else in it is touched"
+            "report.json and figures/*.png are replaced, all or none of them (also on Ctrl-C), nothing else in it "
+            "is touched"
         ),
     )
     evaluate.add_argument(
