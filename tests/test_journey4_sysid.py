@@ -250,7 +250,8 @@ def test_the_drivers_csv_fits_exports_per_joint_noise_in_its_own_units_and_build
     assert "1 gap(s) in time column 't [ms]'" in err and "149 row(s) without a command" in err
     fit = sysid.FitResult.from_json(out)
     assert fit.ok and sorted(inside(fit)) == sorted(TRUTH)
-    assert fit.to_json() == sysid.FitResult.from_json(fit.to_json()).to_json()  # a fit kept on disk is the fit
+    again = sysid.FitResult.from_json(fit.to_json())  # a fit kept on disk is the fit, covariance and bounds too
+    assert again == fit and again.to_json() == fit.to_json() and again.noise_std == fit.noise_std
     effects = yaml.safe_load(export.read_text())
     (noise,) = [s for s in effects["signals"] if s["type"] == "ObservationNoise"]
     levels = {tuple(p["select"]): p["std"] for p in noise["processes"]}
