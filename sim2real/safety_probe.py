@@ -95,6 +95,26 @@ def actuator_limits(model: mujoco.MjModel) -> np.ndarray:
     return limits
 
 
+def _check_can_touch(model: mujoco.MjModel, geoms: np.ndarray, names: Sequence[str]) -> None:
+    """Refuses a contact-force limit on geoms none of which can ever touch anything (contype/conaffinity bits that
+    match no geom's, in no ``<pair>``): its force would be 0 at every step and the limit could never fail.
+
+    Raises:
+        ValueError: naming the geoms and their bits.
+    """
+    contype, conaffinity = model.geom_contype, model.geom_conaffinity
+    paired = set(model.pair_geom1.tolist()) | set(model.pair_geom2.tolist())
+    for g in geoms.tolist():
+        others = np.arange(model.ngeom) != g
+        if g in paired or bool(np.any(((contype[g] & conaffinity) | (contype & conaffinity[g]))[others])):
+            return
+    raise ValueError(
+        f"`max_contact_force.geoms` must select a geom that can touch something; {list(names)} cannot (their "
+        "contype/conaffinity bits match no geom's and no <pair> names them), so the force would be 0 at every step. "
+        f"Received geoms {list(names)}."
+    )
+
+
 class SafetyMeter:
     """Per-episode safety quantities of ``num_envs`` envs of one model structure, updated step by step.
 
@@ -120,6 +140,13 @@ class SafetyMeter:
         self._any_limited = bool(np.any(model.jnt_limited))
         limit = actuator_limits(model)
         self._act = np.flatnonzero(np.isfinite(limit))
+        if limits.joint_limit_hits is not None and not self._any_limited:
+            names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or f"#{j}" for j in range(model.njnt)]
+            raise ValueError(
+                f'{limits.source}: `joint_limit_hits` needs a limited joint (a `range` with limited="true" or '
+                f"autolimits); none of the model's joints {names} has one, so no step could count. Received "
+                f"joint_limit_hits={limits.joint_limit_hits!r}."
+            )
         if limits.max_effort_ratio is not None and not self._act.size:
             # Unmeasured, the declared limit would never be checked and every policy would "pass" it.
             names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, k) or f"#{k}" for k in range(model.nu)]
@@ -136,6 +163,7 @@ class SafetyMeter:
             if limits.contact_geoms:
                 chosen = select(model, "geom", list(limits.contact_geoms), "max_contact_force.geoms")
                 self._geoms = np.asarray([i for i, _ in chosen], np.intp)
+                _check_can_touch(model, self._geoms, [name for _, name in chosen])
             if limits.ee_site is not None:
                 (sid, _), *_ = select(model, "site", limits.ee_site, "max_ee_speed.site")
                 self._object = (int(mujoco.mjtObj.mjOBJ_SITE), sid)

@@ -426,6 +426,46 @@ def test_an_effort_limit_on_servos_without_a_force_limit_is_exit_2_not_a_pass(
     load_limits({"joint_limit_hits": 0}).meter(mujoco.MjModel.from_xml_path(str(bare)), 1)  # no effort limit: fine
 
 
+@pytest.mark.parametrize(
+    ("limits", "message"),
+    [
+        # Every geom of the arm has contype=0 conaffinity=0: its contact force is 0 at every step, whatever happens.
+        (
+            "max_contact_force: {geoms: '*', newtons: 50}",
+            "`max_contact_force.geoms` must select a geom that can touch something; ['base', 'link1', 'link2', "
+            "'tool'] cannot (their contype/conaffinity bits match no geom's and no <pair> names them), so the force "
+            "would be 0 at every step. Received geoms ['base', 'link1', 'link2', 'tool'].",
+        ),
+        (
+            "joint_limit_hits: 0",
+            '`joint_limit_hits` needs a limited joint (a `range` with limited="true" or autolimits); none of the '
+            "model's joints ['turn', 'lift', 'bend', 'twist'] has one, so no step could count. Received "
+            "joint_limit_hits=0.",
+        ),
+    ],
+)
+def test_a_limit_that_can_never_fail_on_the_arm_is_exit_2_not_a_pass(
+    arm: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], limits: str, message: str
+) -> None:
+    # Before, both "passed": exit 0 and "every policy within" with contacts that cannot happen, or with joints that
+    # have no range to hit (here the arm's ranges are left out for the second case).
+    xml = ARM.replace('<geom type="', '<geom name="{}" type="')
+    for name in ("base", "link1", "link2", "tool"):
+        xml = xml.replace('name="{}"', f'name="{name}"', 1)
+    if "joint_limit_hits" in limits:
+        xml = re.sub(r' range="[^"]*"', "", xml)
+    model = tmp_path / "arm.xml"
+    model.write_text(xml)
+    spec = _spec(tmp_path, model, f"{{slam: {{constant: {SLAM}}}}}")
+    path = tmp_path / "limits.yaml"
+    path.write_text(limits + "\n")
+    out = tmp_path / "report"
+    code = main_evaluate(["--config", str(spec), "--safety", str(path), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and not out.exists()
+    assert err.strip() == f"sim2real evaluate: error: --safety: {path}: {message}"
+
+
 def main_evaluate(argv: list[str]) -> int:
     from sim2real.cli import main
 
