@@ -118,20 +118,28 @@ def _own_lines(err: str) -> list[str]:
     return [line for line in err.splitlines() if "DeprecationWarning" not in line]
 
 
-def test_study_killed_while_writing_leaves_the_empty_folder_empty_and_no_worker(tmp_path: Path) -> None:
+@pytest.mark.parametrize(
+    ("signum", "group", "code", "by"),
+    [(signal.SIGTERM, False, 143, " by SIGTERM"), (signal.SIGINT, True, 130, "")],
+    ids=["kill", "ctrl-c"],
+)
+def test_study_killed_while_writing_leaves_the_empty_folder_empty_and_no_worker(
+    signum: int, group: bool, code: int, by: str, tmp_path: Path
+) -> None:
     # Before: SIGTERM killed the study at once: its staging folder stayed inside the user's empty folder (which the
     # next study refused: "holds 1 entry"), and the pool's workers kept running, holding the pipes: the command
-    # never ended for its caller (`sim2real study | tee log`).
+    # never ended for its caller (`sim2real study | tee log`). Ctrl-C already cleaned up; it must stay so.
     (tmp_path / "s").mkdir()
     (tmp_path / "mine.txt").write_text("user data")
     proc = _start(["study", "--budget", "quick", "--quiet", "--workers", "2", "--out", "s"], tmp_path)
 
-    def writing() -> bool:  # the twin's log and the fit are written: it is in the policies or evaluate stage
-        return any((tmp_path / "s").glob(".sim2real-study.*.partial/sysid/calibrated.yaml"))
+    def writing() -> bool:  # the twin's log and the fit are written (and for Ctrl-C, the pool's workers are up)
+        staged = any((tmp_path / "s").glob(".sim2real-study.*.partial/sysid/calibrated.yaml"))
+        return staged and (not group or _workers_ignore_ctrl_c(proc.pid, 3))
 
-    out, err = _signal_when(proc, writing, signal.SIGTERM, group=False)
-    assert proc.returncode == 143
-    assert err == "sim2real study: interrupted by SIGTERM; no partial output was left behind\n"
+    out, err = _signal_when(proc, writing, signum, group=group)
+    assert proc.returncode == code
+    assert err == f"sim2real study: interrupted{by}; no partial output was left behind\n"
     assert out == ""
     assert _tree(tmp_path) == {"s": None, "mine.txt": b"user data"}
 
