@@ -192,6 +192,20 @@ def test_bad_adr_file_is_one_line_and_exit_2_before_training(
         "sim2real train: error: --adr: `initial` of ADR must give a start for 'Damping[joints=*]' inside the "
         "effect's limits [2.0, 5.0]: the default start, the nominal point (scale 1.0), is outside them. Received none."
     )
+    # --adr-export: only with --adr, never onto the checkpoint or an input.
+    ranges = tmp_path / "ranges.yaml"
+    adr.write_text("effects: [{type: Damping, scale: [0.2, 5.0]}]\ndelta: 0.1\nt_low: -30\nt_high: -2\n")
+    for extra, message in (
+        (["--adr-export", str(ranges)], f"--adr-export needs --adr (the ranges it writes are ADR's). Received "
+                                        f"--adr-export {str(ranges)!r} alone."),
+        (["--adr", str(adr), "--adr-export", str(out)], f"--adr-export must differ from --out. Received {str(out)!r} "
+                                                        "for both."),
+        (["--adr", str(adr), "--adr-export", str(adr)], f"--adr-export must not be the input --adr, which it would "
+                                                        f"overwrite. Received {str(adr)!r} for both."),
+    ):  # fmt: skip
+        code = main(["train", "--model", str(arm), *extra, "--out", str(out), "--no-log", "--quiet"])
+        assert (code, capsys.readouterr().err.strip()) == (2, f"sim2real train: error: {message}")
+    assert not out.exists() and not ranges.exists()
 
 
 def test_a_success_metric_on_an_arm_without_success_is_refused_before_training(
@@ -242,9 +256,11 @@ def test_train_adr_on_the_arm_is_batched_and_its_ranges_export_into_train_config
         "delta: 0.2\nt_low: -5000\nt_high: -4000\np_boundary: 1.0\nm: 1\nmetric: return\n"
     )
     ckpt = tmp_path / "adr.pt"
+    exported = tmp_path / "adr_ranges.yaml"  # the ranges ADR chose, as an effects file for `train --config`
     base = ["--model", str(arm), "--algo", "ppo", "--agent-config", str(agent), "--no-log", "--quiet"]
     out = io.StringIO()
-    assert cli_train([*base, "--adr", str(adr_file), "--out", str(ckpt)], out=out) == 0
+    argv = [*base, "--adr", str(adr_file), "--adr-export", str(exported), "--out", str(ckpt)]
+    assert cli_train(argv, out=out) == 0
     summary = out.getvalue()
     assert "collection: batched engine, 2 worlds x 200 steps per batch" in summary  # the engine it used, said
     checkpoint = load_checkpoint(ckpt)
@@ -262,9 +278,9 @@ def test_train_adr_on_the_arm_is_batched_and_its_ranges_export_into_train_config
     line = ", ".join(f"{address} [{lo:.4g}, {hi:.4g}]" for address, (lo, hi) in in_units.items())
     assert f"adr ranges in the model's units: {line}\n" in summary and "body_mass[tool] [" in line
 
-    # The ranges ADR chose, as an effects file for `train --config` (what the next run trains under).
-    exported = tmp_path / "adr_ranges.yaml"
-    exported.write_text(s2r.dump_config(list(adr.effects_at_ranges())))
+    # The exported ranges are the checkpoint's final ones, exactly, and train the next run (what it trains under).
+    assert f"adr ranges (effects for --config): {exported}\n" in summary
+    assert exported.read_text() == s2r.dump_config(list(adr.effects_at_ranges()))
     assert list(s2r.load_config(exported)) == list(adr.effects_at_ranges())
     ckpt2 = tmp_path / "ranges.pt"
     out = io.StringIO()

@@ -45,6 +45,13 @@ def build_parser(prog: str = "sim2real train") -> argparse.ArgumentParser:
         help="automatic domain randomisation YAML (effects with hard limits, delta, t_low, t_high, ...); the "
         "ranges grow from the nominal point and their final state is saved in the checkpoint",
     )
+    parser.add_argument(
+        "--adr-export",
+        default=None,
+        metavar="EFFECTS.yaml",
+        help="with --adr: write the ranges ADR chose (its effects at their final ranges) as an effects YAML for "
+        "`train --config` or an evaluation's `randomized:`; written atomically after the checkpoint",
+    )
     parser.add_argument("--agent-config", default=None, help="PPO/SAC hyperparameters YAML (its `algo` must match)")
     parser.add_argument("--seed", type=int, default=0, help="seed of weights, exploration, env and effects")
     parser.add_argument(
@@ -77,12 +84,17 @@ def _check_paths(args: argparse.Namespace) -> str | None:
             "--adr": args.adr,
             "--agent-config": args.agent_config,
         }
-        check_not_inputs({"--out": args.out}, inputs)
+        outputs = {"--out": args.out}
+        if args.adr_export is not None:
+            check_file(args.adr_export, "--adr-export")
+            outputs["--adr-export"] = args.adr_export
+            check_distinct(outputs)
+        check_not_inputs(outputs, inputs)
         if not args.no_log:  # the logger's root, ./sim2real_runs by default
             log_dir = args.log_dir if args.log_dir is not None else "sim2real_runs"
             check_folder(log_dir, "--log-dir")
             # The logger makes that folder as training starts; a checkpoint of the same name failed only at the end.
-            check_distinct({"--out": args.out, "--log-dir": log_dir})
+            check_distinct({**outputs, "--log-dir": log_dir})
     except OutputPathError as err:
         return str(err)
     return None
@@ -158,6 +170,11 @@ def cli_train(argv: Sequence[str] | None = None, out: TextIO | None = None) -> i
         return _fail(parser, f"--frames must be a positive int. Received {args.frames}.")
     if args.seed < 0:
         return _fail(parser, f"--seed must be >= 0. Received {args.seed}.")
+    if args.adr_export is not None and args.adr is None:
+        return _fail(
+            parser,
+            f"--adr-export needs --adr (the ranges it writes are ADR's). Received --adr-export {args.adr_export!r} alone.",
+        )
     try:
         config: Any = load_agent_config(Path(args.agent_config)) if args.agent_config else config_class(args.algo)()
     except (OSError, ValueError) as err:
@@ -222,6 +239,17 @@ def cli_train(argv: Sequence[str] | None = None, out: TextIO | None = None) -> i
         return interrupted_exit(err)
     except OSError as err:  # the atomic writer has removed its temporary file
         return _fail(parser, f"cannot write {args.out!r}: {err.strerror or err}.")
+    if args.adr_export is not None and result.adr is not None:
+        from randomizers import ADR, dump_config
+        from randomizers.files import atomic_write
+
+        try:  # the ranges ADR chose, as effects a next run trains or is evaluated under
+            atomic_write(args.adr_export, dump_config(list(ADR.from_state(result.adr).effects_at_ranges())))
+        except OSError as err:
+            return _fail(
+                parser,
+                f"cannot write {args.adr_export!r}: {err.strerror or err} (the checkpoint {args.out!r} is written).",
+            )
     returns = [r for r in result.metrics.get("episode_return", ()) if r == r]
     first = f"{returns[0]:.3f}" if returns else "n/a"
     last = f"{returns[-1]:.3f}" if returns else "n/a"
@@ -246,4 +274,6 @@ def cli_train(argv: Sequence[str] | None = None, out: TextIO | None = None) -> i
     if result.log_dir is not None:
         print(f"log: {result.log_dir}", file=out)
     print(f"checkpoint: {args.out}", file=out)
+    if args.adr_export is not None:
+        print(f"adr ranges (effects for --config): {args.adr_export}", file=out)
     return 0
