@@ -122,6 +122,33 @@ class Evaluation:
 
     __hash__ = None  # type: ignore[assignment]  # mutable-looking contents (arrays): as before, unhashable
 
+    def engine_summary(self) -> str | None:
+        """One line saying which engine stepped the simulated conditions and, for those run per env, why (what
+        ``sim2real evaluate`` prints); None when nothing was simulated.
+
+        Example:
+            >>> from sim2real.conditions import nominal
+            >>> run = Evaluation(task="gym/Arm-v0", seed=0, episodes=1, max_steps=None, policies=("p",),
+            ...                  conditions=(nominal(),), returns={}, successes={}, lengths={}, draws={},
+            ...                  engines={"sim": "per-env", "dr": "batched"},
+            ...                  fallbacks={"sim": "no batched kernel for task 'gym/Arm-v0'"})
+            >>> print(run.engine_summary())
+            engines: batched for dr; per env for sim (no batched kernel for task 'gym/Arm-v0')
+        """
+        if not self.engines:
+            return None
+        parts = []
+        batched = [name for name, engine in self.engines.items() if engine == "batched"]
+        if batched:
+            parts.append(f"batched for {_names(batched)}")
+        reasons: dict[str, list[str]] = {}
+        for name, engine in self.engines.items():
+            if engine != "batched":
+                reasons.setdefault(self.fallbacks.get(name, "no reason recorded"), []).append(name)
+        if reasons:
+            parts.append("per env for " + "; ".join(f"{_names(names)} ({why})" for why, names in reasons.items()))
+        return "engines: " + "; ".join(parts)
+
     def condition(self, name: str) -> Condition:
         """The condition called ``name``."""
         for cond in self.conditions:
@@ -184,3 +211,10 @@ class Evaluation:
     def to_json(self, indent: int | None = 1) -> str:
         """:meth:`to_dict` as JSON text (keys in a fixed order)."""
         return json.dumps(self.to_dict(), indent=indent, allow_nan=True)
+
+
+def _names(names: list[str], shown: int = 4) -> str:
+    """``names`` joined with commas, the first ``shown`` of them and how many more."""
+    if len(names) <= shown:
+        return ", ".join(names)
+    return f"{', '.join(names[:shown])} and {len(names) - shown} more"

@@ -272,8 +272,12 @@ def _check_measured_names(condition: Condition, policies: Mapping[str, Any], key
         )
 
 
-def load_spec(source: str | os.PathLike[str] | Mapping[str, Any]) -> EvaluationSpec:
+def load_spec(source: str | os.PathLike[str] | Mapping[str, Any], *, task: str | None = None) -> EvaluationSpec:
     """Parses an evaluation spec from a YAML file path, YAML text or a mapping.
+
+    ``task`` (a task id, ``"model:<path>"`` or ``"env:<module:factory>"``, e.g. the command line's
+    ``--task``/``--model``/``--env``) replaces the spec's ``task:``/``model:``/``env:``, which it then need not
+    name; the policies are read for that task.
 
     Raises:
         SpecError: with ``<file>: <key>: ...`` naming where the problem is.
@@ -294,7 +298,7 @@ def load_spec(source: str | os.PathLike[str] | Mapping[str, Any]) -> EvaluationS
     from sim2real.sources import SourceError, source_from_config
 
     try:  # exactly one of task:, model: (an MJCF file, relative to this YAML) and env: (module:factory)
-        task = source_from_config(config, where, base).id
+        task = task if task is not None else source_from_config(config, where, base).id
     except SourceError as err:
         raise SpecError(str(err)) from err
     policies_cfg = config.get("policies")

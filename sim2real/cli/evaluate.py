@@ -33,8 +33,10 @@ def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
     from sim2real.spec import SpecError, load_spec
     from sysid import FitResult
 
+    # The command line's source replaces the spec's (which it then need not name), before its policies are read.
+    override = source_of(args).id if (args.task, args.model, args.env) != (None, None, None) else None
     try:
-        spec = load_spec(Path(args.config))
+        spec = load_spec(Path(args.config), task=override)
         options = dict(spec.report)
         fit_path = options.pop("fit", None)
         fit = FitResult.from_json(Path(fit_path)) if fit_path is not None else None
@@ -43,8 +45,6 @@ def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
     except (SpecError, ValueError) as err:
         raise UsageError(str(err)) from err
     limits = _limits(args.safety)
-    if args.task is not None or args.model is not None or args.env is not None:
-        spec = dataclasses.replace(spec, task=source_of(args).id)  # the command line overrides the spec's source
     _check_out(args.out, {"--config": args.config, "--safety": args.safety, "the spec's fit": fit_path})
     try:  # effects that do not fit the model, a constant action of the wrong size: one line, before any episode
         spec.check()
@@ -79,6 +79,9 @@ def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
         report = dataclasses.replace(report, safety=table)
     files = writing(args.out, lambda: report.write(Path(args.out)))
     print(report.summary(), file=out)
+    engines = evaluation.engine_summary()
+    if engines is not None:  # how each condition ran (the batched engine, or per env and why)
+        print(engines, file=out)
     print(f"wrote {files.html}", file=out)
     if table is None:
         return 0
