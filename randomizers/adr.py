@@ -386,6 +386,10 @@ Correlated effect (ADR scales its covariance). Received Gravity(add=Normal(mean=
             >>> adr.ranges["Damping[joints=*]"], adr.parameter_ranges(model)
             ((1.0, 1.5), {'dof_damping[elbow]': (1.5, 2.25)})
         """
+        import mujoco
+
+        if not isinstance(model, mujoco.MjModel):
+            raise TypeError(f"`model` of ADR.parameter_ranges must be a mujoco.MjModel. Received {model!r}.")
         out: dict[str, tuple[float, float]] = {}
         for i, effect in enumerate(self.effects):
             if self._cov[i]:
@@ -548,6 +552,12 @@ Correlated effect (ADR scales its covariance). Received Gravity(add=Normal(mean=
         unknown = sorted(set(config) - allowed)
         if unknown:
             raise ValueError(f"`config` of ADR has unknown keys {unknown}. Allowed: {sorted(allowed)}.")
+        missing = [k for k in ("delta", "t_low", "t_high") if k not in config]
+        if missing:  # what the constructor requires, in the config's words (not a TypeError about __init__)
+            raise ValueError(
+                f"`config` of ADR must give {missing} (required: ['effects', 'delta', 't_low', 't_high']). "
+                f"Received keys {sorted(map(str, config))}."
+            )
         kwargs: dict[str, Any] = {k: _yaml_number(v) for k, v in config.items() if k not in ("effects", "metric")}
         if isinstance(kwargs.get("delta"), Mapping):
             kwargs["delta"] = {k: _yaml_number(v) for k, v in kwargs["delta"].items()}

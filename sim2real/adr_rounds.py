@@ -76,10 +76,13 @@ def run_adr_round(
         workers: processes for ``"local"``/``"ray"``.
 
     Raises:
-        TypeError: ``adr`` is not an ADR, or its metric is a callable that cannot be pickled for the backend.
+        TypeError: ``adr`` is not an ADR, ``items`` not a list, or the metric is a callable that cannot be pickled for
+            the backend.
     """
     if not isinstance(adr, ADR):
         raise TypeError(f"`adr` must be an ADR controller (sim2real.ADR). Received {adr!r}.")
+    if isinstance(items, (str, bytes)) or not isinstance(items, Sequence):
+        raise TypeError(f"`items` of run_adr_round must be a list (one item per task). Received {items!r}.")
     state = adr.state()
     metric = adr.metric
     run = run_tasks(_round_task, [(fn, state, metric, item) for item in items], backend=backend, workers=workers)

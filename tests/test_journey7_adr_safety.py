@@ -177,6 +177,26 @@ def test_bad_adr_arguments_name_the_argument_the_allowed_values_and_what_was_rec
         ADR(effects, **args)
 
 
+def test_bad_adr_config_items_and_model_are_named(arm: Path) -> None:
+    from sim2real.adr_rounds import run_adr_round
+
+    # A config without thresholds: before, "ADR.__init__() missing 2 required keyword-only arguments" (a TypeError
+    # about a function the user never called, and `train --adr` printed it as such).
+    with pytest.raises(ValueError) as err:
+        ADR.from_config({"effects": [{"type": "Damping", "scale": [0.2, 5.0]}], "delta": 0.1})
+    assert str(err.value) == (
+        "`config` of ADR must give ['t_low', 't_high'] (required: ['effects', 'delta', 't_low', 't_high']). "
+        "Received keys ['delta', 'effects']."
+    )
+    adr = ADR([s2r.Damping(scale=s2r.Uniform(0.2, 5.0))], delta=0.1, t_low=0.0, t_high=1.0)
+    with pytest.raises(TypeError) as err:  # before: "'int' object is not iterable"
+        run_adr_round(len, adr, 5, backend="serial")
+    assert str(err.value) == "`items` of run_adr_round must be a list (one item per task). Received 5."
+    with pytest.raises(TypeError) as err:  # before: "'PosixPath' object has no attribute 'njnt'"
+        adr.parameter_ranges(arm)
+    assert str(err.value) == f"`model` of ADR.parameter_ranges must be a mujoco.MjModel. Received {arm!r}."
+
+
 def test_bad_adr_file_is_one_line_and_exit_2_before_training(
     arm: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
