@@ -17,11 +17,11 @@
 * **gaps**: a spacing over 1.5 control steps (dropped rows) ends the segment; the log continues in a new segment
   (the ``episode`` key numbers the segments, so the fit restarts from the logged state there) and a
   :class:`CsvWarning` says where. Nothing is interpolated across a gap;
-* **degrees**: with ``model``, a position column of a hinge joint with limits whose ``|q|`` exceeds 2π warns,
-  naming the column.
+* **degrees**: with ``model``, a limited hinge's position column past 2π (a limited slide's past 100x its range:
+  millimetres) warns, naming the column; a header unit the loader cannot convert (``lift [in]``) is refused.
 
-Errors (:class:`~sysid.logs.LogError`) name the file, the row (as numbered in the file, the header is row 1) and
-the column. :func:`log_format` tells a ``.npz`` log from a CSV by the file's first bytes.
+Errors (:class:`~sysid.logs.LogError`) name the file, the row (as numbered in the file: ``#`` comment rows, above the
+header too, are skipped but counted) and the column. :func:`log_format` tells a ``.npz`` log from a CSV by its start.
 
 Example:
     >>> import os, tempfile, warnings
