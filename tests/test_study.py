@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 from pathlib import Path
 
@@ -14,8 +16,18 @@ from sim2real.study import BUDGETS, calibrated_effects, load_profile, run_study,
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("study") / "first"
-    assert cli.main(["study", "--budget", "quick", "--backend", "serial", "--out", str(out), "--quiet"]) == 0
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):  # the stage lines (not --quiet), kept beside the study for a test below
+        assert cli.main(["study", "--budget", "quick", "--backend", "serial", "--out", str(out)]) == 0
+    (out.parent / "stderr.txt").write_text(err.getvalue())
     return out
+
+
+def test_quick_study_says_which_engine_ran_its_evaluation(quick: Path) -> None:
+    # Before, nothing said whether the batched engine ran the conditions (or why not), only the Python API did.
+    lines = (quick.parent / "stderr.txt").read_text().splitlines()
+    (engines,) = [line.strip() for line in lines if line.strip().startswith("engines: ")]
+    assert engines.startswith("engines: batched for sim, randomized"), engines
 
 
 def test_quick_study_writes_the_report(quick: Path) -> None:

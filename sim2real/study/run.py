@@ -226,6 +226,9 @@ def _run(
         f"{len(spec.policies)} policies x {len(spec.conditions)} conditions x {budget.episodes} episodes ({backend})",
         lambda: spec.run(backend=backend, workers=workers, progress=progress, safety=safety),
     )
+    engines = evaluation.engine_summary()
+    if log is not None and engines is not None:  # which conditions the batched engine ran, and why any ran per env
+        print(f"      {engines}", file=log)
     # Enough episodes to decide: the evaluation above is the pilot of the headline's precision goal on the twin.
     batch = spec.batch  # whole batches: each round of the target stage continues the last one
 
