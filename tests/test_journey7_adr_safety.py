@@ -334,7 +334,8 @@ def test_sac_from_scratch_on_the_arm_says_its_engine_and_evaluates(arm: Path, tm
     out = io.StringIO()
     argv = ["--model", str(arm), "--algo", "sac", "--frames", "300", "--no-log", "--quiet", "--out", str(ckpt)]
     assert cli_train(argv, out=out) == 0
-    assert "collection: per-env" in out.getvalue() and "SAC steps one env" in out.getvalue()
+    # SAC steps the arm's gymnasium env itself (before: "one TorchRL env", which it is not).
+    assert "collection: per-env (one gymnasium env): SAC steps one env" in out.getvalue()
     assert load_checkpoint(ckpt).config.algo == "sac"
     result = evaluate({"sac": str(ckpt)}, f"model:{arm}", [nominal()], episodes=2, seed=0, max_steps=10)
     assert np.isfinite(result.returns["sac"]["sim"]).all()

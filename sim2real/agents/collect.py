@@ -51,12 +51,15 @@ class Collection:
         reason: why the run collects per env (None on the batched engine).
         steps_per_batch: each world's steps per collected batch (``frames_per_batch / num_envs``); 0 when not
             tied to a batch (SAC).
+        env: what the per-env path steps: ``"TorchRL"`` (PPO's collector; SAC on an env object) or
+            ``"gymnasium"`` (SAC on a task id or gymnasium env, stepped directly).
     """
 
     engine: str
     num_envs: int
     reason: str | None = None
     steps_per_batch: int = 0
+    env: str = "TorchRL"
 
     def __repr__(self) -> str:
         return f"Collection(engine={self.engine!r}, num_envs={self.num_envs}, reason={self.reason!r})"
@@ -65,7 +68,7 @@ class Collection:
         if self.engine == BATCHED:
             per = f" x {self.steps_per_batch} steps per batch" if self.steps_per_batch else ""
             return f"batched engine, {self.num_envs} worlds{per}"
-        return f"per-env (one TorchRL env): {self.reason}"
+        return f"per-env (one {self.env} env): {self.reason}"
 
 
 def worlds_for(frames_per_batch: int, num_envs: int) -> int:

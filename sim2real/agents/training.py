@@ -175,10 +175,17 @@ def train(
         from sim2real.batched.adr import check_task_metric
 
         check_task_metric(adr, task_or_env)
+    from sim2real.agents.sac_loop import steps_directly
+
     collection = (
         choose_collection(task_or_env, effects, config)
         if isinstance(config, PPOConfig)
-        else Collection("per-env", 1, "SAC steps one env (its run is update-bound; see sim2real.agents.collect)")
+        else Collection(
+            "per-env",
+            1,
+            "SAC steps one env (its run is update-bound; see sim2real.agents.collect)",
+            env="gymnasium" if steps_directly(task_or_env) else "TorchRL",  # what train_sac steps below
+        )
     )
     log = _make_logger(logger, log_dir, run_id)
     if log is not None:
@@ -196,7 +203,7 @@ def train(
         stack.enter_context(torch.random.fork_rng(devices=[]))
         torch.manual_seed(seed)
         if isinstance(config, SACConfig):
-            from sim2real.agents.sac_loop import steps_directly, train_sac
+            from sim2real.agents.sac_loop import train_sac
 
             # A task id or gymnasium env is stepped through gymnasium; any other env through TorchRL.
             source = task_or_env if steps_directly(task_or_env) else make_train_env(task_or_env, effects, seed)
