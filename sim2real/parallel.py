@@ -340,6 +340,23 @@ def _init_worker(started: Any) -> None:
     _STARTED = started
     # Ctrl-C reaches the whole process group; the parent handles it (cancels and kills the workers).
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, "pthread_sigmask"):  # started with Ctrl-C held (_ctrl_c_held): now ignored, let it go
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
+@contextlib.contextmanager
+def _ctrl_c_held() -> Iterator[None]:
+    """Blocks SIGINT in this thread while the pool spawns its workers: they inherit the mask through exec, so a
+    Ctrl-C (sent to the whole process group) waits in a worker until _init_worker ignores it, instead of killing
+    it with a traceback while it starts. This process still gets it (through another thread, or when unblocked)."""
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 def _local_task(fn_bytes: bytes, index: int, item_bytes: bytes) -> Any:
@@ -425,20 +442,22 @@ def _run_local(
     todo = list(range(n))
     while todo:
         started = ctx.RawArray("q", n)
-        pool = ProcessPoolExecutor(
-            max_workers=min(workers, len(todo)), mp_context=ctx, initializer=_init_worker, initargs=(started,)
-        )
+        with _ctrl_c_held():  # the resource tracker may start here
+            pool = ProcessPoolExecutor(
+                max_workers=min(workers, len(todo)), mp_context=ctx, initializer=_init_worker, initargs=(started,)
+            )
         procs = _processes(pool)
         failed: list[int] = []
         try:
             futures: dict[Future[Any], int] = {}
-            for position, i in enumerate(todo):
-                try:
-                    futures[pool.submit(_local_task, fn_bytes, i, payloads[i])] = i
-                except BrokenProcessPool:
-                    # A worker died while items were still being queued: the rest are lost to this pool too.
-                    failed.extend(todo[position:])
-                    break
+            with _ctrl_c_held():
+                for position, i in enumerate(todo):
+                    try:
+                        futures[pool.submit(_local_task, fn_bytes, i, payloads[i])] = i
+                    except BrokenProcessPool:
+                        # A worker died while items were still being queued: the rest are lost to this pool too.
+                        failed.extend(todo[position:])
+                        break
             pending: set[Future[Any]] = set(futures)
             while pending:
                 done, pending = wait(pending, return_when=FIRST_COMPLETED)
