@@ -283,6 +283,7 @@ def test_train_adr_on_the_arm_is_batched_and_its_ranges_export_into_train_config
     assert cli_train(argv, out=out) == 0
     summary = out.getvalue()
     assert "collection: batched engine, 2 worlds x 200 steps per batch" in summary  # the engine it used, said
+    assert "seed 0, 0 effect(s) + ADR over 2\n" in summary  # before: "0 effect(s)", ADR's two left out
     checkpoint = load_checkpoint(ckpt)
     adr = ADR.from_state(checkpoint.adr)
     assert adr.frames == 800  # four 200-step episodes, two per batch ending on the same step

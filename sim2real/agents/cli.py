@@ -15,6 +15,7 @@ Example:
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -255,7 +256,8 @@ def cli_train(argv: Sequence[str] | None = None, out: TextIO | None = None) -> i
     last = f"{returns[-1]:.3f}" if returns else "n/a"
     print(
         f"sim2real train: {args.algo} on {source.label}, {result.frames} frames in {result.wall_time:.1f} s, "
-        f"seed {args.seed}, {len(effects)} effect(s)",
+        f"seed {args.seed}, {len(effects)} effect(s)"
+        + ("" if result.adr is None else f" + ADR over {len(json.loads(result.adr)['config']['effects'])}"),
         file=out,
     )
     print(f"episode return (batch mean): first {first}, last {last}", file=out)
