@@ -326,6 +326,24 @@ def test_train_adr_on_the_arm_is_batched_and_its_ranges_export_into_train_config
             assert returns.shape == (2,) and np.isfinite(returns).all() and (returns < 0).all()
 
 
+def test_a_budget_that_ends_no_episode_says_adr_saw_nothing(arm: Path, tmp_path: Path) -> None:
+    # 20 batched worlds x 20 steps: no 200-step episode of the arm ends, so ADR gets no result. Before, the summary
+    # printed the unmoved ranges as if ADR had judged them.
+    from sim2real.agents.cli import cli_train
+
+    adr = tmp_path / "adr.yaml"
+    adr.write_text("effects: [{type: Damping, scale: [0.2, 5.0]}]\ndelta: 0.1\nt_low: -1e9\nt_high: -1e8\n")
+    out = io.StringIO()
+    argv = ["--model", str(arm), "--adr", str(adr), "--frames", "400", "--no-log", "--quiet"]
+    assert cli_train([*argv, "--out", str(tmp_path / "p.pt")], out=out) == 0
+    summary = out.getvalue()
+    assert "collection: batched engine, 20 worlds x 50 steps per batch" in summary  # PPO's whole first batch
+    assert (
+        "note: no episode ended in each of its 20 worlds within 1000 frames, so ADR had no results and its ranges "
+        "stayed where they started; give more --frames (or fewer num_envs in --agent-config)\n"
+    ) in summary
+
+
 def test_sac_from_scratch_on_the_arm_says_its_engine_and_evaluates(arm: Path, tmp_path: Path) -> None:
     from sim2real.agents import load_checkpoint
     from sim2real.agents.cli import cli_train

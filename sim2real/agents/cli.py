@@ -272,6 +272,14 @@ def cli_train(argv: Sequence[str] | None = None, out: TextIO | None = None) -> i
         units = _adr_parameter_ranges(adr, source)
         if units:
             print(f"adr ranges in the model's units: {units}", file=out)
+        if adr.frames == 0:  # ADR learns only from finished episodes: a budget shorter than one per world moves nothing
+            collection = result.collection
+            worlds = f" in each of its {collection.num_envs} worlds" if collection and collection.num_envs > 1 else ""
+            print(
+                f"note: no episode ended{worlds} within {result.frames} frames, so ADR had no results and its ranges "
+                "stayed where they started; give more --frames (or fewer num_envs in --agent-config)",
+                file=out,
+            )
     print(f"run id: {result.run_id}", file=out)
     if result.log_dir is not None:
         print(f"log: {result.log_dir}", file=out)
