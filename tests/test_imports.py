@@ -122,3 +122,14 @@ def test_layers_import_one_way() -> None:
         if LAYER[target.split(".")[0]] > LAYER[name.split(".")[0]]
     ]
     assert wrong == []
+
+
+def test_import_sim2real_leaves_scipy_stats_for_when_a_statistic_is_computed() -> None:
+    """``scipy.stats`` takes ~0.5 s to import (about half of ``import sim2real``, which every CLI command and
+    ``--help`` pays, and during which a Ctrl-C is a traceback): the metrics import it when a statistic needs it."""
+    import subprocess
+    import sys
+
+    code = "import sys, sim2real, sim2real.cli; print(sorted(m for m in sys.modules if m.startswith('scipy.stats')))"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)
+    assert done.stdout.strip() == "[]"

@@ -13,7 +13,6 @@ import math
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy import stats as _stats
 
 from .bootstrap import (
     _DEFAULT_RESAMPLES,
@@ -270,6 +269,8 @@ def success_rate(
                 f"Received {x[run, col]} at run {run}, column {col}."
             )
     n = x.shape[0]
+    from scipy import stats as _stats  # (imported when used: scipy.stats costs ~0.5 s at import)
+
     z = float(_stats.norm.ppf(0.5 + confidence / 2.0))
     out = []
     for p in x.mean(axis=0):
