@@ -541,7 +541,9 @@ def record_log(
     """Simulates ``model`` open loop under ``ctrl`` (through ``mujoco.rollout``) and logs it.
 
     The physics sees ``ctrl[t - action_latency]`` during control step ``t`` and zeros before the first command
-    arrives (the reset command, as sim2real's latency wrapper and a real actuator hold it); ``sensordata[t]`` is
+    arrives (the reset command of a suite task; sim2real's latency wrapper holds the env's own reset command, which
+    for an MJCF arm with servos is its home keyframe's set points, so a servo arm logged here moves towards 0 for
+    those steps where a wrapped one holds home; :func:`sysid.fit` predicts no row from them); ``sensordata[t]`` is
     the reading of the state ``obs_latency`` control steps earlier (the first reading repeats before that). Gaussian noise of ``noise_std`` is added to ``qpos``, ``qvel`` and
     ``sensordata`` after that (``ctrl`` is logged as commanded, without noise).
 
@@ -611,7 +613,7 @@ def record_log(
         data.qvel[:] = qvel0[e]
         mujoco.mj_getState(model, data, states[e], spec)
     # The physics sees the command issued ``action_latency`` control steps earlier; before the first one arrives,
-    # the reset command (zeros), like the latency wrapper of an evaluated env.
+    # zeros (a suite task's reset command; see the docstring for servo arms).
     source = np.arange(steps) - action_latency
     applied = np.where((source >= 0)[None, :, None], controls[:, np.clip(source, 0, None)], 0.0)
     applied = np.repeat(applied, n_substeps, axis=1)
