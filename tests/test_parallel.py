@@ -399,3 +399,54 @@ def test_workers_start_with_ctrl_c_held_then_ignore_it() -> None:
     child.join(timeout=60)
     run = run_tasks(sigint_in_worker, [0, 1], backend="local", workers=2)
     assert list(run) == [(False, True), (False, True)]  # ignored, no longer blocked, after _init_worker
+
+
+KILLED_PARENT_SCRIPT = """
+import os, sys, time
+from pathlib import Path
+from sim2real.parallel import run_tasks
+
+def linger(i):
+    Path(sys.argv[1], f"worker-{os.getpid()}").write_text("")
+    time.sleep(120)
+    return i
+
+if __name__ == "__main__":
+    run_tasks(linger, [0, 1], backend="local", workers=2)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_local_workers_die_with_a_parent_killed_by_sigkill(tmp_path: Path) -> None:
+    """A SIGKILL of the process running a local pool leaves it no clean-up: its workers went on for minutes with
+    items nobody would read (HF). They now die with it."""
+    import subprocess
+
+    script = tmp_path / "killed.py"
+    script.write_text(KILLED_PARENT_SCRIPT)
+    proc = subprocess.Popen([sys.executable, str(script), str(tmp_path)], cwd=Path(__file__).resolve().parents[1])
+    try:
+        deadline = time.monotonic() + 120
+        while len(list(tmp_path.glob("worker-*"))) < 2 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        workers = [int(p.name.split("-")[1]) for p in tmp_path.glob("worker-*")]
+        assert len(workers) == 2
+    finally:
+        proc.kill()
+        proc.wait()
+    deadline = time.monotonic() + 20
+    alive = workers
+    while alive and time.monotonic() < deadline:
+        time.sleep(0.1)
+        alive = [pid for pid in workers if _running(pid)]
+    for pid in alive:  # (do not leave them behind if the test fails)
+        os.kill(pid, signal.SIGKILL)
+    assert alive == []
+
+
+def _running(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(") ")[1][0] != "Z"  # a zombie has exited
+    except (FileNotFoundError, IndexError):
+        return False
