@@ -15,6 +15,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import io
 import json
 import re
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -335,8 +336,17 @@ def test_a_budget_that_ends_no_episode_says_adr_saw_nothing(arm: Path, tmp_path:
     adr.write_text("effects: [{type: Damping, scale: [0.2, 5.0]}]\ndelta: 0.1\nt_low: -1e9\nt_high: -1e8\n")
     out = io.StringIO()
     argv = ["--model", str(arm), "--adr", str(adr), "--frames", "400", "--no-log", "--quiet"]
-    assert cli_train([*argv, "--out", str(tmp_path / "p.pt")], out=out) == 0
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert cli_train([*argv, "--out", str(tmp_path / "p.pt")], out=out) == 0
     summary = out.getvalue()
+    # --frames 400 ran PPO's one whole batch of 1000: said once, in sim2real's words (before: only TorchRL's
+    # "total_frames (400) is not exactly divisible" warning, and "1000 frames" in the summary).
+    assert not [w for w in caught if "not exactly divisible" in str(w.message)]
+    assert (
+        "note: PPO collects whole batches of 1000 frames: 1000 frames for 400 asked (frames_per_batch in "
+        "--agent-config sets the batch)\n"
+    ) in summary
     assert "collection: batched engine, 20 worlds x 50 steps per batch" in summary  # PPO's whole first batch
     assert (
         "note: no episode ended in each of its 20 worlds within 1000 frames, so ADR had no results and its ranges "

@@ -261,6 +261,12 @@ def cli_train(argv: Sequence[str] | None = None, out: TextIO | None = None) -> i
         file=out,
     )
     print(f"episode return (batch mean): first {first}, last {last}", file=out)
+    if result.frames != config.frames:  # PPO collects whole batches (TorchRL's collector rounds up)
+        print(
+            f"note: PPO collects whole batches of {config.frames_per_batch} frames: {result.frames} frames for "
+            f"{config.frames} asked (frames_per_batch in --agent-config sets the batch)",
+            file=out,
+        )
     if result.collection is not None:
         print(f"collection: {result.collection}", file=out)
     if result.adr is not None:

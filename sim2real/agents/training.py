@@ -19,6 +19,7 @@ import os
 import re
 import time
 import uuid
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -352,13 +353,17 @@ def _train_ppo(env: Any, cfg: PPOConfig, seed: int, progress: bool, log: Any) ->
     )
     optim = torch.optim.Adam(loss_module.parameters(), lr=cfg.lr)
     shuffle = torch.Generator().manual_seed(seed)
-    collector = Collector(
-        env,
-        actor,
-        frames_per_batch=cfg.frames_per_batch,
-        total_frames=cfg.frames,
-        auto_register_policy_transforms=False,
-    )
+    with warnings.catch_warnings():  # whole batches: `sim2real train` says how many frames that makes, once
+        warnings.filterwarnings(
+            "ignore", message=r"total_frames \(\d+\) is not exactly divisible", category=UserWarning
+        )
+        collector = Collector(
+            env,
+            actor,
+            frames_per_batch=cfg.frames_per_batch,
+            total_frames=cfg.frames,
+            auto_register_policy_transforms=False,
+        )
     rows: list[dict[str, float]] = []
     frames = 0
     try:
