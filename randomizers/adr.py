@@ -35,9 +35,10 @@ Example:
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -489,6 +490,28 @@ Correlated effect (ADR scales its covariance). Received Gravity(add=Normal(mean=
             (1, (1.0, 1.5), 30)
         """
         return sum(self.record(r.pin, r.metric, r.frames) for r in results)
+
+    @contextlib.contextmanager
+    def paused(self) -> Iterator[None]:
+        """Episodes recorded inside the block move nothing and count no frames: they are not the policy's results
+        (e.g. a training run's random-action warm-up that fits an observation normaliser, or a scripted teacher's
+        demonstrations). Their episodes still draw pins, so every later draw is what it was.
+
+        Example:
+            >>> from randomizers import Damping
+            >>> adr = ADR([Damping(scale=Uniform(0.0, 4.0))], delta=0.5, m=1, t_low=0.2, t_high=0.8)
+            >>> with adr.paused():
+            ...     adr.record(Pin("Damping[joints=*]", "high", 1.0), 1.0, frames=200)
+            False
+            >>> adr.ranges["Damping[joints=*]"], adr.frames
+            ((1.0, 1.0), 0)
+        """
+        saved = self.collected
+        self.collected = []  # what a worker copy does with its results; discarded here
+        try:
+            yield
+        finally:
+            self.collected = saved
 
     def worker_copy(self) -> ADR:
         """A copy with the same ranges that collects results (``collected``) instead of applying them: what a

@@ -354,6 +354,29 @@ def test_a_budget_that_ends_no_episode_says_adr_saw_nothing(arm: Path, tmp_path:
     ) in summary
 
 
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_adr_learns_only_from_the_policy_not_from_the_normaliser_warm_up(arm: Path, algo: str) -> None:
+    # Both algorithms fit their observation normaliser on obs_norm_frames uniform-random steps of the training env
+    # (ADR's env) first. Before, the episodes of that warm-up were reported to ADR as if the policy had run them:
+    # SAC's default 2000 warm-up steps were 10 of the arm's 200-step episodes, ADR counted 2400 frames for a
+    # 450-frame run and moved its ranges on random actions' returns before training began.
+    from sim2real.agents import PPOConfig, SACConfig, train
+
+    adr_text = (
+        "effects: [{type: Damping, scale: [0.2, 5.0]}]\ndelta: 0.2\nt_low: -5000\nt_high: -4000\n"
+        "p_boundary: 1.0\nm: 1\n"
+    )
+    if algo == "sac":
+        config: Any = SACConfig(frames=450, obs_norm_frames=2000, hidden_sizes=(16, 16), adr=adr_text)
+    else:  # 2 worlds x 200 warm-up steps: one whole episode each before the first batch
+        config = PPOConfig(frames=800, frames_per_batch=400, num_envs=2, minibatch_size=100, epochs=1,
+                           obs_norm_frames=400, hidden_sizes=(16, 16), adr=adr_text)  # fmt: skip
+    result = train(f"model:{arm}", config, seed=0)
+    adr = ADR.from_state(result.adr)
+    episodes = 2 if algo == "sac" else 4  # 200-step episodes the training itself ended
+    assert adr.frames == 200 * episodes and adr.history.frames[-1] <= result.frames
+
+
 def test_sac_from_scratch_on_the_arm_says_its_engine_and_evaluates(arm: Path, tmp_path: Path) -> None:
     from sim2real.agents import load_checkpoint
     from sim2real.agents.cli import cli_train

@@ -17,6 +17,7 @@ Example:
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -135,7 +136,11 @@ def train_sac(
         actor = build_actor("sac", steps.obs_dim, steps.low, steps.high, cfg.hidden_sizes, cfg.activation,
                             cfg.init_log_std, cfg.angle_obs)  # fmt: skip
         norm = actor_normalizer(actor)
-        _fit_normalizer(steps, norm, cfg.obs_norm_frames, act_dim)
+        from sim2real.batched.adr import adr_of
+
+        adr = adr_of(effects)
+        with adr.paused() if adr is not None else contextlib.nullcontext():  # random actions: not the policy's
+            _fit_normalizer(steps, norm, cfg.obs_norm_frames, act_dim)
         qvalues = [build_qvalue(steps.obs_dim, act_dim, cfg.hidden_sizes, cfg.activation, norm) for _ in range(2)]
         update = SACUpdate(actor, qvalues, lr=cfg.lr, gamma=cfg.gamma, tau=cfg.tau, alpha_init=cfg.alpha_init,
                            target_entropy=cfg.target_entropy)  # fmt: skip

@@ -212,7 +212,7 @@ def train(
         else:
             env = make_collection_env(task_or_env, effects, seed, collection)
             try:
-                policy, rows, frames = _train_ppo(env, config, seed, progress, log)
+                policy, rows, frames = _train_ppo(env, config, seed, progress, log, adr)
             finally:
                 env.close()
     wall = time.perf_counter() - start
@@ -326,7 +326,9 @@ _bar = progress_bar
 _log = log_row
 
 
-def _train_ppo(env: Any, cfg: PPOConfig, seed: int, progress: bool, log: Any) -> tuple[Any, list[dict], int]:
+def _train_ppo(
+    env: Any, cfg: PPOConfig, seed: int, progress: bool, log: Any, adr: Any = None
+) -> tuple[Any, list[dict], int]:
     import torch
     from torchrl.collectors import Collector
     from torchrl.objectives import ClipPPOLoss
@@ -337,9 +339,11 @@ def _train_ppo(env: Any, cfg: PPOConfig, seed: int, progress: bool, log: Any) ->
     obs_dim, _, low, high = _bounds(env)
     actor = build_actor("ppo", obs_dim, low, high, cfg.hidden_sizes, cfg.activation, cfg.init_log_std)
     norm = actor_normalizer(actor)
-    _fit_normalizer(env, norm, cfg.obs_norm_frames)
-    if cfg.bc_frames > 0:
-        _behaviour_cloning(env, actor, cfg, low, high)
+    # Random actions and a scripted teacher are not the policy: ADR learns nothing from their episodes.
+    with adr.paused() if adr is not None else contextlib.nullcontext():
+        _fit_normalizer(env, norm, cfg.obs_norm_frames)
+        if cfg.bc_frames > 0:
+            _behaviour_cloning(env, actor, cfg, low, high)
     critic = build_critic(obs_dim, cfg.hidden_sizes, cfg.activation, norm)
     advantage = GAE(gamma=cfg.gamma, lmbda=cfg.gae_lambda, value_network=critic, average_gae=False)
     loss_module = ClipPPOLoss(
