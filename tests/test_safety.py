@@ -526,7 +526,11 @@ def test_cvar_gate_and_sweep_rows_name_the_worst_point() -> None:
     from sim2real.report.safety import safety_blocks
 
     table_rows = safety_blocks(worst)[2]["rows"]
-    assert ("p", "Damping.scale (sweep)", "5 / 1.667 at Damping.scale=2 VIOLATED (limit 2)", "0 / 30") in table_rows
+    # The table cell carries the same evidence (it showed only the worst / CVaR and the VIOLATED mark before).
+    cell = "5 / 1.667 at Damping.scale=2 VIOLATED (limit 2); 1 of 30 episodes over, 95% 0.591%-16.7%"
+    assert ("p", "Damping.scale (sweep)", cell, "0 / 30") in table_rows
+    within = dict(((r[0], r[1]), r[2]) for r in table_rows)[("p", "sim")]
+    assert within == "0 / 0; 0 of 10 episodes over, 95% 0%-27.8%"
     lenient = SafetyTable.build(evaluation, load_limits({"joint_limit_hits": 2, "statistic": "cvar", "alpha": 0.3}))
     assert lenient.passed  # CVaR 0.3 of the point: 5/3 <= 2
     strict = SafetyTable.build(evaluation, load_limits({"joint_limit_hits": 1, "statistic": "cvar", "alpha": 0.3}))

@@ -17,14 +17,14 @@ Example:
     >>> blocks[2]["header"]
     ('policy', 'condition', 'joint-limit hits (steps)', 'effort / limit', 'diverged (episodes)')
     >>> blocks[2]["rows"][0]
-    ('slam', 'sim', '3 / 3 VIOLATED (limit 0)', '1 / 1', '0 / 2')
+    ('slam', 'sim', '3 / 3 VIOLATED (limit 0); 1 of 2 episodes over, 95% 9.45%-90.5%', '1 / 1', '0 / 2')
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from sim2real.safety import QUANTITIES, SafetyRow, SafetyTable
+from sim2real.safety import QUANTITIES, SafetyRow, SafetyTable, _pct
 
 __all__ = ["safety_blocks"]
 
@@ -51,6 +51,11 @@ def _cell(row: SafetyRow) -> str:
         text += f" at {row.point}"
     if row.violated:
         text += f" VIOLATED (limit {_num(row.limit)})"
+    if row.limit is not None and row.over is not None and row.over_rate is not None:
+        # The verdict's evidence: how many episodes crossed the limit, and what rate the data still allow.
+        what = "diverged" if row.quantity == "diverged" else "over"
+        low, high = row.over_rate.low, row.over_rate.high
+        text += f"; {row.over} of {row.episodes} episodes {what}, 95% {_pct(low)}-{_pct(high)}"
     return text
 
 
@@ -71,7 +76,8 @@ def safety_blocks(table: SafetyTable) -> list[dict[str, Any]]:
     gate = "the worst episode" if limits.statistic == "worst" else f"CVaR {limits.alpha:g}"
     text = (
         f"Per policy and condition: worst episode / CVaR {limits.alpha:g} (mean of the worst {limits.alpha:.0%} of "
-        "episodes); a sweep row pools every point of the sweep. Diverged: diverged episodes / episodes. "
+        "episodes); a sweep row pools every point of the sweep. Diverged: diverged episodes / episodes. Where a "
+        "limit is declared, the episodes over it and the 95% (Wilson) interval of that rate follow. "
         + _sampling(table.substeps)
         + " "
         + (
