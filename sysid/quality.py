@@ -264,6 +264,19 @@ def _null_q(lengths: tuple[int, ...], lags: int) -> np.ndarray:
     return np.sort(np.concatenate(parts))
 
 
+def pooled_pieces(pieces: list[np.ndarray], lags: int = 10) -> tuple[list[np.ndarray] | None, int]:
+    """The pieces a pooled Ljung–Box test uses (at least 6 samples each) and its lags (at most half the shortest);
+    None when no piece is usable or the pooled samples are constant."""
+    usable = [np.asarray(x, dtype=np.float64) for x in pieces if np.size(x) >= 6]
+    if not usable:
+        return None, lags
+    lags = max(1, min(lags, min(x.size for x in usable) // 2))
+    joined = np.concatenate(usable)
+    if float(np.sum((joined - joined.mean()) ** 2)) <= 0:
+        return None, lags
+    return usable, lags
+
+
 def pooled_ljung_box(pieces: list[np.ndarray], lags: int = 10) -> float:
     """Ljung–Box p-value of one channel's residuals pooled over shooting segments.
 
@@ -288,14 +301,11 @@ def pooled_ljung_box(pieces: list[np.ndarray], lags: int = 10) -> float:
         >>> pooled_ljung_box(walk) < 1e-6
         True
     """
-    usable = [np.asarray(x, dtype=np.float64) for x in pieces if np.size(x) >= 6]
-    if not usable:
+    usable, lags = pooled_pieces(pieces, lags)
+    if usable is None:
         return math.nan
-    lags = max(1, min(lags, min(x.size for x in usable) // 2))
     lengths = tuple(int(x.size) for x in usable)
     joined = np.concatenate(usable)
-    if float(np.sum((joined - joined.mean()) ** 2)) <= 0:
-        return math.nan
     q = float(_pooled_q(joined[None], lengths, lags)[0])
     if joined.size > EXACT_NULL_MAX_SAMPLES:
         return float(stats.chi2.sf(q, lags))
