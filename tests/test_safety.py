@@ -352,6 +352,8 @@ def test_a_gentle_policy_passes_with_exit_0(tmp_path: Path, capsys: pytest.Captu
     captured = capsys.readouterr()
     assert code == 0, captured.err
     assert f"safety: every policy within {tmp_path / 'limits.yaml'} on every condition" in captured.out
+    # ... and how weak a pass on few episodes is (the line said nothing of it before).
+    assert "(at 95%, up to " in captured.out and "% of episodes may still cross a limit: " in captured.out
     safety = json.loads((tmp_path / "report" / "report.json").read_text())["safety"]
     assert safety["passed"] is True and safety["violations"] == []
     assert "Every policy stays within the declared envelope" in (tmp_path / "report" / "report.md").read_text()

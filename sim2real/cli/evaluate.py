@@ -86,7 +86,12 @@ def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
     if table is None:
         return 0
     if table.passed:
-        print(f"safety: every policy within {args.safety} on every condition", file=out)
+        bounds = [(r.over_rate.high, r.episodes) for r in table.rows if r.over_rate is not None]
+        tail = ""
+        if bounds:  # passing on few episodes is weak evidence: say how weak
+            high, episodes = max(bounds)
+            tail = f" (at 95%, up to {100 * high:.3g}% of episodes may still cross a limit: {episodes} episodes)"
+        print(f"safety: every policy within {args.safety} on every condition{tail}", file=out)
         return 0
     for violation in table.violations:  # one line each, for a CI log; exit 3 gates the pipeline
         print(f"sim2real evaluate: safety: {violation.message}", file=sys.stderr)
