@@ -252,6 +252,7 @@ def held_signals() -> Iterator[None]:
 
     Example:
         >>> import signal
+        >>> before = signal.signal(signal.SIGINT, signal.default_int_handler)  # (Ctrl-C as in a terminal)
         >>> try:
         ...     with held_signals():
         ...         signal.raise_signal(signal.SIGINT)
@@ -260,6 +261,7 @@ def held_signals() -> Iterator[None]:
         ...     print("then Ctrl-C")
         the block ran to its end
         then Ctrl-C
+        >>> _ = signal.signal(signal.SIGINT, before)
     """
     if threading.current_thread() is not threading.main_thread():
         yield

@@ -19,6 +19,7 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -36,6 +37,15 @@ LONG_SPEC = (
 )
 
 
+@pytest.fixture(autouse=True)
+def _ctrl_c_raises() -> Any:
+    """SIGINT raises KeyboardInterrupt in this process during each test, as in a terminal: a run started in the
+    background (nohup, a CI job without a terminal) inherits it ignored, and signal.raise_signal then does nothing."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
 def _tree(root: Path) -> dict[str, bytes | None]:
     """Every entry under ``root`` with its bytes (None for a folder)."""
     return {str(p.relative_to(root)): (None if p.is_dir() else p.read_bytes()) for p in sorted(root.rglob("*"))}
@@ -51,7 +61,9 @@ def _start(argv: list[str], cwd: Path) -> subprocess.Popen[str]:
         "MUJOCO_GL": "egl",
         "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
     }
-    code = "import sys; from sim2real.cli import main; sys.exit(main())"
+    # Ctrl-C as a terminal delivers it: a test run started in the background (nohup, a CI job) inherits SIGINT
+    # ignored, and Python then keeps ignoring it.
+    code = "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); from sim2real.cli import main; sys.exit(main())"
     return subprocess.Popen(
         [sys.executable, "-c", code, *argv],
         cwd=cwd,
