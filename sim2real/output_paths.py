@@ -34,7 +34,7 @@ import contextlib
 import os
 import signal
 import threading
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +46,7 @@ __all__ = [
     "check_not_inputs",
     "free_folder",
     "held_signals",
+    "signal_handlers",
     "publish_folder",
     "staging_folder",
 ]
@@ -263,24 +264,37 @@ def held_signals() -> Iterator[None]:
         then Ctrl-C
         >>> _ = signal.signal(signal.SIGINT, before)
     """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
     caught: list[int] = []
 
     def hold(signum: int, frame: Any) -> None:
         caught.append(signum)
 
-    names = ("SIGINT", "SIGTERM", "SIGHUP")
-    held = [getattr(signal, name) for name in names if hasattr(signal, name)]
-    previous = {s: signal.signal(s, hold) for s in held if signal.getsignal(s) is not signal.SIG_IGN}
+    try:
+        with signal_handlers(hold):
+            yield
+    finally:
+        if caught:
+            signal.raise_signal(caught[0])  # to the handler it was meant for, now that the outputs are whole
+
+
+#: The signals that end a command: Ctrl-C (SIGINT) and the kills SIGTERM and SIGHUP (where the OS has them).
+INTERRUPT_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
+
+
+@contextlib.contextmanager
+def signal_handlers(handler: Callable[[int, Any], None]) -> Iterator[None]:
+    """Runs the block with ``handler`` on every :data:`INTERRUPT_SIGNALS` the process does not ignore, then puts
+    the previous handlers back. Outside the main thread (where Python runs no signal handler) it does nothing. One
+    owner for :func:`held_signals` and the command line's ``kills_interrupt``."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {s: signal.signal(s, handler) for s in INTERRUPT_SIGNALS if signal.getsignal(s) is not signal.SIG_IGN}
     try:
         yield
     finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, signal.SIG_DFL if handler is None else handler)
-        if caught:
-            signal.raise_signal(caught[0])  # to the handler it was meant for, now that the outputs are whole
+        for signum, old in previous.items():
+            signal.signal(signum, signal.SIG_DFL if old is None else old)
 
 
 def staging_folder(target: Path) -> Path:

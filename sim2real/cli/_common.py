@@ -18,7 +18,6 @@ import argparse
 import contextlib
 import os
 import signal
-import threading
 from collections.abc import Callable, Iterator
 from typing import Any, NoReturn
 
@@ -68,10 +67,6 @@ class UsageError(Exception):
     """Bad input found after parsing; ``main`` prints it and returns 2."""
 
 
-#: Signals that end a command as Ctrl-C does (SIGINT is Python's KeyboardInterrupt already).
-KILL_SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name))
-
-
 class Interrupted(KeyboardInterrupt):
     """A kill (``SIGTERM``, ``SIGHUP``) raised in the main thread as Ctrl-C is, so that what runs on Ctrl-C runs
     on a kill too: temporary files and staging folders are removed, worker processes are stopped. Without it
@@ -118,9 +113,8 @@ def kills_interrupt() -> Iterator[None]:
     in a hurry) is ignored, so it cannot cut the clean-up short (workers left running, a staging folder half
     removed, a traceback). A signal the caller ignores (``nohup`` ignores SIGHUP) stays ignored. The previous
     handlers are restored after."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
+    from sim2real.output_paths import signal_handlers
+
     fired: list[int] = []
 
     def interrupt(signum: int, frame: Any) -> None:
@@ -129,15 +123,8 @@ def kills_interrupt() -> Iterator[None]:
         fired.append(signum)
         raise KeyboardInterrupt if signum == signal.SIGINT else Interrupted(signum)
 
-    previous = {}
-    for signum in (signal.SIGINT, *KILL_SIGNALS):
-        if signal.getsignal(signum) is not signal.SIG_IGN:
-            previous[signum] = signal.signal(signum, interrupt)
-    try:
+    with signal_handlers(interrupt):
         yield
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, signal.SIG_DFL if handler is None else handler)
 
 
 def check_outputs(
