@@ -46,8 +46,8 @@ __all__ = [
     "check_not_inputs",
     "free_folder",
     "held_signals",
-    "signal_handlers",
     "publish_folder",
+    "signal_handlers",
     "staging_folder",
 ]
 
