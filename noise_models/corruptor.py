@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from noise_models import compiled
 from noise_models.fused import NoiseBlock, Pipeline, hot_pipe, next_blocks
 from noise_models.pipelines import ActionNoise, ObservationNoise
 from noise_models.processes import BLOCK
@@ -484,6 +485,9 @@ class SignalCorruptor:
         if lag is None:  # noise only (self._plain)
             if noise is None:
                 return self._observe_any
+            fast = compiled.pipe(pipes[0], noise)
+            if fast is not noise:  # (called as (obs, now))
+                return fast
 
             def noisy(obs: np.ndarray, now: int = 0) -> np.ndarray:
                 return noise(obs)
@@ -514,6 +518,9 @@ class SignalCorruptor:
         """The most common observation stack, one additive pipeline without a clip (``pipe.simple == 1``, known
         after the reset observation's first block) and a fixed lag, as one function: what ``hot_pipe(pipe)``
         and the ring do, with one Python call per step instead of two."""
+        fast = compiled.noisy_lag(pipe, ring, lag, self._obs_samples)
+        if fast is not None:
+            return fast
         size = lag + 1
         k = self._obs_samples  # counted here for the episode (nothing else reads it while this path runs)
 
@@ -595,7 +602,8 @@ class SignalCorruptor:
         # Without a control-step delay nothing reads the control step count (_act_any keeps it for the delay).
         if not self._action_pipes:
             return lambda action: action
-        return hot_pipe(self._action_pipes[0])
+        pipe = self._action_pipes[0]
+        return compiled.pipe(pipe, hot_pipe(pipe))
 
     def _act_any(self, action: np.ndarray) -> np.ndarray:
         """What :meth:`act` does after its shape check, for every combination of models."""

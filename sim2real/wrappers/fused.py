@@ -32,13 +32,18 @@ import dm_env
 import gymnasium as gym
 import numpy as np
 
-from noise_models import SignalModel
+from noise_models import SignalModel, compiled
 from noise_models.timing import elapsed_steps
 from randomizers import Effect, PhysicsRandomizer
 from randomizers.seeding import SeedLike
 from sim2real.wrappers.dm import PhysicsDmSteps
 from sim2real.wrappers.gym import merge_report, observe_again, require_physics, settle_draws
 from sim2real.wrappers.signals import CorruptSignals, CorruptSignalsDmEnv, wrong_action_shape
+
+try:  # the compiled hot step (optional, see noise_models.compiled)
+    from sim2real.wrappers._hotstep import HotStep
+except ImportError:  # pragma: no cover - built without a C compiler
+    HotStep = None  # type: ignore[assignment,misc]
 
 __all__ = ["RandomizeAndCorrupt", "RandomizeAndCorruptDmEnv"]
 
@@ -234,6 +239,27 @@ class RandomizeAndCorrupt(CorruptSignals):
         # The episode's draws: both dicts are replaced, never mutated, when a value changes (a call to the
         # randomizer's apply/restore_nominal mid-episode), so two identity checks tell when to merge again.
         phys, signals, merged = randomizer.current_params, corruptor.current_params, self._params()
+        if HotStep is not None and compiled.enabled():  # the step below, compiled (sim2real/wrappers/_hotstep.c)
+            return HotStep(
+                self,
+                clock,
+                env.step,
+                ring,
+                act,
+                observe,
+                template,
+                shape,
+                dtype,
+                randomizer,
+                corruptor,
+                phys,
+                signals,
+                merged,
+                step_end,
+                diverged,
+                asarray,
+                wrong_action_shape,
+            )
 
         def step(action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
             if type(action) is not ndarray:
