@@ -176,6 +176,14 @@ else
     compile_venv
 fi
 
+# The optional C extensions of the single-env hot step (setup.py): built where a C compiler and Python's headers are.
+if .venv/bin/python -c 'import sys; from noise_models import compiled; sys.exit(0 if compiled.available() else 1)'; then
+    log "compiled hot step built (noise_models._hot, sim2real.wrappers._hotstep)"
+else
+    warn "the optional C extensions were not built (no C compiler or Python headers?): single envs step in Python,"
+    warn "with the same results, slower. To build them: sudo apt-get install gcc python3-dev, then ./setup.sh again."
+fi
+
 export MUJOCO_GL="${MUJOCO_GL:-egl}"
 
 if [ "${SIM2REAL_SKIP_RUN:-0}" = "1" ]; then

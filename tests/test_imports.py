@@ -23,7 +23,13 @@ def _module_name(path: Path) -> str:
 
 
 def _modules() -> dict[str, Path]:
-    return {_module_name(p): p for pkg in PACKAGES for p in sorted((ROOT / pkg).rglob("*.py"))}
+    """Every module of the project: its ``.py`` files, and its C extensions by their ``.pyi`` stubs (which import no
+    project module), so that importing one is not taken for importing its package."""
+    found = {_module_name(p): p for pkg in PACKAGES for p in sorted((ROOT / pkg).rglob("*.py"))}
+    for pkg in PACKAGES:
+        for stub in sorted((ROOT / pkg).rglob("*.pyi")):
+            found.setdefault(_module_name(stub.with_suffix(".py")), stub)
+    return found
 
 
 def _resolve(target: str, modules: dict[str, Path]) -> str | None:
