@@ -26,11 +26,6 @@ same_object(PyObject *self, PyObject *Py_UNUSED(args))
     return Py_NewRef(self);
 }
 
-static PyMethodDef copy_methods[] = {
-    {"__copy__", (PyCFunction)same_object, METH_NOARGS, PyDoc_STR("the object itself, as for a function")},
-    {"__deepcopy__", (PyCFunction)same_object, METH_O, PyDoc_STR("the object itself, as for a function")},
-    {NULL},
-};
 
 static PyObject *s_r, *s_rows, *s_simple, *s_copy;
 
@@ -165,6 +160,40 @@ typenum_of(PyObject *dtype, int *typenum)
     return 0;
 }
 
+/* The signal of a call (x) / (x, now) / (x, now=...) / (obs=..., now=...), as the Python closures take them
+ * (``name``, or ``alias`` when not NULL: the first parameter's); NULL with TypeError otherwise. ``now`` is not read. */
+static PyObject *
+signal_arg(PyObject *const *args, size_t nargsf, PyObject *kwnames, const char *name, const char *alias)
+{
+    Py_ssize_t nargs = PyVectorcall_NARGS(nargsf);
+    PyObject *x = nargs >= 1 ? args[0] : NULL;
+    int have_now = nargs >= 2;
+    Py_ssize_t nkw = kwnames == NULL ? 0 : PyTuple_GET_SIZE(kwnames);
+    if (nargs > 2) {
+        PyErr_Format(PyExc_TypeError, "takes at most 2 arguments (%zd given)", nargs + nkw);
+        return NULL;
+    }
+    for (Py_ssize_t i = 0; i < nkw; i++) {
+        PyObject *key = PyTuple_GET_ITEM(kwnames, i);
+        int named = PyUnicode_CompareWithASCIIString(key, name) == 0 ||
+                    (alias != NULL && PyUnicode_CompareWithASCIIString(key, alias) == 0);
+        if (named && x == NULL) {
+            x = args[nargs + i];
+        }
+        else if (PyUnicode_CompareWithASCIIString(key, "now") == 0 && !have_now) {
+            have_now = 1;
+        }
+        else {
+            PyErr_Format(PyExc_TypeError, "got an unexpected or repeated keyword argument '%U'", key);
+            return NULL;
+        }
+    }
+    if (x == NULL) {
+        PyErr_Format(PyExc_TypeError, "missing 1 required positional argument: '%s'", name);
+    }
+    return x;
+}
+
 /* ---------------------------------------------------------------------------------------------- Pipe */
 
 typedef struct {
@@ -183,12 +212,10 @@ static PyObject *
 Pipe_vectorcall(PyObject *self_, PyObject *const *args, size_t nargsf, PyObject *kwnames)
 {
     PipeObject *self = (PipeObject *)self_;
-    Py_ssize_t nargs = PyVectorcall_NARGS(nargsf);
-    if (kwnames != NULL || nargs < 1 || nargs > 2) {
-        PyErr_SetString(PyExc_TypeError, "a compiled pipe takes (x) or (x, now), positionally");
+    PyObject *x = signal_arg(args, nargsf, kwnames, "x", "obs");
+    if (x == NULL) {
         return NULL;
     }
-    PyObject *x = args[0];
     long r = int_attr(self->pipe, s_r);
     if (r == -1 && PyErr_Occurred()) {
         return NULL;
@@ -285,6 +312,27 @@ Pipe_dealloc(PipeObject *self)
     Py_TYPE(self)->tp_free((PyObject *)self);
 }
 
+static PyObject *
+Pipe_reduce(PipeObject *self, PyObject *Py_UNUSED(args))
+{
+    PyArray_Descr *descr = PyArray_DescrFromType(self->typenum);
+    if (descr == NULL) {
+        return NULL;
+    }
+    PyObject *out = Py_BuildValue("O(OOnNOOl)", (PyObject *)Py_TYPE(self), self->pipe, self->fallback, (Py_ssize_t)self->n,
+                                  (PyObject *)descr, self->low ? self->low : Py_None, self->high ? self->high : Py_None,
+                                  self->block);
+    return out;
+}
+
+static PyMethodDef Pipe_methods[] = {
+    {"__copy__", (PyCFunction)same_object, METH_NOARGS, PyDoc_STR("the object itself, as for a function")},
+    {"__deepcopy__", (PyCFunction)same_object, METH_O, PyDoc_STR("the object itself, as for a function")},
+    {"__reduce__", (PyCFunction)Pipe_reduce, METH_NOARGS,
+     PyDoc_STR("made again from the pipeline and the fallback (what pickles the closure pickles this)")},
+    {NULL},
+};
+
 static PyTypeObject PipeType = {
     PyVarObject_HEAD_INIT(NULL, 0).tp_name = "noise_models._hot.Pipe",
     .tp_doc = PyDoc_STR("Pipe(pipe, fallback, size, dtype, low, high, block): hot_pipe(pipe) compiled; "
@@ -297,7 +345,7 @@ static PyTypeObject PipeType = {
     .tp_dealloc = (destructor)Pipe_dealloc,
     .tp_call = PyVectorcall_Call,
     .tp_vectorcall_offset = offsetof(PipeObject, vectorcall),
-    .tp_methods = copy_methods,
+    .tp_methods = Pipe_methods,
 };
 
 /* ---------------------------------------------------------------------------------------------- NoisyLag */
@@ -319,12 +367,10 @@ static PyObject *
 NoisyLag_vectorcall(PyObject *self_, PyObject *const *args, size_t nargsf, PyObject *kwnames)
 {
     NoisyLagObject *self = (NoisyLagObject *)self_;
-    Py_ssize_t nargs = PyVectorcall_NARGS(nargsf);
-    if (kwnames != NULL || nargs < 1 || nargs > 2) {
-        PyErr_SetString(PyExc_TypeError, "a compiled observation lag takes (obs) or (obs, now), positionally");
+    PyObject *obs = signal_arg(args, nargsf, kwnames, "obs", NULL);
+    if (obs == NULL) {
         return NULL;
     }
-    PyObject *obs = args[0];
     long r = int_attr(self->pipe, s_r);
     if (r == -1 && PyErr_Occurred()) {
         return NULL;
@@ -449,6 +495,25 @@ static PyGetSetDef NoisyLag_getset[] = {
     {NULL},
 };
 
+static PyObject *
+NoisyLag_reduce(NoisyLagObject *self, PyObject *Py_UNUSED(args))
+{
+    PyArray_Descr *descr = PyArray_DescrFromType(self->typenum);
+    if (descr == NULL) {
+        return NULL;
+    }
+    return Py_BuildValue("O(OOnnnNl)", (PyObject *)Py_TYPE(self), self->pipe, self->ring, self->lag, self->k,
+                         (Py_ssize_t)self->n, (PyObject *)descr, self->block);
+}
+
+static PyMethodDef NoisyLag_methods[] = {
+    {"__copy__", (PyCFunction)same_object, METH_NOARGS, PyDoc_STR("the object itself, as for a function")},
+    {"__deepcopy__", (PyCFunction)same_object, METH_O, PyDoc_STR("the object itself, as for a function")},
+    {"__reduce__", (PyCFunction)NoisyLag_reduce, METH_NOARGS,
+     PyDoc_STR("made again from the pipeline, the ring and the count (what pickles the closure pickles this)")},
+    {NULL},
+};
+
 static PyTypeObject NoisyLagType = {
     PyVarObject_HEAD_INIT(NULL, 0).tp_name = "noise_models._hot.NoisyLag",
     .tp_doc = PyDoc_STR("NoisyLag(pipe, ring, lag, samples, size, dtype, block): SignalCorruptor._hot_noisy_lag "
@@ -462,7 +527,7 @@ static PyTypeObject NoisyLagType = {
     .tp_call = PyVectorcall_Call,
     .tp_vectorcall_offset = offsetof(NoisyLagObject, vectorcall),
     .tp_getset = NoisyLag_getset,
-    .tp_methods = copy_methods,
+    .tp_methods = NoisyLag_methods,
 };
 
 /* ---------------------------------------------------------------------------------------------- module */

@@ -33,11 +33,6 @@ same_object(PyObject *self, PyObject *Py_UNUSED(args))
     return Py_NewRef(self);
 }
 
-static PyMethodDef copy_methods[] = {
-    {"__copy__", (PyCFunction)same_object, METH_NOARGS, PyDoc_STR("the object itself, as for a function")},
-    {"__deepcopy__", (PyCFunction)same_object, METH_O, PyDoc_STR("the object itself, as for a function")},
-    {NULL},
-};
 
 static PyObject *s_passed, *s_in_step, *s_actions_sent, *s_last_obs, *s_current_params, *s_params, *s_copy,
     *s_diverged, *s_sim2real, *s_dtype, *s_shape, *s_params_method, *zero;
@@ -97,6 +92,10 @@ wrong_shape(HotStepObject *self, PyObject *action)
 static int
 unpack5(PyObject *result, PyObject **out)
 {
+    if (Py_TYPE(result)->tp_iter == NULL && !PySequence_Check(result)) {
+        PyErr_Format(PyExc_TypeError, "cannot unpack non-iterable %.200s object", Py_TYPE(result)->tp_name);
+        return -1;
+    }
     PyObject *seq = PySequence_Fast(result, "cannot unpack non-iterable object");
     if (seq == NULL) {
         return -1;
@@ -136,8 +135,15 @@ static PyObject *
 HotStep_vectorcall(PyObject *self_, PyObject *const *args, size_t nargsf, PyObject *kwnames)
 {
     HotStepObject *self = (HotStepObject *)self_;
-    if (kwnames != NULL || PyVectorcall_NARGS(nargsf) != 1) {
-        PyErr_SetString(PyExc_TypeError, "step() takes one positional argument, `action`");
+    Py_ssize_t nargs = PyVectorcall_NARGS(nargsf);
+    Py_ssize_t nkw = kwnames == NULL ? 0 : PyTuple_GET_SIZE(kwnames);
+    if (nargs + nkw != 1 || (nkw == 1 && PyUnicode_CompareWithASCIIString(PyTuple_GET_ITEM(kwnames, 0), "action"))) {
+        if (nkw == 1 && nargs == 0) {
+            PyErr_Format(PyExc_TypeError, "step() got an unexpected keyword argument '%U'", PyTuple_GET_ITEM(kwnames, 0));
+        }
+        else {
+            PyErr_Format(PyExc_TypeError, "step() takes 1 argument, `action` (%zd given)", nargs + nkw);
+        }
         return NULL;
     }
     PyObject *action;
@@ -396,6 +402,71 @@ HotStep_dealloc(HotStepObject *self)
     Py_TYPE(self)->tp_free((PyObject *)self);
 }
 
+/* inspect.signature(env.step): (action), as the closure's. */
+static PyObject *
+HotStep_signature(HotStepObject *self, void *closure)
+{
+    PyObject *inspect = PyImport_ImportModule("inspect");
+    if (inspect == NULL) {
+        return NULL;
+    }
+    PyObject *out = NULL, *param = NULL, *params = NULL;
+    PyObject *Parameter = PyObject_GetAttrString(inspect, "Parameter");
+    PyObject *Signature = PyObject_GetAttrString(inspect, "Signature");
+    PyObject *kind = Parameter == NULL ? NULL : PyObject_GetAttrString(Parameter, "POSITIONAL_OR_KEYWORD");
+    if (kind != NULL) {
+        param = PyObject_CallFunction(Parameter, "sO", "action", kind);
+    }
+    if (param != NULL) {
+        params = PyList_New(1);
+        if (params != NULL) {
+            PyList_SET_ITEM(params, 0, Py_NewRef(param));
+            out = PyObject_CallOneArg(Signature, params);
+        }
+    }
+    Py_XDECREF(params);
+    Py_XDECREF(param);
+    Py_XDECREF(kind);
+    Py_XDECREF(Signature);
+    Py_XDECREF(Parameter);
+    Py_DECREF(inspect);
+    return out;
+}
+
+static PyGetSetDef HotStep_getset[] = {
+    {"__signature__", (getter)HotStep_signature, NULL, PyDoc_STR("(action), as the Python step's"), NULL},
+    {NULL},
+};
+
+static PyObject *
+HotStep_reduce(HotStepObject *self, PyObject *Py_UNUSED(args))
+{
+    PyObject *shape = PyTuple_New(self->ndim);
+    if (shape == NULL) {
+        return NULL;
+    }
+    for (int i = 0; i < self->ndim; i++) {
+        PyObject *v = PyLong_FromSsize_t(self->shape[i]);
+        if (v == NULL) {
+            Py_DECREF(shape);
+            return NULL;
+        }
+        PyTuple_SET_ITEM(shape, i, v);
+    }
+    return Py_BuildValue("O(OOOOOOONOOOOOOOOOO)", (PyObject *)Py_TYPE(self), self->wrapper, self->clock, self->env_step,
+                         self->ring, self->act, self->observe, self->template_, shape, self->dtype, self->randomizer,
+                         self->corruptor, self->phys, self->signals, self->merged, self->step_end, self->diverged,
+                         self->asarray, self->wrong_shape);
+}
+
+static PyMethodDef HotStep_methods[] = {
+    {"__copy__", (PyCFunction)same_object, METH_NOARGS, PyDoc_STR("the object itself, as for a function")},
+    {"__deepcopy__", (PyCFunction)same_object, METH_O, PyDoc_STR("the object itself, as for a function")},
+    {"__reduce__", (PyCFunction)HotStep_reduce, METH_NOARGS,
+     PyDoc_STR("made again from what it was made of (what pickles the closure pickles this)")},
+    {NULL},
+};
+
 static PyTypeObject HotStepType = {
     PyVarObject_HEAD_INIT(NULL, 0).tp_name = "sim2real.wrappers._hotstep.HotStep",
     .tp_doc = PyDoc_STR("RandomizeAndCorrupt's hot step for one episode, compiled (see _make_hot_step)."),
@@ -407,7 +478,8 @@ static PyTypeObject HotStepType = {
     .tp_dealloc = (destructor)HotStep_dealloc,
     .tp_call = PyVectorcall_Call,
     .tp_vectorcall_offset = offsetof(HotStepObject, vectorcall),
-    .tp_methods = copy_methods,
+    .tp_methods = HotStep_methods,
+    .tp_getset = HotStep_getset,
 };
 
 static struct PyModuleDef hotstepmodule = {
