@@ -8,6 +8,9 @@ rotates and flips every repeat, timed in CPU time (``time.process_time``; the bo
   before issue 15 (CorruptSignals around RandomizePhysics).
 * ``fused``: ``wrap(make(task), *physics, *signals, seed=0)``, one RandomizeAndCorrupt layer (bitwise the same
   outputs as the two layers, tests/test_fused.py).
+* ``fused, Python``: the same layer with its episodes stepping in Python (:class:`PythonPath`:
+  ``SIM2REAL_PURE_PYTHON=1`` at its resets), where ``fused`` steps through the compiled hot step where it is built
+  (``noise_models.compiled``): ``compiled/python`` is what the C extensions give.
 * ``lean``: :class:`LeanFloor` around ``make(task)``, a minimal Python wrapper doing the fused layer's per-step
   arithmetic (action noise, clip, action delay, observation noise and delay, a fresh report of as many params) and
   nothing else: the floor any Python wrapper meets on this work (its draws are not the stack's; physics DR not
@@ -43,6 +46,7 @@ Usage:
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import statistics
 import time
@@ -150,6 +154,35 @@ class DrawsOnly(gym.Wrapper):  # type: ignore[type-arg]
         self.layer.close()
 
 
+class PythonPath:
+    """A fused layer whose episodes step in Python (``SIM2REAL_PURE_PYTHON=1`` while it resets): the ``fused,
+    Python`` arm, what the ``fused`` arm does without the compiled hot step (noise_models.compiled). Its ``step`` is
+    the layer's own (looked up again after each reset), so that the arm times no extra call."""
+
+    def __init__(self, layer: Any) -> None:
+        self.layer = layer
+        self.action_space = layer.action_space
+        self.step = layer.step
+
+    def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
+        from noise_models import compiled
+
+        before = os.environ.get(compiled.ENV)
+        os.environ[compiled.ENV] = "1"
+        try:
+            out = self.layer.reset(**kwargs)
+        finally:
+            if before is None:
+                del os.environ[compiled.ENV]
+            else:
+                os.environ[compiled.ENV] = before
+        self.step = self.layer.step
+        return out  # type: ignore[no-any-return]
+
+    def close(self) -> None:
+        self.layer.close()
+
+
 def arms_for(name: str) -> dict[str, Any]:
     """The arms of one task (see the module docstring)."""
     from bench_overhead import make_signal_models, make_stack_physics, task_id
@@ -164,6 +197,7 @@ def arms_for(name: str) -> dict[str, Any]:
         "raw": s2r.make(tid),
         "two layers": s2r.wrap(s2r.wrap(s2r.make(tid), *make_stack_physics(), seed=0), *make_signal_models(), seed=0),
         "fused": fused,
+        "fused, Python": PythonPath(s2r.wrap(s2r.make(tid), *make_stack_physics(), *make_signal_models(), seed=0)),
         "lean": LeanFloor(s2r.make(tid), *lags),
         "lean, keyed noise": LeanFloor(s2r.make(tid), *lags, keyed=True),
         "lean, keyed, DR": LeanFloor(
@@ -294,6 +328,8 @@ def _summary(rates: dict[str, list[float]]) -> dict[str, Any]:
     result["two/raw"] = _ratio(rates, "two layers", "raw")
     result["fused/raw"] = _ratio(rates, "fused", "raw")
     result["fused/two"] = _ratio(rates, "fused", "two layers")
+    result["python/raw"] = _ratio(rates, "fused, Python", "raw")
+    result["fused/python"] = _ratio(rates, "fused", "fused, Python")
     result["lean/raw"] = _ratio(rates, "lean", "raw")
     result["fused/lean"] = _ratio(rates, "fused", "lean")
     result["lean no report/raw"] = _ratio(rates, "lean, no report", "raw")
@@ -323,7 +359,13 @@ def report(results: dict[str, dict[str, Any]]) -> None:
     for name, r in results.items():
         goal = P1_GOALS.get(name, 0.97)
         print(f"{name:<26}{_fmt(r['two/raw']):>24}{_fmt(r['fused/raw']):>24}{_fmt(r['fused/two']):>24}{goal:>6.2f}")
-        verdicts.append(f"{name} fused/raw={r['fused/raw'][0]:.3f} two/raw={r['two/raw'][0]:.3f}")
+        verdicts.append(
+            f"{name} fused/raw={r['fused/raw'][0]:.3f} two/raw={r['two/raw'][0]:.3f} python/raw={r['python/raw'][0]:.3f}"
+        )
+        print(
+            f"  the fused layer stepping in Python (SIM2REAL_PURE_PYTHON=1): python/raw {_fmt(r['python/raw'])}; "
+            f"compiled/python {_fmt(r['fused/python'])}"
+        )
         print(
             f"{'  floor: a lean Python wrapper doing the same arithmetic (LeanFloor)':<26}\n"
             f"    lean/raw {_fmt(r['lean/raw'])}; fused/lean {_fmt(r['fused/lean'])}; "
