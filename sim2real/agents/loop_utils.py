@@ -13,7 +13,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-__all__ = ["env_bounds", "log_row", "progress_bar"]
+__all__ = ["env_bounds", "log_row", "progress_bar", "record_row"]
 
 
 def env_bounds(env: Any) -> tuple[int, int, list[float], list[float]]:
@@ -50,3 +50,14 @@ def log_row(log: Any, row: Mapping[str, float], frames: int) -> None:
     for key, value in row.items():
         if key != "frames" and math.isfinite(value):
             log.log_scalar(key, value, step=frames)
+
+
+def record_row(rows: list[dict[str, float]], log: Any, row: dict[str, float], frames: int) -> None:
+    """Logs ``row`` (:func:`log_row`) and appends it to ``rows``, holding Ctrl-C and kills until both are done
+    (:func:`~sim2real.output_paths.held_signals`): the logger's files of an interrupted run end with whole rows,
+    the last of them the one its ``run.json`` counts (``rows`` is what :func:`~sim2real.agents.train` marks)."""
+    from sim2real.output_paths import held_signals
+
+    with held_signals():
+        log_row(log, row, frames)
+        rows.append(row)

@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from sim2real.agents.config import SACConfig
-from sim2real.agents.loop_utils import env_bounds, log_row, progress_bar
+from sim2real.agents.loop_utils import env_bounds, progress_bar, record_row
 from sim2real.agents.sac import LOSS_KEYS, NStepWriter, ReplayBuffer, SACUpdate
 
 __all__ = ["train_sac"]
@@ -118,9 +118,17 @@ def _steps(task_or_env: Any, effects: Sequence[Any], seed: int) -> _GymSteps | _
 
 
 def train_sac(
-    task_or_env: Any, cfg: SACConfig, *, effects: Sequence[Any], seed: int, progress: bool, log: Any
+    task_or_env: Any,
+    cfg: SACConfig,
+    *,
+    effects: Sequence[Any],
+    seed: int,
+    progress: bool,
+    log: Any,
+    rows: list[dict[str, float]] | None = None,
 ) -> tuple[Any, list[dict[str, float]], int]:
-    """Trains a SAC actor; returns ``(actor, metric rows, frames)`` (see :func:`~sim2real.agents.train`).
+    """Trains a SAC actor; returns ``(actor, metric rows, frames)`` (see :func:`~sim2real.agents.train`). The rows
+    are appended to ``rows`` when given, batch by batch, so a caller knows how far an interrupted run got.
 
     ``task_or_env`` is a task id or gymnasium env (``effects`` are applied here with ``sim2real.wrap``) or a TorchRL
     env already built by :func:`~sim2real.agents.make_train_env` (effects applied; ``effects`` is then ignored).
@@ -153,7 +161,7 @@ def train_sac(
         mid = (np.asarray(steps.high) + np.asarray(steps.low)) / 2
         half = (np.asarray(steps.high) - np.asarray(steps.low)) / 2
         updates = max(1, round(cfg.utd_ratio * cfg.frames_per_batch))
-        rows: list[dict[str, float]] = []
+        rows = [] if rows is None else rows
         frames = 0
         obs = steps.reset()
         episode_return = 0.0
@@ -203,8 +211,7 @@ def train_sac(
                     for _ in range(updates):
                         total += update.step(*buffer.sample(cfg.batch_size))
                     row.update(zip(LOSS_KEYS, (total / updates).tolist(), strict=True))
-                rows.append(row)
-                log_row(log, row, frames)
+                record_row(rows, log, row, frames)
                 bar.update(n)
                 if finished:
                     bar.set_postfix(ret=f"{row['episode_return']:.2f}")

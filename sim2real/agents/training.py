@@ -14,6 +14,7 @@ effects, else from one TorchRL env (:mod:`sim2real.agents.collect`); ``TrainResu
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 import os
 import re
@@ -28,7 +29,8 @@ from typing import Any
 
 from sim2real.agents.collect import Collection, choose_collection, make_collection_env, make_train_env
 from sim2real.agents.config import PPOConfig, SACConfig
-from sim2real.agents.loop_utils import env_bounds, log_row, progress_bar
+from sim2real.agents.loop_utils import env_bounds, log_row, progress_bar, record_row
+from sim2real.agents.run_status import RunStatus, mark, status_for, write_run_status
 
 __all__ = ["TrainResult", "make_train_env", "train"]
 
@@ -146,7 +148,10 @@ def train(
         seed: seeds weights, exploration, minibatch order, env and effects.
         progress: show a tqdm bar on stderr.
         logger: ``"csv"`` (TorchRL ``CSVLogger``), ``"tensorboard"`` (needs tensorboard) or None.
-        log_dir: root folder of the logger (default ``./sim2real_runs``); the run writes to ``log_dir/run_id``.
+        log_dir: root folder of the logger (default ``./sim2real_runs``); the run writes to ``log_dir/run_id``,
+            with its status in ``run.json`` (:mod:`sim2real.agents.run_status`): ``"running"``, then
+            ``"completed"``, or ``"interrupted"``/``"failed"`` with the frames done when Ctrl-C, a kill or an
+            exception ends the run (which is then re-raised as it came, with a note saying where the run is).
         threads: torch intra-op threads while training (restored afterwards). One is the default: these MLPs
             are too small to gain from more, and on a busy machine extra threads spin against other processes
             (2,000 PPO frames took 19.9 s with 2 threads and 6.3 s with 1 on the 2-core CI-sized box).
@@ -195,26 +200,52 @@ def train(
              "collection": str(collection), "collection_engine": collection.engine,
              "collection_num_envs": collection.num_envs}
         )  # fmt: skip
+    folder = _logger_dir(log)
+    # The folder's run.json says "running" until the run ends, then how it ended (see run_status).
+    run = RunStatus("running", run_id, config.algo, task, seed, config.frames, 0)
+    if folder is not None:
+        write_run_status(folder, run)
     log = log_adr(log, adr)
     start = time.perf_counter()
     previous_threads = torch.get_num_threads()
     torch.set_num_threads(threads)
-    with contextlib.ExitStack() as stack:
-        stack.callback(torch.set_num_threads, previous_threads)
-        stack.enter_context(torch.random.fork_rng(devices=[]))
-        torch.manual_seed(seed)
-        if isinstance(config, SACConfig):
-            from sim2real.agents.sac_loop import train_sac
+    rows: list[dict[str, float]] = []  # filled batch by batch: what was done when the run is cut short
+    try:
+        with contextlib.ExitStack() as stack:
+            stack.callback(torch.set_num_threads, previous_threads)
+            stack.enter_context(torch.random.fork_rng(devices=[]))
+            torch.manual_seed(seed)
+            if isinstance(config, SACConfig):
+                from sim2real.agents.sac_loop import train_sac
 
-            # A task id or gymnasium env is stepped through gymnasium; any other env through TorchRL.
-            source = task_or_env if steps_directly(task_or_env) else make_train_env(task_or_env, effects, seed)
-            policy, rows, frames = train_sac(source, config, effects=effects, seed=seed, progress=progress, log=log)
-        else:
-            env = make_collection_env(task_or_env, effects, seed, collection)
+                # A task id or gymnasium env is stepped through gymnasium; any other env through TorchRL.
+                source = task_or_env if steps_directly(task_or_env) else make_train_env(task_or_env, effects, seed)
+                policy, rows, frames = train_sac(
+                    source, config, effects=effects, seed=seed, progress=progress, log=log, rows=rows
+                )
+            else:
+                env = make_collection_env(task_or_env, effects, seed, collection)
+                try:
+                    policy, rows, frames = _train_ppo(env, config, seed, progress, log, adr, rows=rows)
+                finally:
+                    env.close()
+    except BaseException as err:  # Ctrl-C, a kill (the CLI's Interrupted) or an error: marked, then raised as before
+        if folder is not None:
+            status, signal, error = status_for(err)
+            done = int(rows[-1]["frames"]) if rows else 0
+            run = dataclasses.replace(run, status=status, frames=done, signal=signal, error=error)
             try:
-                policy, rows, frames = _train_ppo(env, config, seed, progress, log, adr)
-            finally:
-                env.close()
+                write_run_status(folder, run)
+            except OSError as failed:  # the run's own error is the one to raise
+                err.add_note(f"sim2real: could not mark the run {run.status} in {str(folder)!r}: {failed}")
+            else:
+                mark(err, folder, run)
+        raise
+    if folder is not None:
+        try:
+            write_run_status(folder, dataclasses.replace(run, status="completed", frames=frames))
+        except OSError as failed:  # the trained policy is still returned (and saved by the caller)
+            warnings.warn(f"could not mark the run completed in {str(folder)!r}: {failed}", stacklevel=2)
     wall = time.perf_counter() - start
     names = sorted({k for row in rows for k in row}, key=lambda k: (k != "frames", k))
     metrics = MappingProxyType({k: tuple(float(row.get(k, math.nan)) for row in rows) for k in names})
@@ -227,7 +258,7 @@ def train(
         run_id=run_id,
         seed=seed,
         task=task,
-        log_dir=_logger_dir(log),
+        log_dir=folder,
         effects=_effects_text(plain),
         adr=None if adr is None else adr.to_json(),
         collection=collection,
@@ -327,8 +358,16 @@ _log = log_row
 
 
 def _train_ppo(
-    env: Any, cfg: PPOConfig, seed: int, progress: bool, log: Any, adr: Any = None
+    env: Any,
+    cfg: PPOConfig,
+    seed: int,
+    progress: bool,
+    log: Any,
+    adr: Any = None,
+    rows: list[dict[str, float]] | None = None,
 ) -> tuple[Any, list[dict], int]:
+    """Trains a PPO actor on ``env``; returns ``(actor, metric rows, frames)``. The rows are appended to ``rows``
+    when given, batch by batch, so a caller knows how far an interrupted run got."""
     import torch
     from torchrl.collectors import Collector
     from torchrl.objectives import ClipPPOLoss
@@ -368,7 +407,7 @@ def _train_ppo(
             total_frames=cfg.frames,
             auto_register_policy_transforms=False,
         )
-    rows: list[dict[str, float]] = []
+    rows = [] if rows is None else rows
     frames = 0
     try:
         with _bar(cfg.frames, progress, "ppo") as bar:
@@ -402,8 +441,7 @@ def _train_ppo(
                         steps += 1
                 row.update({k: v / max(steps, 1) for k, v in sums.items()})
                 collector.update_policy_weights_()
-                rows.append(row)
-                _log(log, row, frames)
+                record_row(rows, log, row, frames)
                 bar.update(n)
                 if math.isfinite(row["episode_return"]):
                     bar.set_postfix(ret=f"{row['episode_return']:.2f}")
