@@ -12,6 +12,7 @@ stderr, and leave no staging folder, no temporary file and no worker process beh
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -163,7 +164,12 @@ def test_train_killed_keeps_the_old_checkpoint(tmp_path: Path) -> None:
     proc = _start(argv, tmp_path)
     out, err = _signal_when(proc, lambda: any(tmp_path.glob("logs/*/scalars/*.csv")), signal.SIGTERM, group=False)
     assert proc.returncode == 143
-    assert _own_lines(err) == ["sim2real train: interrupted by SIGTERM; no checkpoint was written to 'c.pt'"]
+    (run,) = tmp_path.glob("logs/*/run.json")  # the log folder is marked (tests/test_train_interrupted.py)
+    assert _own_lines(err) == [
+        "sim2real train: interrupted by SIGTERM; no checkpoint was written to 'c.pt'; the partial run "
+        f"({json.loads(run.read_text())['frames']} of 400000 frames) is in 'logs/{run.parent.name}', marked "
+        "interrupted in its run.json"
+    ]
     assert out == ""
     assert (tmp_path / "c.pt").read_bytes() == b"the user's checkpoint"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.pt", "logs"]  # no temporary checkpoint beside it

@@ -152,6 +152,27 @@ def _adr_parameter_ranges(adr: Any, source: Any) -> str:
     return ", ".join(f"{address} [{lo:.4g}, {hi:.4g}]" for address, (lo, hi) in found.items())
 
 
+def _remark(result: Any, **changes: Any) -> tuple[Path, Any] | None:
+    """Rewrites the ``run.json`` that :func:`~sim2real.agents.train` left in ``result``'s log folder with
+    ``changes`` (the checkpoint written, or how saving it ended the command); returns ``(folder, status)``, or None
+    without a log folder or status, or when it cannot be written (the command's own outcome comes first)."""
+    import dataclasses
+
+    from sim2real.agents.run_status import read_run_status, write_run_status
+
+    if result is None or result.log_dir is None:
+        return None
+    try:
+        run = read_run_status(result.log_dir)
+        if run is None:
+            return None
+        run = dataclasses.replace(run, **changes)
+        write_run_status(result.log_dir, run)
+    except (OSError, ValueError):
+        return None
+    return result.log_dir, run
+
+
 def cli_train(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
     """Runs ``sim2real train``; returns the exit code (0 ok, 2 usage error).
 
@@ -220,8 +241,10 @@ def cli_train(argv: Sequence[str] | None = None, out: TextIO | None = None) -> i
     if problem is not None:
         return _fail(parser, problem)
 
-    from sim2real.agents.training import train
+    from sim2real.agents.run_status import marked_run, status_for
+    from sim2real.agents.training import TrainResult, train
 
+    result: TrainResult | None = None
     try:
         result = train(
             source.id,
@@ -236,10 +259,20 @@ def cli_train(argv: Sequence[str] | None = None, out: TextIO | None = None) -> i
     except KeyboardInterrupt as err:  # as every other command says it (SIGTERM too); the checkpoint is atomic
         from sim2real.cli._common import interrupted_exit, interrupted_line
 
-        print(interrupted_line(parser.prog, err, f"no checkpoint was written to {args.out!r}"), file=sys.stderr)
+        # train marked its log folder; cut short while saving, the run trained to its end but has no checkpoint
+        status, signal, _ = status_for(err)
+        marked = marked_run(err) or _remark(result, status=status, signal=signal)
+        what = f"no checkpoint was written to {args.out!r}"
+        if marked is not None:
+            folder, run = marked
+            what += f"; {run.where(folder)}"
+        print(interrupted_line(parser.prog, err, what), file=sys.stderr)
         return interrupted_exit(err)
     except OSError as err:  # the atomic writer has removed its temporary file
+        if result is not None:  # trained, but the checkpoint could not be written: the run did not end as asked
+            _remark(result, status="failed", error=f"cannot write the checkpoint {args.out!r}: {err.strerror or err}")
         return _fail(parser, f"cannot write {args.out!r}: {err.strerror or err}.")
+    _remark(result, checkpoint=str(Path(args.out).resolve()))
     if args.adr_export is not None and result.adr is not None:
         from randomizers import ADR, dump_config
         from randomizers.files import atomic_write
