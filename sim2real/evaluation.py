@@ -480,7 +480,8 @@ def evaluate(
             one. Both give bitwise the same results; ``Evaluation.engines`` says which ran each condition and
             ``Evaluation.fallbacks`` why a condition ran per env.
         safety: a :class:`sim2real.safety.SafetyLimits`: also measure every episode's safety quantities (joint
-            limit hits, effort ratio, contact force, end-effector speed, divergence; :mod:`sim2real.safety_probe`)
+            limit hits, effort ratio, contact force, end-effector speed, joint speed ratio, divergence;
+            :mod:`sim2real.safety_probe`)
             into ``Evaluation.safety``, on either engine. Its names are resolved against the task's model before
             any episode runs. None (the default) measures nothing and costs nothing.
         start: the index of the first episode: ``start`` continues an evaluation of ``start`` episodes with the next

@@ -84,7 +84,9 @@ class Evaluation:
             :meth:`to_dict`.
         safety: ``safety[policy][condition][quantity]``, a read-only ``(episodes,)`` float64 array per quantity of
             :data:`sim2real.safety.QUANTITIES`, when ``evaluate`` was given ``safety=`` limits (empty otherwise;
-            :meth:`to_dict` has a ``"safety"`` key only when it is not empty).
+            :meth:`to_dict` has a ``"safety"`` key only when it is not empty); with a joint speed limit also
+            ``joint_speed_joint``, the index of the joint at each episode's peak
+            (:func:`sim2real.safety_probe.speed_joints`).
     """
 
     task: str

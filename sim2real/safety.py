@@ -3,7 +3,7 @@
 :func:`sim2real.evaluation.evaluate` with ``safety=`` a :class:`SafetyLimits` measures, for every episode of every
 policy on every simulated condition (the sweeps included), the quantities of :mod:`sim2real.safety_probe`: joint
 limit hits, peak actuator effort over its limit, peak contact force on declared geoms, divergence, peak
-end-effector speed. :meth:`SafetyTable.build` aggregates them per policy x condition (worst case over the episodes
+end-effector speed, peak joint speed over its limit. :meth:`SafetyTable.build` aggregates them per policy x condition (worst case over the episodes
 and CVaR, the mean of the worst ``alpha`` fraction) and per sweep (worst over every point's episodes) and checks the
 declared limits; ``sim2real evaluate --safety limits.yaml`` exits 3 when one is violated, so a CI can gate on it.
 
@@ -13,12 +13,17 @@ The limits file (every key optional; a quantity without a limit is still measure
     max_effort_ratio: 1.0                        # peak |actuator_force| / the actuator's declared limit
     max_contact_force: {geoms: "finger*", newtons: 50}   # net contact force on each matching geom (a list works)
     max_ee_speed: {site: grip, m_per_s: 1.5}     # or {body: hand, m_per_s: 1.5}; the limit may be left out
+    max_joint_speed: {joints: "elbow*", limit: 2.0}  # one limit for every matching joint (a list works), or
+    #                {shoulder: 2.2, elbow: 2.6}    # a limit per joint; rad/s for a hinge joint, m/s for a slide
     divergences: 0                               # diverged episodes per policy x condition
     statistic: worst                             # what a limit gates: worst (default) or cvar
     alpha: 0.1                                   # CVaR tail fraction
 
 A value is a violation when it is *above* its limit (a clamped actuator reaches a ratio of exactly 1.0: set
 ``max_effort_ratio: 0.95`` to flag saturation). ``divergences`` always gates on the count of diverged episodes.
+``max_joint_speed`` is measured as ``joint_speed_ratio``, the peak of ``|qvel| / limit`` over the declared joints
+(unitless, gated at 1.0; a violation names the joint at the peak and its speed, e.g. ``elbow 3.1 rad/s over 2.6``,
+when :meth:`SafetyTable.build` is given the model). Ball and free joints have no one speed and are refused.
 
 Example:
     >>> import numpy as np
@@ -49,7 +54,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from sim2real.safety_probe import QUANTITIES, SafetyMeter
+from sim2real.safety_probe import QUANTITIES, SafetyMeter, SpeedJoint, speed_joints
 
 if TYPE_CHECKING:
     from sim2real.metrics import Estimate
@@ -68,11 +73,15 @@ __all__ = [
 ]
 
 #: Unit of each quantity, as the report prints it.
-UNITS = {"joint_limit_hits": "steps", "effort_ratio": "", "contact_force": "N", "ee_speed": "m/s", "diverged": ""}
+UNITS = {"joint_limit_hits": "steps", "effort_ratio": "", "contact_force": "N", "ee_speed": "m/s",
+         "joint_speed_ratio": "", "diverged": ""}  # fmt: skip
 #: The limits file's keys.
 LIMIT_KEYS = (
-    "joint_limit_hits", "max_effort_ratio", "max_contact_force", "max_ee_speed", "divergences", "statistic", "alpha",
+    "joint_limit_hits", "max_effort_ratio", "max_contact_force", "max_ee_speed", "max_joint_speed", "divergences",
+    "statistic", "alpha",
 )  # fmt: skip
+#: What a joint speed limit is in, for messages.
+_SPEED_UNITS = "rad/s for a hinge joint, m/s for a slide joint"
 STATISTICS = ("worst", "cvar")
 
 
@@ -95,6 +104,10 @@ class SafetyLimits:
         divergences: allowed diverged episodes per policy x condition, or None.
         statistic: ``"worst"`` or ``"cvar"``, what the limits gate.
         alpha: CVaR tail fraction in (0, 1].
+        speed_joints: fnmatch patterns of the joints that share the one speed limit ``max_joint_speed`` (the
+            ``{joints: ..., limit: ...}`` form; empty otherwise).
+        max_joint_speed: that limit (rad/s for a hinge joint, m/s for a slide joint), or None.
+        joint_speeds: ``(joint name or pattern, limit)`` pairs (the per-joint form; empty otherwise).
         source: where the limits came from (a file name), for messages.
     """
 
@@ -108,6 +121,9 @@ class SafetyLimits:
     divergences: int | None = None
     statistic: str = "worst"
     alpha: float = 0.1
+    speed_joints: tuple[str, ...] = ()
+    max_joint_speed: float | None = None
+    joint_speeds: tuple[tuple[str, float], ...] = ()
     source: str = field(default="<limits>", compare=False)
 
     def __post_init__(self) -> None:
@@ -131,6 +147,28 @@ class SafetyLimits:
             raise LimitsError(f"{self.source}: `max_contact_force.geoms` must name the geoms the limit is on.")
         if self.max_ee_speed is not None and self.ee_site is None and self.ee_body is None:
             raise LimitsError(f"{self.source}: `max_ee_speed` must name a `site` or a `body`.")
+        self._check_joint_speeds()
+
+    def _check_joint_speeds(self) -> None:
+        where = self.source
+        if self.joint_speeds and (self.speed_joints or self.max_joint_speed is not None):
+            raise LimitsError(f"{where}: `max_joint_speed` takes {{joints: ..., limit: ...}} or a mapping joint -> "
+                              "limit, not both.")  # fmt: skip
+        if self.speed_joints or self.max_joint_speed is not None:
+            if not self.speed_joints:
+                raise LimitsError(f"{where}: `max_joint_speed.joints` must name the joints the limit is on.")
+            if not all(isinstance(j, str) and j for j in self.speed_joints):
+                raise LimitsError(f"{where}: `max_joint_speed.joints` must be a joint name pattern or a list of them. "
+                                  f"Received {list(self.speed_joints)!r}.")  # fmt: skip
+            if not _positive(self.max_joint_speed):
+                raise LimitsError(f"{where}: `max_joint_speed.limit` must be a number > 0 ({_SPEED_UNITS}). "
+                                  f"Received {self.max_joint_speed!r}.")  # fmt: skip
+        for pair in self.joint_speeds:
+            if not (isinstance(pair, tuple) and len(pair) == 2 and isinstance(pair[0], str) and pair[0]):
+                raise LimitsError(f"{where}: `joint_speeds` must hold (joint name, limit) pairs. Received {pair!r}.")
+            if not _positive(pair[1]):
+                raise LimitsError(f"{where}: `max_joint_speed.{pair[0]}` must be a number > 0 ({_SPEED_UNITS}). "
+                                  f"Received {pair[1]!r}.")  # fmt: skip
 
     def limit(self, quantity: str) -> float | None:
         """The declared limit of ``quantity`` (one of :data:`QUANTITIES`), or None."""
@@ -139,6 +177,7 @@ class SafetyLimits:
             "effort_ratio": self.max_effort_ratio,
             "contact_force": self.max_contact_force,
             "ee_speed": self.max_ee_speed,
+            "joint_speed_ratio": 1.0 if self.speed_joints or self.joint_speeds else None,  # each joint's own limit
             "diverged": self.divergences,
         }[quantity]
         return None if value is None else float(value)
@@ -147,7 +186,8 @@ class SafetyLimits:
         """A :class:`SafetyMeter` of ``num_envs`` envs of ``model`` (names resolved, limits read).
 
         Raises:
-            LimitsError: a geom pattern, site or body the model does not have (close matches listed).
+            LimitsError: a geom pattern, site, body or joint the model does not have (close matches listed), or a
+                joint speed limit on a ball or free joint.
         """
         try:
             return SafetyMeter(model, self, num_envs)
@@ -166,6 +206,10 @@ class SafetyLimits:
         if self.ee_site is not None or self.ee_body is not None:
             where = {"site": self.ee_site} if self.ee_site is not None else {"body": self.ee_body}
             out["max_ee_speed"] = {**where, "m_per_s": self.max_ee_speed}
+        if self.speed_joints:
+            out["max_joint_speed"] = {"joints": list(self.speed_joints), "limit": self.max_joint_speed}
+        elif self.joint_speeds:
+            out["max_joint_speed"] = dict(self.joint_speeds)
         if self.divergences is not None:
             out["divergences"] = self.divergences
         out["statistic"], out["alpha"] = self.statistic, self.alpha
@@ -237,7 +281,26 @@ def load_limits(source: str | os.PathLike[str] | Mapping[str, Any]) -> SafetyLim
             )
         kwargs[f"ee_{named[0]}"] = item[named[0]]
         kwargs["max_ee_speed"] = item.get("m_per_s")
+    if "max_joint_speed" in config:
+        kwargs.update(_joint_speed(config["max_joint_speed"], where))
     return SafetyLimits(**kwargs, source=where)
+
+
+def _joint_speed(value: Any, where: str) -> dict[str, Any]:
+    """``max_joint_speed``'s two forms as :class:`SafetyLimits` keywords: ``{joints: <pattern(s)>, limit: x}``
+    (recognised by its ``joints`` key) or a mapping joint name -> limit."""
+    if not isinstance(value, Mapping) or not value:
+        raise LimitsError(f"{where}: `max_joint_speed` must be {{joints: <pattern or list>, limit: <number>}} or a "
+                          f"mapping joint name -> limit ({_SPEED_UNITS}). Received {value!r}.")  # fmt: skip
+    if "joints" in value or "limit" in value:
+        item = _sub(value, "max_joint_speed", ("joints", "limit"), where)
+        joints = item.get("joints")
+        patterns = [joints] if isinstance(joints, str) else joints
+        if not isinstance(patterns, list) or not patterns or not all(isinstance(j, str) and j for j in patterns):
+            raise LimitsError(f"{where}: `max_joint_speed.joints` must be a joint name pattern or a list of them. "
+                              f"Received {joints!r}.")  # fmt: skip
+        return {"speed_joints": tuple(patterns), "max_joint_speed": item.get("limit")}
+    return {"joint_speeds": tuple((str(name), limit) for name, limit in value.items())}
 
 
 # ------------------------------------------------------------------------------------------------ aggregation
@@ -295,6 +358,8 @@ class SafetyRow:
         over_rate: the rate of such episodes with its 95% Wilson interval (a
             :class:`~sim2real.metrics.Estimate`), or None without a limit: a row within its limit on 4 episodes
             still allows a rate up to 49%.
+        peak: for ``joint_speed_ratio``, the joint at the worst episode's peak, its speed and limit
+            (``"elbow 3.1 rad/s over 2.6"``); ``""`` otherwise or when the table was built without the model.
     """
 
     policy: str
@@ -310,6 +375,7 @@ class SafetyRow:
     point: str = ""
     over: int | None = None
     over_rate: Estimate | None = None
+    peak: str = ""
 
     @property
     def verdict(self) -> str:
@@ -335,6 +401,7 @@ class SafetyViolation:
     over: int | None = None
     episodes: int | None = None
     over_rate: Estimate | None = None
+    peak: str = ""  # the joint at a joint speed peak (see SafetyRow.peak)
 
     @property
     def message(self) -> str:
@@ -350,7 +417,7 @@ class SafetyViolation:
                 rate = f"; 95% interval of the rate {_pct(self.over_rate.low)}-{_pct(self.over_rate.high)}"
         return (
             f"policy {self.policy!r} on {self.condition!r}: {name} {self.statistic} {_fmt(self.value)}{suffix} "
-            f"> limit {_fmt(self.limit)}{suffix} ({self.where}{rate})"
+            f"> limit {_fmt(self.limit)}{suffix} ({self.where}{f': {self.peak}' if self.peak else ''}{rate})"
         )
 
 
@@ -402,18 +469,28 @@ class SafetyTable:
         return not self.violations
 
     @classmethod
-    def build(cls, evaluation: Any, limits: SafetyLimits, *, substeps: int | None = None) -> SafetyTable:
+    def build(
+        cls, evaluation: Any, limits: SafetyLimits, *, substeps: int | None = None, model: Any = None
+    ) -> SafetyTable:
         """Aggregates ``evaluation.safety`` (from :func:`~sim2real.evaluation.evaluate` with ``safety=limits``);
-        ``substeps`` (physics steps per control step, :func:`physics_substeps`) says what the sampling sees.
+        ``substeps`` (physics steps per control step, :func:`physics_substeps`) says what the sampling sees;
+        ``model`` (the task's ``MjModel``, optional) names the joint at each joint speed peak.
 
         Raises:
             ValueError: the evaluation carries no safety measurements, or ``substeps`` is not an int >= 1.
+            LimitsError: ``model`` lacks a joint the limits declare a speed for.
         """
         if substeps is not None and (isinstance(substeps, bool) or not isinstance(substeps, int) or substeps < 1):
             raise ValueError(f"`substeps` must be None or an int >= 1. Received {substeps!r}.")
         safety: Mapping[str, Mapping[str, Mapping[str, np.ndarray]]] = evaluation.safety
         if not safety:
             raise ValueError("`evaluation` has no safety measurements: run evaluate(..., safety=limits).")
+        joints: tuple[SpeedJoint, ...] = ()
+        if model is not None and (limits.speed_joints or limits.joint_speeds):
+            try:
+                joints = speed_joints(model, limits)
+            except ValueError as err:
+                raise LimitsError(f"{limits.source}: {err}") from err
         rows: list[SafetyRow] = []
         violations: list[SafetyViolation] = []
         sweeps = evaluation.sweeps()
@@ -433,7 +510,7 @@ class SafetyTable:
                     parts = [(c.name, measured[c.name]) for c in sweeps[cond.sweep] if c.name in measured]
                     name, kind = cond.sweep, "sweep"
                 for quantity in QUANTITIES:
-                    row, found = _row(policy, name, kind, quantity, parts, limits)
+                    row, found = _row(policy, name, kind, quantity, parts, limits, joints)
                     if row is not None:
                         rows.append(row)
                         violations.extend(found)
@@ -473,6 +550,7 @@ class SafetyTable:
                         "method": r.over_rate.method,
                     },
                     "verdict": r.verdict,
+                    **({"peak": r.peak} if r.peak else {}),
                 }
                 for r in self.rows
             ],
@@ -488,22 +566,27 @@ def _row(
     quantity: str,
     parts: Sequence[tuple[str, Mapping[str, np.ndarray]]],
     limits: SafetyLimits,
+    joints: Sequence[SpeedJoint] = (),
 ) -> tuple[SafetyRow | None, list[SafetyViolation]]:
     """The row of ``quantity`` over ``parts`` (one condition, or a sweep's points) and its violations."""
+    if not parts or not all(quantity in m for _, m in parts):
+        return None, []  # measured before the quantity existed
     arrays = [np.asarray(m[quantity], dtype=np.float64) for _, m in parts]
-    if not arrays or not all(np.isfinite(a).all() for a in arrays):
-        return None, []  # not measured (no actuator limit, no geoms or no end-effector declared)
+    if not all(np.isfinite(a).all() for a in arrays):
+        return None, []  # not measured (no actuator limit, no geoms, no end-effector or no joint speed declared)
     pooled = np.concatenate(arrays)
     limit = limits.limit(quantity)
     found: list[SafetyViolation] = []
-    for point, values in zip((p for p, _ in parts), arrays, strict=True):
+    for (point, measured), values in zip(parts, arrays, strict=True):
         value, statistic, episode = _gated(values, quantity, limits)
         if limit is not None and value > limit:
             where = f"{int(values.sum())} of {len(values)} episodes" if quantity == "diverged" else f"episode {episode}"
             over, rate = _over_rate(values, quantity, limit)
+            peak = _peak(quantity, measured, episode, joints)
             found.append(
-                SafetyViolation(policy, point, quantity, statistic, value, limit, where, over, len(values), rate)
+                SafetyViolation(policy, point, quantity, statistic, value, limit, where, over, len(values), rate, peak)
             )
+    peak = ""
     if quantity == "diverged":
         worst, cvar, where = float(pooled.sum()), float(pooled.mean()), f"{int(pooled.sum())} of {len(pooled)} episodes"
         part = int(np.argmax([a.sum() for a in arrays]))
@@ -514,11 +597,27 @@ def _row(
         part = int(np.searchsorted(offsets, index, side="right") - 1)
         episode = index - int(offsets[part])
         where = f"episode {episode}" if kind == "condition" else f"{parts[part][0]} episode {episode}"
+        peak = _peak(quantity, parts[part][1], episode, joints)
     over, rate = _over_rate(pooled, quantity, limit)
     row = SafetyRow(
-        policy, name, kind, quantity, worst, cvar, where, len(pooled), limit, bool(found), parts[part][0], over, rate
-    )
+        policy, name, kind, quantity, worst, cvar, where, len(pooled), limit, bool(found), parts[part][0], over, rate,
+        peak,
+    )  # fmt: skip
     return row, found
+
+
+def _peak(quantity: str, measured: Mapping[str, np.ndarray], episode: int, joints: Sequence[SpeedJoint]) -> str:
+    """``"elbow 3.1 rad/s over 2.6"``: the joint at ``episode``'s joint speed peak (``""`` for another quantity,
+    without the joints, or when every speed was 0)."""
+    at = measured.get("joint_speed_joint")
+    if quantity != "joint_speed_ratio" or not joints or at is None:
+        return ""
+    index, ratio = float(at[episode]), float(measured[quantity][episode])
+    if not 0 <= index < len(joints) or not math.isfinite(ratio):
+        return ""
+    joint = joints[int(index)]
+    relation = "over" if ratio > 1.0 else "within"
+    return f"{joint.name} {_fmt(ratio * joint.limit)} {joint.unit} {relation} {_fmt(joint.limit)}"
 
 
 def _gated(values: np.ndarray, quantity: str, limits: SafetyLimits) -> tuple[float, str, int]:

@@ -1,6 +1,6 @@
 """Measuring a safety envelope while episodes run: :class:`SafetyMeter` reads ``MjData`` after every control step.
 
-Five quantities per episode (the names :mod:`sim2real.safety` aggregates and gates on):
+Six quantities per episode (the names :mod:`sim2real.safety` aggregates and gates on):
 
 * ``joint_limit_hits``: control steps on which a limited hinge/slide joint is beyond its range, or MuJoCo's
   limit constraint of any limited joint is active (within ``jnt_margin``);
@@ -14,6 +14,10 @@ Five quantities per episode (the names :mod:`sim2real.safety` aggregates and gat
   are declared;
 * ``ee_speed``: the peak linear speed of a declared site, or of a declared body's centre of mass
   (``mj_objectVelocity``), m/s; NaN without one;
+* ``joint_speed_ratio``: the peak, over steps and the declared joints, of ``|qvel_j| / limit_j`` (unitless; above
+  1.0 is over a limit), limits in rad/s for hinge joints and m/s for slide joints (:func:`speed_joints`); NaN
+  without ``max_joint_speed``. The joint that set each episode's peak (its index in :func:`speed_joints`) is kept
+  beside it as ``joint_speed_joint`` (-1.0 while every speed was 0), so a violation can name it;
 * ``diverged``: 1.0 when the episode's physics diverged (the wrappers' ``diverged`` flag), else 0.0.
 
 Sampling: once per control step, from ``MjData`` as the step leaves it. Contact forces are solved for that state
@@ -40,7 +44,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import mujoco
 import numpy as np
@@ -48,10 +52,10 @@ import numpy as np
 if TYPE_CHECKING:
     from sim2real.safety import SafetyLimits
 
-__all__ = ["QUANTITIES", "SafetyMeter"]
+__all__ = ["QUANTITIES", "SafetyMeter", "SpeedJoint", "speed_joints"]
 
 #: The per-episode quantities, in report order.
-QUANTITIES = ("joint_limit_hits", "effort_ratio", "contact_force", "ee_speed", "diverged")
+QUANTITIES = ("joint_limit_hits", "effort_ratio", "contact_force", "ee_speed", "joint_speed_ratio", "diverged")
 
 _LIMIT_JOINT = int(mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT)
 # Index pairs of a cross product's components: (a x b)[k] = a[k+1] b[k+2] - a[k+2] b[k+1].
@@ -95,6 +99,67 @@ def actuator_limits(model: mujoco.MjModel) -> np.ndarray:
     return limits
 
 
+class SpeedJoint(NamedTuple):
+    """A joint with a declared speed limit, as :class:`SafetyMeter` measures it."""
+
+    joint: int  #: the joint's id
+    name: str  #: its name (``#<id>`` when unnamed)
+    dof: int  #: its velocity's index in ``qvel``
+    limit: float  #: the allowed ``|qvel|``, in :attr:`unit`
+    unit: str  #: ``"rad/s"`` (hinge) or ``"m/s"`` (slide)
+
+
+_SPEED_UNITS = {int(mujoco.mjtJoint.mjJNT_HINGE): "rad/s", int(mujoco.mjtJoint.mjJNT_SLIDE): "m/s"}
+_MULTI_DOF = {int(mujoco.mjtJoint.mjJNT_BALL): ("ball", 3), int(mujoco.mjtJoint.mjJNT_FREE): ("free", 6)}
+
+
+def speed_joints(model: mujoco.MjModel, limits: SafetyLimits) -> tuple[SpeedJoint, ...]:
+    """The joints ``limits.max_joint_speed`` declares, in model order, each with its limit and unit.
+
+    Raises:
+        ValueError: a name or pattern that matches no joint (close matches listed), a joint given two limits, or a
+            ball or free joint (its velocity has several components: no one speed to hold to a limit).
+
+    Example:
+        >>> from sim2real.safety import SafetyLimits
+        >>> m = mujoco.MjModel.from_xml_string(
+        ...     '<mujoco><worldbody><body><joint name="lift" type="slide"/><geom size=".1"/><body>'
+        ...     '<joint name="elbow"/><geom size=".1"/></body></body></worldbody></mujoco>')
+        >>> [(j.name, j.limit, j.unit) for j in speed_joints(m, SafetyLimits(joint_speeds=(("elbow", 2.6),
+        ...                                                                               ("lift", 0.5))))]
+        [('lift', 0.5, 'm/s'), ('elbow', 2.6, 'rad/s')]
+    """
+    from randomizers.parameters import select  # the one resolver of element names
+
+    if limits.speed_joints:
+        pairs: list[tuple[str, float | None]] = [(pattern, limits.max_joint_speed) for pattern in limits.speed_joints]
+        argument = "max_joint_speed.joints"
+    else:
+        pairs = list(limits.joint_speeds)
+        argument = "max_joint_speed"
+    given: dict[int, tuple[str, float]] = {}
+    for pattern, limit in pairs:
+        assert limit is not None  # SafetyLimits checks that the one-limit form has its limit
+        for jid, name in select(model, "joint", pattern, argument):
+            kind = int(model.jnt_type[jid])
+            if kind in _MULTI_DOF:
+                what, size = _MULTI_DOF[kind]
+                raise ValueError(
+                    f"`{argument}` must select hinge (rad/s) or slide (m/s) joints; {name!r} is a {what} joint, "
+                    f"whose velocity has {size} components and no one speed to limit. Received {pattern!r}."
+                )
+            if jid in given and limits.joint_speeds:  # the one-limit form may match a joint by two patterns
+                raise ValueError(
+                    f"`{argument}` gives joint {name!r} two limits ({given[jid][0]!r}: {given[jid][1]!r}, "
+                    f"{pattern!r}: {limit!r}); each joint takes one. Received {dict(limits.joint_speeds)!r}."
+                )
+            given[jid] = (pattern, float(limit))
+    return tuple(
+        SpeedJoint(jid, name, int(model.jnt_dofadr[jid]), given[jid][1], _SPEED_UNITS[int(model.jnt_type[jid])])
+        for jid, name in sorted((j, mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or f"#{j}") for j in given)
+    )
+
+
 def _check_can_touch(model: mujoco.MjModel, geoms: np.ndarray, names: Sequence[str]) -> None:
     """Refuses a contact-force limit on geoms none of which can ever touch anything (contype/conaffinity bits that
     match no geom's, in no ``<pair>``): its force would be 0 at every step and the limit could never fail.
@@ -120,12 +185,14 @@ class SafetyMeter:
 
     Args:
         model: the nominal model (names are resolved and limits read here, once).
-        limits: the envelope; its ``contact_geoms`` and ``ee_site``/``ee_body`` say what to measure.
+        limits: the envelope; its ``contact_geoms``, ``ee_site``/``ee_body`` and joint speed limits say what to
+            measure.
         num_envs: envs measured side by side (index ``i`` of :meth:`observe`).
 
     Raises:
-        ValueError: a geom pattern, site or body that the model does not have (close matches listed);
-            :meth:`sim2real.safety.SafetyLimits.meter` raises it as a ``LimitsError``.
+        ValueError: a geom pattern, site, body or joint that the model does not have (close matches listed), or a
+            joint speed limit on a ball or free joint; :meth:`sim2real.safety.SafetyLimits.meter` raises it as a
+            ``LimitsError``.
     """
 
     def __init__(self, model: mujoco.MjModel, limits: SafetyLimits, num_envs: int) -> None:
@@ -159,7 +226,10 @@ class SafetyMeter:
         self._geoms = np.zeros(0, np.intp)
         self._object: tuple[int, int] | None = None
         self._body = self._root = -1  # the end-effector's body and its tree's root (mj_objectVelocity's rows)
+        self._speeds: tuple[tuple[int, float], ...] = ()  # (qvel index, limit) of each declared joint
         try:
+            if limits.speed_joints or limits.joint_speeds:
+                self._speeds = tuple((j.dof, j.limit) for j in speed_joints(model, limits))
             if limits.contact_geoms:
                 chosen = select(model, "geom", list(limits.contact_geoms), "max_contact_force.geoms")
                 self._geoms = np.asarray([i for i, _ in chosen], np.intp)
@@ -188,6 +258,7 @@ class SafetyMeter:
         """Zeroes every env's accumulators (call at the start of a batch of episodes)."""
         n = self._n  # arrays: observe_batch updates all worlds in one operation, observe one element
         self.hits, self.effort, self.contact, self.speed = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
+        self.joint_speed, self.fastest = np.zeros(n), np.full(n, -1, np.intp)  # peak ratio, its joint's index
         if self._pending:  # steps observed since the last fold belong to the episodes reset here
             self._pending = 0
             self._seen[:] = True
@@ -198,14 +269,15 @@ class SafetyMeter:
         """Folds env ``i``'s state after a control step (``model``/``data`` of its physics) into its episode's
         peaks and counts."""
         moving = data if self._object is not None else None
-        self._fold(i, model, data.qpos.tolist(), data.nefc, data.actuator_force, data.ncon, lambda: data, moving)
+        qvel = data.qvel.tolist() if self._speeds else None
+        self._fold(i, model, data.qpos.tolist(), qvel, data.nefc, data.actuator_force, data.ncon, lambda: data, moving)
 
     def bind_batch(self, batch: Any) -> None:
         """Registers the ``mujoco.batch.Batch`` fields :meth:`observe_batch` reads (before the batch's next call: a
         derived field bound between calls holds zeros until then)."""
         if self._pending:
             self._settle()  # steps of a batch bound before are folded against that batch's models
-        names = ["qpos", "nefc", "actuator_force", "ncon"]
+        names = ["qpos", "nefc", "actuator_force", "ncon"] + (["qvel"] if self._speeds else [])
         if self._object is not None:
             body = self._object[0] == int(mujoco.mjtObj.mjOBJ_BODY)
             names += ["cvel", "subtree_com", "xipos" if body else "site_xpos"]
@@ -218,6 +290,8 @@ class SafetyMeter:
         self._highs = np.array([high for _, _, high in self._ranges])
         self._act_idx = np.array([k for k, _ in self._scales], np.intp)
         self._act_scale = np.array([scale for _, scale in self._scales])
+        self._dofs = np.array([dof for dof, _ in self._speeds], np.intp)
+        self._speed_limits = np.array([limit for _, limit in self._speeds])
         # Pending steps: what each step's checks read, copied out of the batch (a few row copies per step); the
         # checks run on _BLOCK steps at once (see observe_batch). Component-major, (components, step, world): each
         # component of a block is one contiguous (step, world) array.
@@ -237,6 +311,10 @@ class SafetyMeter:
         if self._act_idx.size:
             force = bound["actuator_force"]
             self._copies.append((self._force, _rows(force, self._act_idx), force, self._act_idx))
+        if self._dofs.size:
+            qvel = bound["qvel"]
+            self._qvel = np.empty((self._dofs.size, _BLOCK, n))
+            self._copies.append((self._qvel, _rows(qvel, self._dofs), qvel, self._dofs))
         if self._object is not None:
             self._cvel = np.empty((6, _BLOCK, n))
             self._com = np.empty((3, _BLOCK, n))
@@ -346,6 +424,8 @@ class SafetyMeter:
             # non-NaN ratio does so at once (ratios are >= +0.0, so no signed zero tells the two apart).
             best = np.fmax.reduce(ratio, axis=0)
             np.copyto(self.effort, best, where=best > self.effort)
+        if self._dofs.size:
+            self._settle_joint_speeds(steps, seen)
         if self._object is not None:
             self._settle_speeds(steps, seen)
         self._pending = 0
@@ -353,6 +433,24 @@ class SafetyMeter:
         if self._partial:
             self._seen[:steps] = True
             self._partial = False
+
+    def _settle_joint_speeds(self, steps: int, seen: np.ndarray | None) -> None:
+        """The joint speed ratios of the pending steps into their peaks, with the joint that set each: the same
+        divisions as :meth:`_fold`'s, the same first-of-equals over joints and over steps."""
+        terms = np.abs(self._qvel[:, :steps])
+        terms /= self._speed_limits[:, None, None]
+        ratio, joint = terms[0], np.zeros(terms.shape[1:], np.intp)
+        for j in range(1, len(terms)):
+            faster = terms[j] > ratio  # a NaN ratio is never replaced, as in _fold's comparisons
+            ratio = np.where(faster, terms[j], ratio)
+            joint[faster] = j
+        if seen is not None:
+            ratio = np.where(seen, ratio, np.nan)  # NaN never sets a peak
+        best = np.fmax.reduce(ratio, axis=0)
+        first = np.argmax(ratio == best, axis=0)  # the block's first step at its peak (a later equal one sets none)
+        new = best > self.joint_speed
+        np.copyto(self.joint_speed, best, where=new)
+        np.copyto(self.fastest, np.take_along_axis(joint, first[None], axis=0)[0], where=new)
 
     def _settle_speeds(self, steps: int, seen: np.ndarray | None) -> None:
         """The end-effector speeds of the pending steps into their peaks (see :meth:`observe_batch`)."""
@@ -414,6 +512,7 @@ class SafetyMeter:
         i: int,
         model: mujoco.MjModel,
         qpos: list[float],
+        qvel: list[float] | None,
         nefc: int,
         force_row: np.ndarray,
         ncon: int,
@@ -439,6 +538,16 @@ class SafetyMeter:
             ratio = max(abs(force[k]) * scale for k, scale in self._scales)
             if ratio > self.effort[i]:
                 self.effort[i] = ratio
+        if qvel is not None:
+            # abs(v) / limit: the division observe_batch makes (no reciprocal: a product could differ in the last bit)
+            fastest, ratio = 0, abs(qvel[self._speeds[0][0]]) / self._speeds[0][1]
+            for k in range(1, len(self._speeds)):
+                dof, limit = self._speeds[k]
+                value = abs(qvel[dof]) / limit
+                if value > ratio:
+                    fastest, ratio = k, value
+            if ratio > self.joint_speed[i]:
+                self.joint_speed[i], self.fastest[i] = ratio, fastest
         if len(self._geoms) and ncon:
             peak = self._contact_peak(model, data if data is not None else full())
             if peak > self.contact[i]:
@@ -496,7 +605,9 @@ class SafetyMeter:
             "effort_ratio": float(self.effort[i]) if len(self._act) else float("nan"),
             "contact_force": float(self.contact[i]) if len(self._geoms) else float("nan"),
             "ee_speed": float(self.speed[i]) if self._object is not None else float("nan"),
+            "joint_speed_ratio": float(self.joint_speed[i]) if self._speeds else float("nan"),
             "diverged": 1.0 if diverged else 0.0,
+            **({"joint_speed_joint": float(self.fastest[i])} if self._speeds else {}),
         }
 
     def episodes(self, diverged: np.ndarray) -> dict[str, np.ndarray]:
@@ -508,5 +619,7 @@ class SafetyMeter:
             "effort_ratio": np.array(self.effort) if len(self._act) else nan.copy(),
             "contact_force": np.array(self.contact) if len(self._geoms) else nan.copy(),
             "ee_speed": np.array(self.speed) if self._object is not None else nan.copy(),
+            "joint_speed_ratio": np.array(self.joint_speed) if self._speeds else nan.copy(),
             "diverged": np.asarray(diverged, dtype=np.float64).copy(),
+            **({"joint_speed_joint": self.fastest.astype(np.float64)} if self._speeds else {}),
         }

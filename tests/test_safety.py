@@ -161,7 +161,8 @@ def test_observe_batch_is_observe_world_by_world(monkeypatch: pytest.MonkeyPatch
     model.jnt_margin[:] = 0.1
     n = 5
     datas = [mujoco.MjData(model) for _ in range(n)]
-    for limits in (SafetyLimits(ee_site="grip"), SafetyLimits(ee_body="fore")):
+    speeds = (("shoulder", 2.0), ("elbow", 3.0))  # the joint speed ratio too (tests/test_safety_joint_speed.py)
+    for limits in (SafetyLimits(ee_site="grip", joint_speeds=speeds), SafetyLimits(ee_body="fore")):
         batched, single, batch = SafetyMeter(model, limits, n), SafetyMeter(model, limits, n), _Batch(datas)
         batched.bind_batch(batch)
         rng = np.random.default_rng(0)
@@ -237,7 +238,10 @@ def test_cvar_is_the_mean_of_the_worst_tail() -> None:
 
 
 def test_batched_engine_measures_the_same_as_per_env() -> None:
-    limits = load_limits({"max_ee_speed": {"site": "ee", "m_per_s": 1.0}, "max_effort_ratio": 0.5})
+    speeds = {"joints": "*", "limit": 2.0}  # every joint's speed ratio too
+    limits = load_limits(
+        {"max_ee_speed": {"site": "ee", "m_per_s": 1.0}, "max_effort_ratio": 0.5, "max_joint_speed": speeds}
+    )
     from sim2real.agents import ReachController
 
     conditions = [nominal(), *sweep({"type": "ActuatorGain", "scale": 1.0}, "scale", [1.0, 2.0])]
@@ -302,7 +306,10 @@ def test_batched_meter_folds_blocks_of_steps_as_step_by_step(monkeypatch: pytest
     from sim2real.agents import ReachController, ReacherPD
 
     monkeypatch.setattr(probe, "_BLOCK", 3)
-    limits = load_limits({"max_ee_speed": {"site": "ee", "m_per_s": 1.0}, "max_effort_ratio": 0.5})
+    speeds = {"base_yaw": 3.0, "elbow_pitch": 2.0, "wrist_roll": 4.0}  # the joint speed ratio and its joint too
+    limits = load_limits(
+        {"max_ee_speed": {"site": "ee", "m_per_s": 1.0}, "max_effort_ratio": 0.5, "max_joint_speed": speeds}
+    )
     conditions = [nominal(), *sweep({"type": "ActuatorGain", "scale": 1.0}, "scale", [1.0, 2.0])]
     runs = [
         evaluate({"reach": ReachController(kp=20.0)}, "sim2real/arm-reach", conditions, episodes=6, seed=3,
@@ -370,7 +377,8 @@ def test_a_gentle_policy_passes_with_exit_0(tmp_path: Path, capsys: pytest.Captu
         (
             "max_ee_sped: 1\n",
             "keys must be among ['joint_limit_hits', 'max_effort_ratio', 'max_contact_force', "
-            "'max_ee_speed', 'divergences', 'statistic', 'alpha']. Received unknown ['max_ee_sped'].",
+            "'max_ee_speed', 'max_joint_speed', 'divergences', 'statistic', 'alpha']. Received unknown "
+            "['max_ee_sped'].",
         ),
         ("max_ee_speed: {site: grip, body: fore}\n", "`max_ee_speed` must name exactly one `site` or `body` (a name)."),
         ("statistic: mean\n", "`statistic` must be one of ['worst', 'cvar']. Received 'mean'."),

@@ -74,7 +74,11 @@ def cmd_evaluate(args: argparse.Namespace, out: TextIO) -> int:
     if unit is not None:  # a sensor-noise sweep in rad / rad/s, not "observation units"
         options.setdefault("observation_unit", unit)
     report = GapReport.build(evaluation, fit=fit, contact_sheet=sheet, rng=spec.seed, notes=tuple(notes), **options)
-    table = None if limits is None else SafetyTable.build(evaluation, limits, substeps=_substeps(spec.task))
+    if limits is None:
+        table = None
+    else:  # the model names the joint at a joint speed peak
+        substeps, model = _substeps(spec.task)
+        table = SafetyTable.build(evaluation, limits, substeps=substeps, model=model)
     if table is not None:
         report = dataclasses.replace(report, safety=table)
     files = writing(args.out, lambda: report.write(Path(args.out)))
@@ -112,15 +116,17 @@ def _check_out(out: str, inputs: dict[str, str | None]) -> None:
         raise UsageError(str(err)) from err
 
 
-def _substeps(task: Any) -> int | None:
+def _substeps(task: Any) -> tuple[int | None, Any]:
     """Physics steps per control step of the spec's task: what the Safety section's once-per-control-step sampling
-    sees (the same reading the study makes)."""
+    sees (the same reading the study makes); and its model (None without one), which names joints."""
+    from sim2real.physics import find_physics
     from sim2real.safety import physics_substeps
     from sim2real.tasks import make
 
     env = make(task)
     try:
-        return physics_substeps(env)
+        handle = find_physics(env)
+        return physics_substeps(env), None if handle is None else handle.model
     finally:
         env.close()
 

@@ -34,6 +34,7 @@ HEADINGS = {
     "effort_ratio": "effort / limit",
     "contact_force": "contact force (N)",
     "ee_speed": "end-effector speed (m/s)",
+    "joint_speed_ratio": "joint speed / limit",
     "diverged": "diverged (episodes)",
 }
 
@@ -47,6 +48,8 @@ def _cell(row: SafetyRow) -> str:
         text = f"{_num(row.worst)} / {row.episodes}"
     else:
         text = f"{_num(row.worst)} / {_num(row.cvar)}"
+    if row.peak:  # which joint was the fastest against its limit
+        text += f" ({row.peak})"
     if row.kind == "sweep" and row.worst > 0:  # which perturbation is the dangerous one
         text += f" at {row.point}"
     if row.violated:

@@ -290,7 +290,8 @@ def _run(
             **units,
         )
         if safety is not None:
-            report = replace(report, safety=SafetyTable.build(evaluation, safety, substeps=substeps))
+            model = None if handle is None else handle.model  # names the joint at a joint speed peak
+            report = replace(report, safety=SafetyTable.build(evaluation, safety, substeps=substeps, model=model))
         report = report.with_episode_target(target)  # the half-width reached, from the report's own interval
         report = report.with_lead(study_summary(report))  # the paragraph is part of report.md/html/json
         report.write(staging)
