@@ -3,9 +3,10 @@
 :func:`sim2real.evaluation.evaluate` with ``safety=`` a :class:`SafetyLimits` measures, for every episode of every
 policy on every simulated condition (the sweeps included), the quantities of :mod:`sim2real.safety_probe`: joint
 limit hits, peak actuator effort over its limit, peak contact force on declared geoms, divergence, peak
-end-effector speed, peak joint speed over its limit. :meth:`SafetyTable.build` aggregates them per policy x condition (worst case over the episodes
-and CVaR, the mean of the worst ``alpha`` fraction) and per sweep (worst over every point's episodes) and checks the
-declared limits; ``sim2real evaluate --safety limits.yaml`` exits 3 when one is violated, so a CI can gate on it.
+end-effector speed, peak joint speed over its limit. :meth:`SafetyTable.build` aggregates them per policy x
+condition (worst case over the episodes and CVaR, the mean of the worst ``alpha`` fraction) and per sweep (worst
+over every point's episodes) and checks the declared limits; ``sim2real evaluate --safety limits.yaml`` exits 3
+when one is violated, so a CI can gate on it.
 
 The limits file (every key optional; a quantity without a limit is still measured and reported)::
 

@@ -338,18 +338,18 @@ class SafetyMeter:
         distinct), or None for all of them.
 
         Per step, only the rows the checks read are copied out of the batch (joint positions, actuator forces, the
-        end-effector's velocity terms); the checks run on :data:`_BLOCK` steps at once, a few numpy operations per
-        quantity for every world and step of the block, when the block is full or an episode's quantities are read
-        (:meth:`episode`, :meth:`episodes`). Counts and peaks are sums of ones and maxima, so folding a block at
-        once gives what folding its steps one by one gives, to the bit. What needs the step's whole state is done
-        at the step: a world's whole ``MjData`` is copied out (``data_of(i)``, ~18 us) only when it has constraint
-        rows to look through for a joint limit or contacts with a declared geom. The end-effector speed: a block in
-        which a bound of every world's speed (``|lin| + |dif| |ang|`` in 1-norms, above the speed) stays below the
-        world's peak sets no peak; otherwise it is screened for all worlds and steps of the block at once (the same
-        spatial transform as ``mj_objectVelocity``, in numpy) and computed exactly by ``mj_objectVelocity`` (on a
-        scratch ``MjData`` holding the three rows it reads) only where the screened speed comes within a margin of
-        1e-12 of the terms' size of the world's peak, the highest screened first: a step below that cannot set a
-        new peak, so the peaks are :meth:`observe`'s to the bit."""
+        declared joints' velocities, the end-effector's velocity terms); the checks run on :data:`_BLOCK` steps at once,
+        a few numpy operations per quantity for every world and step of the block, when the block is full or an
+        episode's quantities are read (:meth:`episode`, :meth:`episodes`). Counts and peaks are sums of ones and maxima,
+        so folding a block at once gives what folding its steps one by one gives, to the bit. What needs the step's
+        whole state is done at the step: a world's whole ``MjData`` is copied out (``data_of(i)``, ~18 us) only when it
+        has constraint rows to look through for a joint limit or contacts with a declared geom. The end-effector speed:
+        a block in which a bound of every world's speed (``|lin| + |dif| |ang|`` in 1-norms, above the speed) stays
+        below the world's peak sets no peak; otherwise it is screened for all worlds and steps of the block at once (the
+        same spatial transform as ``mj_objectVelocity``, in numpy) and computed exactly by ``mj_objectVelocity`` (on a
+        scratch ``MjData`` holding the three rows it reads) only where the screened speed comes within a margin of 1e-12
+        of the terms' size of the world's peak, the highest screened first: a step below that cannot set a new peak, so
+        the peaks are :meth:`observe`'s to the bit."""
         bound = self._bound
         if worlds is None:
             idx = None
