@@ -174,7 +174,7 @@ def _remark(result: Any, **changes: Any) -> tuple[Path, Any] | None:
 
 
 def cli_train(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
-    """Runs ``sim2real train``; returns the exit code (0 ok, 2 usage error).
+    """Runs ``sim2real train``; returns the exit code (0 ok, 2 usage error, 128 + the signal's number when interrupted).
 
     Args:
         argv: the arguments after ``train``.

@@ -201,6 +201,8 @@ def train(
              "collection_num_envs": collection.num_envs}
         )  # fmt: skip
     folder = _logger_dir(log)
+    if folder is not None and folder.name != run_id:  # never a status in a folder other runs share
+        folder = None
     # The folder's run.json says "running" until the run ends, then how it ended (see run_status).
     run = RunStatus("running", run_id, config.algo, task, seed, config.frames, 0)
     if folder is not None:
@@ -258,7 +260,7 @@ def train(
         run_id=run_id,
         seed=seed,
         task=task,
-        log_dir=folder,
+        log_dir=_logger_dir(log),
         effects=_effects_text(plain),
         adr=None if adr is None else adr.to_json(),
         collection=collection,
