@@ -539,15 +539,12 @@ class SafetyMeter:
             if ratio > self.effort[i]:
                 self.effort[i] = ratio
         if qvel is not None:
-            # abs(v) / limit: the division observe_batch makes (no reciprocal: a product could differ in the last bit)
-            fastest, ratio = 0, abs(qvel[self._speeds[0][0]]) / self._speeds[0][1]
-            for k in range(1, len(self._speeds)):
-                dof, limit = self._speeds[k]
-                value = abs(qvel[dof]) / limit
-                if value > ratio:
-                    fastest, ratio = k, value
+            # abs(v) / limit: the division observe_batch makes (no reciprocal: a product could differ in the last bit).
+            # max keeps the first of equal or unordered (NaN) values; index finds that same first one.
+            ratios = [abs(qvel[dof]) / limit for dof, limit in self._speeds]
+            ratio = max(ratios)
             if ratio > self.joint_speed[i]:
-                self.joint_speed[i], self.fastest[i] = ratio, fastest
+                self.joint_speed[i], self.fastest[i] = ratio, ratios.index(ratio)
         if len(self._geoms) and ncon:
             peak = self._contact_peak(model, data if data is not None else full())
             if peak > self.contact[i]:
