@@ -205,6 +205,23 @@ def test_a_checkpoint_that_cannot_be_written_marks_the_run_failed(
     assert _status(folder) == _expected(folder, "failed", 1000, asked=1000, error=error)
 
 
+def test_a_log_that_cannot_be_written_mid_training_says_so_not_that_the_checkpoint_failed(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Before: any OSError while training (the run's own CSV on a full disk) read "cannot write 'c.pt'"."""
+    _cut_after(2, OSError(28, "No space left on device", "logs/x/scalars/loss.csv"), monkeypatch)
+    assert _train() == 2
+    folder = _run_folder()
+    assert capsys.readouterr().err == (
+        "sim2real train: error: training stopped: cannot write 'logs/x/scalars/loss.csv': No space left on device; "
+        f"the partial run (2000 of 5000 frames) is in 'logs/{folder.name}', marked failed in its run.json; no "
+        "checkpoint was written to 'c.pt'.\n"
+    )
+    error = "OSError: [Errno 28] No space left on device: 'logs/x/scalars/loss.csv'"
+    assert _status(folder) == _expected(folder, "failed", 2000, error=error)
+    assert not Path("c.pt").exists()
+
+
 def test_sac_interrupted_through_the_library_is_marked_and_found_on_the_exception(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:

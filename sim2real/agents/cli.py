@@ -269,6 +269,13 @@ def cli_train(argv: Sequence[str] | None = None, out: TextIO | None = None) -> i
         print(interrupted_line(parser.prog, err, what), file=sys.stderr)
         return interrupted_exit(err)
     except OSError as err:  # the atomic writer has removed its temporary file
+        if result is None:  # while training (its own logs: a full disk, a removed folder); train marked the run
+            what = f" {err.filename!r}" if err.filename is not None else ""
+            problem = f"training stopped: cannot write{what}: {err.strerror or err}"
+            marked = marked_run(err)
+            if marked is not None:
+                problem += f"; {marked[1].where(marked[0])}"
+            return _fail(parser, f"{problem}; no checkpoint was written to {args.out!r}.")
         if result is not None:  # trained, but the checkpoint could not be written: the run did not end as asked
             _remark(result, status="failed", error=f"cannot write the checkpoint {args.out!r}: {err.strerror or err}")
         return _fail(parser, f"cannot write {args.out!r}: {err.strerror or err}.")
