@@ -418,11 +418,17 @@ NoisyLag_vectorcall(PyObject *self_, PyObject *const *args, size_t nargsf, PyObj
         return NULL;
     }
     Py_ssize_t j = ((k - self->lag) % self->size + self->size) % self->size;
-    PyObject *out = PyList_GET_ITEM(self->ring, j);
+    PyObject *out = PyList_GetItem(self->ring, j); /* checked: IndexError if the ring was shortened */
+    if (out == NULL) {
+        return NULL;
+    }
     if (k > self->lag) {
         return Py_NewRef(out);
     }
-    return PyObject_CallMethodNoArgs(out, s_copy); /* the reset sample, delivered again */
+    Py_INCREF(out);
+    PyObject *copy = PyObject_CallMethodNoArgs(out, s_copy); /* the reset sample, delivered again */
+    Py_DECREF(out);
+    return copy;
 }
 
 static PyObject *

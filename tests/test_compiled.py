@@ -1089,3 +1089,39 @@ def test_a_broken_env_step_gets_the_same_error(
         else:
             pair.step(a)
     pair.close()
+
+
+@needs_built
+@pytest.mark.parametrize("emptied", [True, False], ids=["emptied", "one shorter"])
+def test_a_ring_changed_under_the_step_raises_as_the_closure_does(
+    emptied: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The action and observation rings are lists the wrapper and the corruptor hold: cut short by someone else, the
+    compiled step reads them bounds-checked (IndexError, as the closure's indexing) instead of past their end."""
+    pair = Pair(
+        lambda: s2r.wrap(s2r.make("dmc/reacher-easy"), *PHYSICS, *_p1(), seed=3),
+        monkeypatch,
+        ("HotStep", "Pipe", "NoisyLag"),
+    )
+    pair.reset(seed=0)
+    actions = _actions(pair.fast.action_space, 6)
+    for a in actions[:4]:
+        pair.step(a)
+    for env in (pair.pure, pair.fast):
+        del env._action_ring[0 if emptied else len(env._action_ring) - 1 :]
+    assert isinstance(pair.raises(actions[4]), IndexError)
+    pair.reset(seed=1)
+    for a in actions[:4]:
+        pair.step(a)
+    for env in (pair.pure, pair.fast):
+        del env.corruptor._obs_ring[0 if emptied else len(env.corruptor._obs_ring) - 1 :]
+    outcomes = []
+    for a in actions[4:]:  # until a step writes or reads the missing slot (the same step on both paths)
+        pure, fast = [_call(env.step, _fresh(a)) for env in (pair.pure, pair.fast)]
+        if isinstance(pure, tuple) and len(pure) == 2:  # (type, message): raised
+            assert fast == pure
+            outcomes.append(pure[0])
+            break
+        _same(pure, fast)
+    assert outcomes == [IndexError]
+    pair.close()

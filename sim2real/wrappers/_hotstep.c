@@ -227,7 +227,13 @@ HotStep_vectorcall(PyObject *self_, PyObject *const *args, size_t nargsf, PyObje
             goto done;
         }
         Py_ssize_t due = (((k + 1) % size) + size) % size;
-        result = PyObject_CallOneArg(self->env_step, PyList_GET_ITEM(self->ring, due));
+        PyObject *command = PyList_GetItem(self->ring, due); /* checked: IndexError if the ring was shortened */
+        if (command == NULL) {
+            goto done;
+        }
+        Py_INCREF(command); /* held through the call, as the caller's frame holds its argument */
+        result = PyObject_CallOneArg(self->env_step, command);
+        Py_DECREF(command);
         if (result == NULL || unpack5(result, parts) < 0) {
             goto done;
         }
