@@ -16,8 +16,11 @@ episode       (T,)          optional; integer episode index, non-decreasing; epi
 act           (T, na)       optional; actuator activations (only for models with ``na > 0``)
 meta          ()            JSON string: ``task``, ``timestep`` (s), ``control_timestep`` (s),
                             ``joint_names``, ``actuator_names``, ``sensor_names`` and, for
-                            simulated logs, ``true_params`` ({address: value}) and
-                            ``true_latency_seconds`` ({"action": s, "obs": s}); an older log's
+                            simulated logs, ``true_params`` ({address: value}),
+                            ``true_latency_seconds`` ({"action": s, "obs": s}), ``noise_std``
+                            ({channel: sigma}; a list where a channel's entries differ) and
+                            ``noise_std_per_entry`` ({channel: [sigma of each column]}, columns
+                            as :func:`channel_names` orders them); an older log's
                             ``true_latency_steps`` (control steps) is read as seconds
 ============  ============  ========================================================================
 
@@ -48,7 +51,7 @@ import json
 import math
 import os
 import zipfile
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -514,13 +517,55 @@ def channel_names(model: mujoco.MjModel) -> dict[str, list[str]]:
     return {"qpos": qpos, "qvel": qvel, "ctrl": [f"ctrl[{c}]" for c in ctrl], "sensordata": sensors}
 
 
-def _noise_for(noise_std: float | Mapping[str, float] | None, key: str) -> float:
+#: The measured channels ``noise_std`` may name, with the model width each per-entry array must have.
+_NOISE_CHANNELS: tuple[tuple[str, str], ...] = (("qpos", "nq"), ("qvel", "nv"), ("sensordata", "nsensordata"))
+
+#: ``noise_std`` of :func:`record_log`: one sigma, or per channel one sigma or one sigma per entry.
+NoiseStd = float | Mapping[str, float | Sequence[float] | np.ndarray]
+
+
+def _noise_for(noise_std: NoiseStd | None, key: str, model: mujoco.MjModel) -> float | np.ndarray:
+    """The sigma of channel ``key``: a float (the same for every entry), or a (width,) array of per-entry sigmas
+    when they differ (an array of equal values becomes its float, so it draws exactly what the float draws)."""
     if noise_std is None:
         return 0.0
-    value = noise_std.get(key, 0.0) if isinstance(noise_std, Mapping) else noise_std
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-        raise ValueError(f"`noise_std` for {key!r} must be a finite number >= 0. Received {value!r}.")
-    return float(value)
+    if isinstance(noise_std, Mapping):
+        allowed = [name for name, _ in _NOISE_CHANNELS]
+        unknown = [k for k in noise_std if k not in allowed]
+        if unknown:
+            raise ValueError(
+                f"`noise_std` keys must be among {', '.join(repr(a) for a in allowed)}. Received {unknown[0]!r}."
+            )
+        value = noise_std.get(key, 0.0)
+    else:
+        value = noise_std
+    width_name = dict(_NOISE_CHANNELS)[key]
+    width = int(getattr(model, width_name))
+    allowed_text = f"a finite number >= 0 or a 1-D array of {width_name}={width} finite numbers >= 0"
+    if isinstance(value, (bool, str, bytes)):
+        raise ValueError(f"`noise_std` for {key!r} must be {allowed_text}. Received {value!r}.")
+    if isinstance(value, (int, float, np.integer, np.floating)):
+        if not math.isfinite(value) or value < 0:
+            raise ValueError(f"`noise_std` for {key!r} must be {allowed_text}. Received {value!r}.")
+        return float(value)
+    if not isinstance(noise_std, Mapping):  # one sigma for every channel; per-entry arrays go per channel
+        raise ValueError(
+            "`noise_std` must be a finite number >= 0 or a mapping of 'qpos', 'qvel', 'sensordata' to sigmas. "
+            f"Received {type(value).__name__}."
+        )
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"`noise_std` for {key!r} must be {allowed_text}. Received {value!r}.") from err
+    if array.ndim != 1 or array.shape[0] != width:
+        raise ValueError(f"`noise_std` for {key!r} must be {allowed_text}. Received shape {array.shape}.")
+    bad = np.flatnonzero(~np.isfinite(array) | (array < 0))
+    if bad.size:
+        i = int(bad[0])
+        raise ValueError(f"`noise_std` for {key!r} must be {allowed_text}. Received {float(array[i])!r} at entry {i}.")
+    if width and np.all(array == array[0]):
+        return float(array[0])
+    return 0.0 if not width else array.copy()
 
 
 def record_log(
@@ -532,7 +577,7 @@ def record_log(
     initial_qvel: np.ndarray | None = None,
     action_latency: int = 0,
     obs_latency: int = 0,
-    noise_std: float | Mapping[str, float] | None = None,
+    noise_std: NoiseStd | None = None,
     rng: np.random.Generator | None = None,
     task: str = "",
     true_params: Mapping[str, float] | None = None,
@@ -555,7 +600,11 @@ def record_log(
         initial_qvel: (nv,) or (E, nv); defaults to zeros.
         action_latency: whole control steps between command and actuation (>= 0).
         obs_latency: whole control steps by which ``sensordata`` lags the state (>= 0).
-        noise_std: one sigma for every measured channel or ``{"qpos": s, "qvel": s, "sensordata": s}``.
+        noise_std: one sigma for every measured channel, or ``{"qpos": s, "qvel": s, "sensordata": s}`` where each
+            ``s`` is one sigma for the channel or a 1-D array of one sigma per entry (nq for ``qpos``, nv for
+            ``qvel``, nsensordata for ``sensordata``; see :func:`channel_names` for the order): a hinge's entries
+            in rad and rad/s, a slide's in m and m/s. A channel left out gets no noise. Stored per entry in
+            ``meta["noise_std_per_entry"]``.
         rng: the Generator for the noise (required when any sigma is > 0).
         task: stored in ``meta["task"]``.
         true_params: stored in ``meta["true_params"]`` (ground truth for tests and benchmarks).
@@ -586,8 +635,8 @@ def record_log(
             f"sensors. Received {obs_latency!r}; give 0, or add <sensor> elements to the MJCF."
         )
     episodes, steps, _ = controls.shape
-    sigmas = {key: _noise_for(noise_std, key) for key in ("qpos", "qvel", "sensordata")}
-    if any(s > 0 for s in sigmas.values()) and not isinstance(rng, np.random.Generator):
+    sigmas = {key: _noise_for(noise_std, key, model) for key, _ in _NOISE_CHANNELS}
+    if any(np.any(s > 0) for s in sigmas.values()) and not isinstance(rng, np.random.Generator):
         raise ValueError(f"`rng` must be a numpy Generator when `noise_std` > 0. Received {rng!r}.")
 
     def initial(value: np.ndarray | None, default: np.ndarray, name: str) -> np.ndarray:
@@ -640,8 +689,9 @@ def record_log(
     measured = {"qpos": qpos, "qvel": qvel, "sensordata": sensordata}
     for key, sigma in sigmas.items():
         clean = measured[key]
-        if sigma > 0 and clean is not None:
+        if np.any(sigma > 0) and clean is not None:
             assert rng is not None
+            # a (width,) sigma broadcasts over the last axis: entry k of every row gets sigma[k]
             measured[key] = clean + rng.normal(0.0, sigma, size=clean.shape)
     names = channel_names(model)
     meta: dict[str, Any] = {
@@ -657,7 +707,11 @@ def record_log(
             )
             for side, steps_ in (("action", action_latency), ("obs", obs_latency))
         },
-        "noise_std": sigmas,
+        # one number per channel when its entries share it (what older logs hold), else the per-entry list
+        "noise_std": {key: _jsonable(sigma) for key, sigma in sigmas.items()},
+        "noise_std_per_entry": {
+            key: np.broadcast_to(sigmas[key], (int(getattr(model, width)),)).tolist() for key, width in _NOISE_CHANNELS
+        },
     }
     if true_params is not None:
         meta["true_params"] = {str(k): float(v) for k, v in true_params.items()}
