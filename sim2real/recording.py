@@ -3,6 +3,8 @@
 * :func:`parse_set` turns ``'dof_damping[*]=*1.3'`` (scale), ``'+0.1'`` (add) or ``'=0.5'`` (set) into an effect.
 * :func:`record` runs an excitation policy open loop on a task's model (optionally perturbed, with action
   latency and sensor noise) and returns a :class:`sysid.TrajectoryLog` — what ``sim2real record`` writes.
+* :func:`parse_obs_noise` reads ``--obs-noise``: one sigma, or per channel and per joint
+  (``'qpos=0.001,qpos[lift]=0.0001,qvel=0.01'``).
 * :class:`RecordTrajectory` records any gymnasium MuJoCo env step by step (closed loop, any policy).
 * :func:`calibrate` writes fitted values (a :class:`sysid.FitResult` or ``{address: value}``) into an env's model;
   ``sim2real.make(task, params=result)`` uses it.
@@ -18,8 +20,10 @@ Example:
 
 from __future__ import annotations
 
+import math
+import re
 from collections.abc import Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import gymnasium as gym
@@ -28,13 +32,14 @@ import numpy as np
 
 from noise_models.timing import ActionLatency, ObservationLatency, convert_time
 from randomizers import Effect, PhysicsRandomizer
+from randomizers.addressing import joint_dofs, select
 from randomizers.parameters import effect_for, parse_assignment
 from sim2real.calibration import calibrate
 from sim2real.home import parse_home, plan_excitation, resolve_home
 from sim2real.physics import PhysicsHandle, find_physics
 from sim2real.sources import Source, open_source, parse_source_id
 
-__all__ = ["RecordTrajectory", "calibrate", "parse_set", "record"]
+__all__ = ["OBS_NOISE_FORMS", "ObsNoise", "RecordTrajectory", "calibrate", "parse_obs_noise", "parse_set", "record"]
 
 # `calibrate` lives beside the physics handle (sim2real.calibration); re-exported here, where it used to be.
 
@@ -54,6 +59,121 @@ def parse_set(text: str) -> Effect:
     return effect_for(*parse_assignment(text))
 
 
+#: What ``--obs-noise`` accepts (quoted by every refusal).
+OBS_NOISE_FORMS = (
+    "S (every channel) or comma-separated entries CHANNEL=S or CHANNEL[JOINT]=S, later entries overriding earlier "
+    "ones (CHANNEL: qpos, qvel or sensordata; JOINT, for qpos and qvel only: a hinge or slide joint's name or an "
+    "fnmatch pattern; S: a standard deviation >= 0 in the entry's units, rad or m for qpos, rad/s or m/s for qvel)"
+)
+_NOISE_CHANNELS = ("qpos", "qvel", "sensordata")
+_NOISE_ENTRY = re.compile(r"^(?P<channel>[A-Za-z_]\w*)(?:\[(?P<joints>.*)\])?$")
+
+
+def _obs_noise_error(problem: str, text: str) -> ValueError:
+    return ValueError(f"`--obs-noise` {problem}; it must be {OBS_NOISE_FORMS}. Received {text!r}.")
+
+
+@dataclass(frozen=True)
+class ObsNoise:
+    """A parsed ``--obs-noise`` spec: its entries in order, each ``(channel, joints, std)``.
+
+    ``channel`` is None for a bare number (every channel), ``joints`` the fnmatch pattern of a per-joint entry
+    (else None). :meth:`resolve` turns it into :func:`sysid.record_log`'s ``noise_std`` for one model.
+    """
+
+    text: str
+    entries: tuple[tuple[str | None, str | None, float], ...]
+
+    def resolve(self, model: mujoco.MjModel) -> float | dict[str, np.ndarray]:
+        """One sigma (a spec that is a single number, drawn exactly as a float ``obs_noise``), else per channel
+        one sigma per entry: ``{"qpos": (nq,), "qvel": (nv,), "sensordata": (nsensordata,)}``.
+
+        Raises:
+            ValueError: a pattern matches no joint, or matches a ball or free joint (their qpos holds a
+                quaternion, on which independent Gaussian noise is no rotation error; give the whole channel).
+        """
+        if len(self.entries) == 1 and self.entries[0][0] is None:
+            return self.entries[0][2]
+        sigma = {
+            "qpos": np.zeros(model.nq),
+            "qvel": np.zeros(model.nv),
+            "sensordata": np.zeros(model.nsensordata),
+        }
+        for channel, joints, std in self.entries:
+            if channel is None:
+                for array in sigma.values():
+                    array[:] = std
+            elif joints is None:
+                sigma[channel][:] = std
+            else:
+                try:
+                    chosen = select(model, "joint", joints, "--obs-noise")
+                except ValueError as err:
+                    raise ValueError(f"{err} It must be {OBS_NOISE_FORMS}. Received {self.text!r}.") from None
+                for j, name in chosen:
+                    if joint_dofs(model, j) > 1:
+                        kind = "free" if joint_dofs(model, j) == 6 else "ball"
+                        raise _obs_noise_error(
+                            f"entry {channel}[{joints}] matches {kind} joint {name!r}, whose qpos holds a "
+                            "quaternion (independent Gaussian noise on it is no rotation error): per-joint entries "
+                            f"take hinge and slide joints only, so narrow the pattern or give the whole channel "
+                            f"({channel}=S)",
+                            self.text,
+                        )
+                    start = int(model.jnt_qposadr[j] if channel == "qpos" else model.jnt_dofadr[j])
+                    sigma[channel][start] = std
+        return sigma
+
+
+def parse_obs_noise(text: str | float) -> ObsNoise:
+    """``--obs-noise``: one sigma for every logged channel (``'0.01'``), or comma-separated ``CHANNEL=S`` and
+    ``CHANNEL[JOINT]=S`` entries, later ones overriding earlier ones (``'qpos=0.001,qpos[lift]=0.0001'``).
+
+    CHANNEL is ``qpos``, ``qvel`` or ``sensordata``; JOINT (qpos and qvel only) is a hinge or slide joint's name
+    or an fnmatch pattern, and S its standard deviation in the entry's units: rad and rad/s for a hinge, m and
+    m/s for a slide. A whole-channel entry (``qpos=S``) also noises a ball or free joint's quaternion entries
+    with independent Gaussian noise (the log then holds non-unit quaternions); per-joint entries refuse ball and
+    free joints. Joint patterns are resolved against the model by :meth:`ObsNoise.resolve`.
+
+    Example:
+        >>> parse_obs_noise("qpos=0.001, qvel[elbow*]=0.02").entries
+        (('qpos', None, 0.001), ('qvel', 'elbow*', 0.02))
+        >>> parse_obs_noise("qpso=0.1")  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        ValueError: `--obs-noise` entry 'qpso=0.1' names unknown channel 'qpso'; it must be S (every channel) ...
+    """
+    if isinstance(text, (int, float)) and not isinstance(text, bool):
+        text = repr(float(text))
+    if not isinstance(text, str):
+        raise _obs_noise_error(f"must be a string or a number, not {type(text).__name__}", repr(text))
+    if not text.strip():
+        raise _obs_noise_error("is empty", text)
+    entries: list[tuple[str | None, str | None, float]] = []
+    for raw in text.split(","):
+        entry = raw.strip()
+        if "=" in entry:
+            left, _, value_text = entry.partition("=")
+            match = _NOISE_ENTRY.match(left.strip())
+            if match is None or (match["joints"] is not None and not match["joints"].strip()):
+                raise _obs_noise_error(f"entry {entry!r} is not S, CHANNEL=S or CHANNEL[JOINT]=S", text)
+            channel, joints = match["channel"], match["joints"]
+            if channel not in _NOISE_CHANNELS:
+                raise _obs_noise_error(f"entry {entry!r} names unknown channel {channel!r}", text)
+            if joints is not None and channel == "sensordata":
+                raise _obs_noise_error(f"entry {entry!r} names joints, which only qpos and qvel entries take", text)
+        else:
+            channel, joints, value_text = None, None, entry
+        try:
+            value = float(value_text)
+        except ValueError:
+            raise _obs_noise_error(f"entry {entry!r} is not S, CHANNEL=S or CHANNEL[JOINT]=S", text) from None
+        if not math.isfinite(value) or value < 0:
+            raise _obs_noise_error(f"entry {entry!r} has standard deviation {value!r}, not a finite number >= 0", text)
+        entries.append((channel, joints.strip() if joints is not None else None, value))
+    return ObsNoise(text, tuple(entries))
+
+
 def control_limits(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
     """(low, high) of every actuator's control: its ``ctrlrange`` where limited, else [-1, 1]."""
     low = np.where(model.actuator_ctrllimited.astype(bool), model.actuator_ctrlrange[:, 0], -1.0)
@@ -70,7 +190,7 @@ def record(
     episodes: int = 4,
     steps: int = 200,
     seed: int = 0,
-    obs_noise: float = 0.0,
+    obs_noise: float | str = 0.0,
     latency: int = 0,
     obs_latency: int = 0,
     amplitude: float = 0.5,
@@ -93,7 +213,10 @@ def record(
         episodes: episodes; each starts from the task's own reset state for ``reset(seed=seed + e)``.
         steps: control steps per episode.
         seed: seeds the excitation, the initial states and the sensor noise.
-        obs_noise: standard deviation of Gaussian noise on the logged qpos, qvel and sensordata.
+        obs_noise: standard deviation of Gaussian noise on the logged qpos, qvel and sensordata, or a
+            ``--obs-noise`` spec per channel and joint (:func:`parse_obs_noise`:
+            ``"qpos=0.001,qpos[lift]=0.0001,qvel=0.01"``); the log's ``meta["noise_std_per_entry"]`` holds the
+            sigma of every column.
         latency: action latency in **control steps** (the actuators apply ``ctrl[t - latency]``).
         obs_latency: sensor latency in **control steps** (``sensordata`` lags the state).
         amplitude: excitation amplitude as a fraction of each actuator's half-range, in (0, 1].
@@ -119,8 +242,20 @@ def record(
         raise ValueError(f"`episodes` must be an int >= 1. Received {episodes!r}.")
     if isinstance(steps, bool) or not isinstance(steps, int) or steps < 2:
         raise ValueError(f"`steps` must be an int >= 2. Received {steps!r}.")
-    if not (isinstance(obs_noise, (int, float)) and obs_noise >= 0):
-        raise ValueError(f"`obs_noise` must be a number >= 0. Received {obs_noise!r}.")
+    if isinstance(obs_noise, str):
+        noise_spec: ObsNoise | None = parse_obs_noise(obs_noise)  # before any work: a typo costs nothing
+    elif (
+        isinstance(obs_noise, (int, float))
+        and not isinstance(obs_noise, bool)
+        and math.isfinite(obs_noise)
+        and obs_noise >= 0
+    ):
+        noise_spec = None
+    else:
+        raise ValueError(
+            f"`obs_noise` must be a finite number >= 0 or an --obs-noise spec string ({OBS_NOISE_FORMS}). "
+            f"Received {obs_noise!r}."
+        )
     physical = [parse_set(s) for s in sets]
     latencies: list[Any] = []
     for i, item in enumerate(effects):
@@ -166,6 +301,15 @@ def record(
                 env.reset()  # dm_env / TorchRL: their own reset state, the same for every episode
             starts.append((np.array(handle.data.qpos), np.array(handle.data.qvel)))
     model = handle.model
+    noise_std: float | dict[str, np.ndarray] = float(obs_noise) if noise_spec is None else 0.0
+    if noise_spec is not None:
+        try:
+            noise_std = noise_spec.resolve(model)  # joint patterns, before the joint-limit check's episodes
+        except ValueError:
+            _close(env)
+            raise
+    sigmas = list(noise_std.values()) if isinstance(noise_std, dict) else [noise_std]
+    noisy = any(bool(np.any(np.asarray(s) > 0)) for s in sigmas)
     true_params: dict[str, float] = {}
     if effects:
         randomizer = PhysicsRandomizer(effects, seed=seed)
@@ -208,8 +352,8 @@ def record(
         initial_qvel=np.stack([v for _, v in starts]),
         action_latency=latency,
         obs_latency=obs_latency,
-        noise_std=obs_noise if obs_noise > 0 else None,
-        rng=np.random.default_rng([seed, 0x10C]) if obs_noise > 0 else None,
+        noise_std=noise_std if noisy else None,
+        rng=np.random.default_rng([seed, 0x10C]) if noisy else None,
         task=source.id,
         true_params=true_params,
     )

@@ -163,7 +163,18 @@ def build_parser() -> argparse.ArgumentParser:
         "--steps", type=int_at_least(2), default=200, help="control steps per episode (default: %(default)s)"
     )
     record.add_argument("--seed", type=int_at_least(0), default=0, help="root seed (default: %(default)s)")
-    record.add_argument("--obs-noise", type=float, default=0.0, help="sensor noise std on qpos/qvel/sensordata")
+    record.add_argument(
+        "--obs-noise",
+        default="0",
+        metavar="S|CHANNEL=S,CHANNEL[JOINT]=S,...",
+        help=(
+            "Gaussian sensor noise std: one number for every logged qpos/qvel/sensordata entry, or comma-separated "
+            "entries qpos=S, qvel=S, sensordata=S, qpos[JOINT]=S, qvel[JOINT]=S (JOINT: a hinge or slide joint's "
+            "name or fnmatch pattern; rad, rad/s for hinges, m, m/s for slides), later entries overriding earlier "
+            "ones, e.g. 'qpos=0.001,qpos[lift]=0.0001,qvel=0.01' (default: %(default)s); stored per entry in the "
+            "log's meta['noise_std_per_entry']"
+        ),
+    )
     record.add_argument("--latency", type=int_at_least(0), default=0, help="action latency in control steps")
     record.add_argument("--obs-latency", type=int_at_least(0), default=0, help="sensor latency in control steps")
     record.add_argument("--amplitude", type=float, default=0.5, help="fraction of each actuator's half-range")
