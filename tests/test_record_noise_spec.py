@@ -301,7 +301,7 @@ def test_record_refuses_a_non_finite_float(arm_file: Path) -> None:
 
 def test_fit_noise_estimates_follow_the_per_joint_truth(model: mujoco.MjModel) -> None:
     """sysid.fit estimates one noise level per logged column: on a log whose joints carry sigmas 10x apart, the
-    estimates come out in the true order and within a factor of 2 of each truth."""
+    estimates come out in the true order and within a factor of 1.5 of each truth (within 1.18 over 12 seeds)."""
     truth = {"qpos": [1e-4, 1e-3, 1e-2], "qvel": [1e-3, 3e-2, 3e-3]}
     log = record_log(
         model,
@@ -326,6 +326,6 @@ def test_fit_noise_estimates_follow_the_per_joint_truth(model: mujoco.MjModel) -
         estimates = [result.noise_std[name] for name in names[key]]
         assert np.argsort(estimates).tolist() == np.argsort(sigmas).tolist(), (key, estimates)
         for estimate, sigma in zip(estimates, sigmas, strict=True):
-            assert sigma / 2 < estimate < sigma * 2, (key, estimates)
+            assert sigma / 1.5 < estimate < sigma * 1.5, (key, estimates)
     json.dumps(log.meta)  # the per-entry truth is plain JSON beside it
     assert log.meta["noise_std_per_entry"]["qvel"] == truth["qvel"]
