@@ -442,18 +442,34 @@ def _rows(log: Any, model: mujoco.MjModel, measure: str) -> tuple[np.ndarray, ..
     return qpos, qvel, ctrl, sensordata  # type: ignore[return-value]
 
 
+def _declared_std(meta: Any, key: str, width: int) -> np.ndarray | None:
+    """The sigma of each of a channel's ``width`` columns as the log declares it (``meta["noise_std"]``: one number,
+    or one per column as ``record_log`` writes when they differ), NaN where a column declares none (0 or absent);
+    None when the log declares nothing usable for the channel."""
+    declared = meta.get("noise_std") if isinstance(meta, Mapping) else None
+    value = declared.get(key) if isinstance(declared, Mapping) else None
+    if isinstance(value, bool) or value is None:
+        return None
+    try:
+        sigma = np.broadcast_to(np.asarray(value, dtype=np.float64), (width,))
+    except (TypeError, ValueError):
+        return None
+    sigma = np.where(np.isfinite(sigma) & (sigma > 0), sigma, np.nan)
+    return None if np.isnan(sigma).all() else sigma
+
+
 def _default_meas_std(log: Any, measure: str, qpos: np.ndarray, qvel: np.ndarray, sensordata: Any) -> np.ndarray:
-    declared = getattr(log, "meta", {}).get("noise_std") if hasattr(log, "meta") else None
+    meta = getattr(log, "meta", None)
     parts = []
     for key, array in (("qpos", qpos), ("qvel", qvel), ("sensordata", sensordata)):
         used = key in measure or (measure == "state" and key in ("qpos", "qvel"))
         if not used:
             continue
-        value = declared.get(key) if isinstance(declared, Mapping) else None
-        if isinstance(value, (int, float)) and value > 0:
-            parts.append(np.full(array.shape[1], float(value)))
-        else:
+        sigma = _declared_std(meta, key, array.shape[1])
+        if sigma is None:
             parts.append(estimate_noise_std(array))
+        else:  # columns the log declares no sigma for (0: noise-free, or left out) are estimated from the data
+            parts.append(np.where(np.isnan(sigma), estimate_noise_std(array), sigma))
     return np.concatenate(parts)
 
 
@@ -524,11 +540,8 @@ def estimate_online(
         _default_meas_std(log, measure, qpos, qvel, sensordata) if meas_std is None else meas_std
     )
     if initial_qvel_std is None:
-        declared = meta.get("noise_std")
-        value = declared.get("qvel") if isinstance(declared, Mapping) else None
-        initial_qvel_std = (
-            float(value) if isinstance(value, (int, float)) and value > 0 else float(estimate_noise_std(qvel).max())
-        )
+        declared = _declared_std(meta, "qvel", qvel.shape[1])
+        initial_qvel_std = float(estimate_noise_std(qvel).max() if declared is None else np.nanmax(declared))
     estimator = OnlineEstimator(
         model,
         params,
