@@ -280,3 +280,13 @@ def test_a_real_sigterm_marks_the_frames_of_the_last_logged_batch(tmp_path: Path
         f"({status['frames']} of 400000 frames) is in 'logs/{folder.name}', marked interrupted in its run.json"
     ]
     assert out == ""
+
+
+def test_the_run_status_reader_is_part_of_the_agents_api(tmp_path: Path) -> None:
+    import sim2real.agents as agents
+
+    run = RunStatus("completed", "ppo_x_seed0", "ppo", ARM, 0, 1000, 1000)
+    from sim2real.agents.run_status import write_run_status
+
+    write_run_status(tmp_path, run)
+    assert agents.read_run_status(tmp_path) == agents.RunStatus(**run.__dict__) == run

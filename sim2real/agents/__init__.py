@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 from sim2real.agents.baselines import BASELINES, ReachController, ReacherPD, baseline_for
 from sim2real.agents.config import ACTIVATIONS, PPOConfig, SACConfig, load_agent_config
 from sim2real.agents.policy import BatchedPolicy, as_policy
+from sim2real.agents.run_status import RunStatus, read_run_status
 
 if TYPE_CHECKING:
     from sim2real.agents.checkpoint import Checkpoint, CheckpointError, load_checkpoint, save_checkpoint
@@ -35,6 +36,7 @@ __all__ = [
     "PPOConfig",
     "ReachController",
     "ReacherPD",
+    "RunStatus",
     "SACConfig",
     "TrainResult",
     "as_policy",
@@ -43,6 +45,7 @@ __all__ = [
     "load_agent_config",
     "load_checkpoint",
     "make_train_env",
+    "read_run_status",
     "save_checkpoint",
     "train",
 ]
