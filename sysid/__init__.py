@@ -34,13 +34,13 @@ from sysid.logs import (
     channel_names,
     check_log_path,
     load_log,
-    record_log,
     save_log,
     validate_log,
 )
 from sysid.online import OnlineEstimator, OnlineResult, estimate_noise_std, estimate_online
 from sysid.params import EFFECT_FIELDS, ParameterSpace
 from sysid.quality import FitQuality, NotOkError
+from sysid.record import record_log
 from sysid.result import FitResult
 
 __all__ = [

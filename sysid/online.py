@@ -15,7 +15,7 @@ episode with filterpy's Rauch–Tung–Striebel smoother to give denoised joint 
 
 Example:
     >>> import mujoco, numpy as np
-    >>> from sysid.logs import record_log
+    >>> from sysid.record import record_log
     >>> xml = ('<mujoco><option timestep="0.01"/><worldbody><body><joint name="hinge" axis="0 1 0" damping="{}"/>'
     ...        '<geom type="capsule" size=".02" fromto="0 0 0 0 0 -.3" mass=".5"/></body></worldbody>'
     ...        '<actuator><motor name="m" joint="hinge" ctrlrange="-1 1"/></actuator></mujoco>')

@@ -6,8 +6,8 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from sysid.logs import record_log
 from sysid.online import estimate_noise_std, estimate_online
+from sysid.record import record_log
 
 # A slide joint (m) and two hinges (rad) with servos: encoders of different quality per joint.
 ARM = """

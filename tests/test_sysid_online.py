@@ -11,8 +11,8 @@ import pytest
 from conftest import assert_same_model, model_arrays
 
 from sysid.excitation import PRBS, Multisine
-from sysid.logs import record_log
 from sysid.online import OnlineEstimator, estimate_noise_std, estimate_online
+from sysid.record import record_log
 
 PENDULUM = """
 <mujoco>
