@@ -157,12 +157,16 @@ class DrawsOnly(gym.Wrapper):  # type: ignore[type-arg]
 class PythonPath:
     """A fused layer whose episodes step in Python (``SIM2REAL_PURE_PYTHON=1`` while it resets): the ``fused,
     Python`` arm, what the ``fused`` arm does without the compiled hot step (noise_models.compiled). Its ``step`` is
-    the layer's own (looked up again after each reset), so that the arm times no extra call."""
+    the layer's own, looked up on every call as the other arms' (a one-shot first-step check replaces itself), so
+    that the arm times no extra Python call."""
 
     def __init__(self, layer: Any) -> None:
         self.layer = layer
         self.action_space = layer.action_space
-        self.step = layer.step
+
+    @property
+    def step(self) -> Any:
+        return self.layer.step
 
     def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
         from noise_models import compiled
@@ -176,7 +180,6 @@ class PythonPath:
                 del os.environ[compiled.ENV]
             else:
                 os.environ[compiled.ENV] = before
-        self.step = self.layer.step
         return out  # type: ignore[no-any-return]
 
     def close(self) -> None:

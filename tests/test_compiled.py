@@ -1125,3 +1125,27 @@ def test_a_ring_changed_under_the_step_raises_as_the_closure_does(
         _same(pure, fast)
     assert outcomes == [IndexError]
     pair.close()
+
+
+@pytest.mark.parametrize("physics", [False, True], ids=["signals", "fused"])
+def test_a_step_method_held_across_steps_and_resets_keeps_working(physics: bool) -> None:
+    """``step = env.step`` hoisted before the first step (a one-shot first-step check is installed as the instance's
+    step on envs whose physics the clock hooks), then called every step and after resets, steps as ``env.step`` does:
+    before, its second call raised AttributeError ('RandomizeAndCorrupt' object has no attribute 'step')."""
+    effects = PHYSICS if physics else ()
+
+    def make() -> Any:
+        return s2r.wrap(gym.make("InvertedPendulum-v5"), *effects, *_p1(), seed=3)
+
+    held, looked_up = make(), make()
+    step = held.step
+    actions = _actions(held.action_space, 30)
+    for seed in (0, 1):
+        _same(held.reset(seed=seed), looked_up.reset(seed=seed))
+        for a in actions:
+            out = step(a.copy())
+            _same(out, looked_up.step(a.copy()))
+            if out[2] or out[3]:
+                break
+    held.close()
+    looked_up.close()

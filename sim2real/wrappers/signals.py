@@ -172,7 +172,9 @@ class CorruptSignals(NoCopy, gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def _checked_step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
         out = type(self).step(self, action)
-        if self.clock.check_reached():
+        # Removed once, if still installed: a caller may hold this bound method past a reset that removed it (or a
+        # later step of an episode that installed another), and call it again.
+        if self.clock.check_reached() and self.__dict__.get("step") == self._checked_step:
             del self.step
         return out
 
