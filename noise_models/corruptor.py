@@ -596,14 +596,51 @@ class SignalCorruptor:
 
     def _hot_act(self) -> Callable[[np.ndarray], np.ndarray]:
         """This episode's :meth:`act` without the shape check (callers that checked the shape call it directly),
-        specialised for no pipeline or one additive pipeline without a control-step delay."""
-        if self.delays_actions or len(self._action_pipes) > 1:
+        specialised for no pipeline or one additive pipeline, without a control-step delay or with a fixed one."""
+        if len(self._action_pipes) > 1:
             return self._act_any
+        if self.delays_actions:
+            return self._hot_delayed_act()
         # Without a control-step delay nothing reads the control step count (_act_any keeps it for the delay).
         if not self._action_pipes:
             return lambda action: action
         pipe = self._action_pipes[0]
         return compiled.pipe(pipe, hot_pipe(pipe))
+
+    def _hot_delayed_act(self) -> Callable[[np.ndarray], np.ndarray]:
+        """This episode's :meth:`act` when it delays the actions by a fixed number of control steps (no latency
+        jitter; at most one pipeline): the command of ``lag`` control steps ago from a ring of ``lag + 1``, zeros
+        before the first arrives: what :meth:`_act_any`'s command buffer gives in that case (its float64 slot then
+        ``astype(action_dtype)`` is this ``astype``: a float dtype's round trip through float64 is exact), without its
+        arrival bookkeeping per step. Anything else (jitter, a latency the buffer would refuse) takes
+        :meth:`_act_any`."""
+        lag = self._action_latency
+        delay = self._cmd_delay
+        if self._act_jitter or delay is None or lag + 1 > delay.capacity:
+            return self._act_any
+        dtype = self.action_dtype
+        if dtype.kind != "f":
+            return self._act_any
+        pipes = self._action_pipes
+        noise = compiled.pipe(pipes[0], hot_pipe(pipes[0])) if pipes else None
+        size = lag + 1
+        zero = np.zeros(self.action_layout.size).astype(dtype)  # type: ignore[union-attr]
+        ring = [zero] * size
+
+        def act(action: np.ndarray) -> np.ndarray:
+            sent = action if noise is None else noise(action)
+            t = self._control_step
+            self._control_step = t + 1
+            # A fresh array in the action's dtype, kept until it is handed out (lag steps later, then overwritten).
+            # Through float64 as the buffer casts, unless the noise's arithmetic made it in the dtype already (the
+            # round trip is then exact; the caller's own array may hold a signalling NaN the round trip quiets).
+            noisy = noise is not None and sent.dtype == dtype
+            ring[t % size] = sent.astype(dtype) if noisy else sent.astype(np.float64).astype(dtype)
+            if t >= lag:
+                return ring[(t - lag) % size]
+            return zero.copy()  # nothing has arrived yet: the buffer's reset command
+
+        return act
 
     def _act_any(self, action: np.ndarray) -> np.ndarray:
         """What :meth:`act` does after its shape check, for every combination of models."""

@@ -1149,3 +1149,42 @@ def test_a_step_method_held_across_steps_and_resets_keeps_working(physics: bool)
                 break
     held.close()
     looked_up.close()
+
+
+@pytest.mark.parametrize("pure", [False, True], ids=["compiled", "python"])
+@pytest.mark.parametrize("noise", [False, True], ids=["no noise", "noise"])
+@pytest.mark.parametrize("lag", [0, 1, 3])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_the_fixed_action_lag_ring_gives_the_command_buffer_s_commands(
+    dtype: Any, lag: int, noise: bool, pure: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An action delayed by the corruptor itself (control steps: envs whose latency acts on the action) by a fixed
+    lag runs a ring of lag + 1 commands; the general path (_act_any, the arrival-ordered command buffer) is the
+    reference, bitwise, over two episodes, with actions of other dtypes, special floats, the caller's buffer reused."""
+    from noise_models import Layout
+
+    if pure:
+        monkeypatch.setenv(ENV, "1")
+    else:
+        monkeypatch.delenv(ENV, raising=False)
+    models = [ActionLatency(steps=lag), *([ActionNoise(Gaussian(std=0.1))] if noise else [])]
+    twins = []
+    for _ in range(2):
+        c = SignalCorruptor(models, seed=5)
+        c.bind(obs=None, action=Layout(3, low=-np.ones(3), high=np.ones(3)), timestep=0.01, substeps=1,
+               physics=False, action_dtype=dtype)  # fmt: skip
+        twins.append(c)
+    rng = np.random.default_rng(0)
+    buffer = np.empty(3, dtype)
+    for episode in range(2):
+        for c in twins:
+            c.begin_episode(episode)
+        ring, reference = twins[0].hot_act, twins[1]._act_any
+        assert getattr(ring, "__name__", "") == "act"  # the ring (not _act_any) is this episode's act
+        for t in range(300):
+            values = rng.normal(0, 2, 3)
+            if t % 37 == 5:
+                values[:] = [np.nan, -0.0, np.inf]
+            buffer[...] = values  # the caller writes one buffer again and again
+            given = buffer if t % 3 else values  # float64 into a float32 layout now and then
+            _same(ring(given), reference(given), f"episode {episode} step {t}")
