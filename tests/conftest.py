@@ -116,3 +116,20 @@ def run_cli(argv: list[str]) -> tuple[int, str, str]:
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         code = main(argv)
     return code, out.getvalue(), err.getvalue()
+
+
+class StandInBatch:
+    """A stand-in for ``mujoco.batch.Batch``: ``bind(name)`` gives an ``(N, ...)`` array that ``load`` fills from
+    the worlds' ``MjData``."""
+
+    def __init__(self, datas: list[mujoco.MjData]) -> None:
+        self.datas, self.bound = datas, {}
+
+    def bind(self, name: str) -> np.ndarray:
+        self.bound[name] = np.array([np.asarray(getattr(d, name)) for d in self.datas])
+        return self.bound[name]
+
+    def load(self) -> None:
+        for name, array in self.bound.items():
+            for i, d in enumerate(self.datas):
+                array[i] = getattr(d, name)

@@ -8,6 +8,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
+from conftest import StandInBatch
 
 from sim2real import cli
 from sim2real.conditions import nominal, sweep
@@ -132,23 +133,6 @@ def test_end_effector_speed_is_radius_times_rate() -> None:
     assert body.episode(0, diverged=False)["ee_speed"] == pytest.approx(0.85, rel=1e-9)
 
 
-class _Batch:
-    """A stand-in for ``mujoco.batch.Batch``: ``bind(name)`` gives an ``(N, ...)`` array that ``load`` fills from
-    the worlds' ``MjData``."""
-
-    def __init__(self, datas: list[mujoco.MjData]) -> None:
-        self.datas, self.bound = datas, {}
-
-    def bind(self, name: str) -> np.ndarray:
-        self.bound[name] = np.array([np.asarray(getattr(d, name)) for d in self.datas])
-        return self.bound[name]
-
-    def load(self) -> None:
-        for name, array in self.bound.items():
-            for i, d in enumerate(self.datas):
-                array[i] = getattr(d, name)
-
-
 def test_observe_batch_is_observe_world_by_world(monkeypatch: pytest.MonkeyPatch) -> None:
     """``observe_batch`` on a stand-in batch against ``observe`` world by world, bitwise: random states within and
     beyond the joint ranges (a margin makes MuJoCo's limit constraint active inside the range too, so the
@@ -163,7 +147,7 @@ def test_observe_batch_is_observe_world_by_world(monkeypatch: pytest.MonkeyPatch
     datas = [mujoco.MjData(model) for _ in range(n)]
     speeds = (("shoulder", 2.0), ("elbow", 3.0))  # the joint speed ratio too (tests/test_safety_joint_speed.py)
     for limits in (SafetyLimits(ee_site="grip", joint_speeds=speeds), SafetyLimits(ee_body="fore")):
-        batched, single, batch = SafetyMeter(model, limits, n), SafetyMeter(model, limits, n), _Batch(datas)
+        batched, single, batch = SafetyMeter(model, limits, n), SafetyMeter(model, limits, n), StandInBatch(datas)
         batched.bind_batch(batch)
         rng = np.random.default_rng(0)
         for step in range(31):

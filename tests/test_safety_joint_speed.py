@@ -10,6 +10,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
+from conftest import StandInBatch
 
 from sim2real import cli
 from sim2real.conditions import nominal, sweep
@@ -296,22 +297,6 @@ def test_joints_the_model_cannot_limit_are_refused(arm_xml: Path) -> None:
 # ------------------------------------------------------------------------------------------------ batched == single
 
 
-class _Batch:
-    """A stand-in for ``mujoco.batch.Batch``: ``bind(name)`` gives an ``(N, ...)`` array ``load`` fills."""
-
-    def __init__(self, datas: list[mujoco.MjData]) -> None:
-        self.datas, self.bound = datas, {}
-
-    def bind(self, name: str) -> np.ndarray:
-        self.bound[name] = np.array([np.asarray(getattr(d, name)) for d in self.datas])
-        return self.bound[name]
-
-    def load(self) -> None:
-        for name, array in self.bound.items():
-            for i, d in enumerate(self.datas):
-                array[i] = getattr(d, name)
-
-
 def test_observe_batch_is_observe_world_by_world(monkeypatch: pytest.MonkeyPatch) -> None:
     """Random joint speeds, some tied between joints relative to their limits and some NaN (a diverging world),
     random subsets of worlds observed (the others faster: they must not count), blocks of 4 steps, a reset and
@@ -328,7 +313,7 @@ def test_observe_batch_is_observe_world_by_world(monkeypatch: pytest.MonkeyPatch
         SafetyLimits(speed_joints=("lift", "*o*"), max_joint_speed=2.0, ee_site="grip"),
     ):
         scale = np.array([j.limit for j in speed_joints(model, limits)])
-        batched, single, batch = SafetyMeter(model, limits, n), SafetyMeter(model, limits, n), _Batch(datas)
+        batched, single, batch = SafetyMeter(model, limits, n), SafetyMeter(model, limits, n), StandInBatch(datas)
         batched.bind_batch(batch)
         rng = np.random.default_rng(1)
         for step in range(31):
