@@ -194,6 +194,7 @@ def _simulate(
     substeps: int,
     latency: int,
     gravity: GravityCompensation | None,
+    hold: np.ndarray,
     stop_early: bool = False,
     tick: Callable[[], None] | None = None,
 ) -> tuple[np.ndarray, str | None]:
@@ -212,7 +213,7 @@ def _simulate(
         for t in range(steps):
             base = center if gravity is None else np.where(gravity.motors, gravity(data.qpos), center)
             ctrl[e, t] = np.clip(base + deviation[e, t], bounds[0], bounds[1])
-            data.ctrl[:] = ctrl[e, max(t - latency, 0)]
+            data.ctrl[:] = ctrl[e, t - latency] if t >= latency else hold  # as record_log's initial_ctrl
             mujoco.mj_step(model, data, nstep=substeps)
             q = data.qpos[adr]
             bad = np.flatnonzero((q < low) | (q > high))
@@ -237,6 +238,7 @@ def plan_excitation(
     seed: int,
     gravity_comp: bool = False,
     latency: int = 0,
+    hold: np.ndarray | None = None,
     tick: Callable[[], None] | None = None,
 ) -> ExcitationPlan:
     """The commands of ``episodes`` excitation episodes around ``home`` that keep every limited joint in range.
@@ -257,6 +259,8 @@ def plan_excitation(
         seed: the excitation's seed.
         gravity_comp: add the gravity-holding torque of the current pose to the torque motors' commands.
         latency: action latency in control steps.
+        hold: ``(nu,)`` the command the actuators hold until the first delayed one arrives (``record_log``'s
+            ``initial_ctrl``: the env's reset command); default zeros.
         tick: called after each simulated episode (trials included), e.g. to move a progress bar.
 
     Raises:
@@ -266,6 +270,7 @@ def plan_excitation(
 
     if isinstance(amplitude, bool) or not isinstance(amplitude, (int, float)) or not 0 < amplitude <= 1:
         raise ValueError(f"`amplitude` must be in (0, 1]. Received {amplitude!r}.")
+    hold = np.zeros(model.nu) if hold is None else np.asarray(hold, dtype=np.float64)
     data = mujoco.MjData(model)
     data.qpos[:] = home
     mujoco.mj_forward(model, data)
@@ -292,7 +297,7 @@ def plan_excitation(
             f"the home pose lies outside the range of joint(s) {', '.join(off_range)}; if the MJCF's ranges are meant "
             'in radians, add <compiler angle="radian"/> (MuJoCo reads them in degrees by default).'
         )
-    _, still = _simulate(model, home, 0.0 * full, center, bounds, substeps, latency, gravity, True, tick=tick)
+    _, still = _simulate(model, home, 0.0 * full, center, bounds, substeps, latency, gravity, hold, True, tick=tick)
     if still is not None:
         _, low, high, _ = _limited_joints(model)
         k = names.index(still)
@@ -311,18 +316,18 @@ def plan_excitation(
                 f"joint {still!r} leaves its range even without excitation (the arm is not at rest at the home pose"
                 f"{hint}); the amplitude was not reduced."
             )
-        ctrl, _ = _simulate(model, home, amplitude * full, center, bounds, substeps, latency, gravity, tick=tick)
+        ctrl, _ = _simulate(model, home, amplitude * full, center, bounds, substeps, latency, gravity, hold, tick=tick)
         return ExcitationPlan(ctrl, home.copy(), float(amplitude), float(amplitude), tuple(notes))
     used = float(amplitude)
     for _ in range(_HALVINGS + 1):
-        ctrl, outside = _simulate(model, home, used * full, center, bounds, substeps, latency, gravity, True, tick=tick)
+        ctrl, outside = _simulate(model, home, used * full, center, bounds, substeps, latency, gravity, hold, True, tick=tick)
         if outside is None:
             break
         first = outside
         used /= 2
     else:
         used *= 2
-        ctrl, _ = _simulate(model, home, used * full, center, bounds, substeps, latency, gravity, tick=tick)
+        ctrl, _ = _simulate(model, home, used * full, center, bounds, substeps, latency, gravity, hold, tick=tick)
         notes.append(f"joint {first!r} reaches its limit even at amplitude {used:g}; the log touches the limit.")
         return ExcitationPlan(ctrl, home.copy(), used, float(amplitude), tuple(notes))
     if used < amplitude:

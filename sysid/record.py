@@ -90,6 +90,7 @@ def record_log(
     initial_qpos: np.ndarray | None = None,
     initial_qvel: np.ndarray | None = None,
     action_latency: int = 0,
+    initial_ctrl: np.ndarray | None = None,
     obs_latency: int = 0,
     noise_std: NoiseStd | None = None,
     rng: np.random.Generator | None = None,
@@ -99,10 +100,10 @@ def record_log(
 ) -> TrajectoryLog:
     """Simulates ``model`` open loop under ``ctrl`` (through ``mujoco.rollout``) and logs it.
 
-    The physics sees ``ctrl[t - action_latency]`` during control step ``t`` and zeros before the first command
-    arrives (the reset command of a suite task; sim2real's latency wrapper holds the env's own reset command, which
-    for an MJCF arm with servos is its home keyframe's set points, so a servo arm logged here moves towards 0 for
-    those steps where a wrapped one holds home; :func:`sysid.fit` predicts no row from them); ``sensordata[t]`` is
+    The physics sees ``ctrl[t - action_latency]`` during control step ``t`` and ``initial_ctrl`` before the first
+    command arrives (what the actuators hold at reset: sim2real's latency wrapper holds the env's own reset
+    command, for an MJCF arm with servos its home keyframe's set points, which ``sim2real record`` passes; the
+    default, zeros, is a suite task's; :func:`sysid.fit` predicts no row from those steps); ``sensordata[t]`` is
     the reading of the state ``obs_latency`` control steps earlier (the first reading repeats before that). Gaussian noise of ``noise_std`` is added to ``qpos``, ``qvel`` and
     ``sensordata`` after that (``ctrl`` is logged as commanded, without noise).
 
@@ -113,6 +114,8 @@ def record_log(
         initial_qpos: (nq,) or (E, nq); defaults to ``model.qpos0``.
         initial_qvel: (nv,) or (E, nv); defaults to zeros.
         action_latency: whole control steps between command and actuation (>= 0).
+        initial_ctrl: (nu,) or (E, nu), the command the actuators hold until the first one arrives (with
+            ``action_latency`` > 0; stored in ``meta["initial_ctrl"]``); defaults to zeros.
         obs_latency: whole control steps by which ``sensordata`` lags the state (>= 0).
         noise_std: one sigma for every measured channel, or ``{"qpos": s, "qvel": s, "sensordata": s}`` where each
             ``s`` is one sigma for the channel or a 1-D array of one sigma per entry (nq for ``qpos``, nv for
@@ -167,6 +170,9 @@ def record_log(
 
     qpos0 = initial(initial_qpos, model.qpos0.copy(), "initial_qpos")
     qvel0 = initial(initial_qvel, np.zeros(model.nv), "initial_qvel")
+    hold = initial(initial_ctrl, np.zeros(model.nu), "initial_ctrl")
+    if not np.all(np.isfinite(hold)):
+        raise ValueError("`initial_ctrl` must be finite. Received NaN or inf.")
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     data = mujoco.MjData(model)
     states = np.empty((episodes, mujoco.mj_stateSize(model, spec)))
@@ -176,9 +182,9 @@ def record_log(
         data.qvel[:] = qvel0[e]
         mujoco.mj_getState(model, data, states[e], spec)
     # The physics sees the command issued ``action_latency`` control steps earlier; before the first one arrives,
-    # zeros (a suite task's reset command; see the docstring for servo arms).
+    # the command held at reset.
     source = np.arange(steps) - action_latency
-    applied = np.where((source >= 0)[None, :, None], controls[:, np.clip(source, 0, None)], 0.0)
+    applied = np.where((source >= 0)[None, :, None], controls[:, np.clip(source, 0, None)], hold[:, None, :])
     applied = np.repeat(applied, n_substeps, axis=1)
     threads = nthread or os.cpu_count() or 1
     datas = [mujoco.MjData(model) for _ in range(min(threads, episodes))]
@@ -227,6 +233,8 @@ def record_log(
             key: np.broadcast_to(sigmas[key], (int(getattr(model, width)),)).tolist() for key, width in _NOISE_CHANNELS
         },
     }
+    if action_latency and initial_ctrl is not None:
+        meta["initial_ctrl"] = hold.tolist()
     if true_params is not None:
         meta["true_params"] = {str(k): float(v) for k, v in true_params.items()}
 
