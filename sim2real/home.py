@@ -260,7 +260,7 @@ def plan_excitation(
         gravity_comp: add the gravity-holding torque of the current pose to the torque motors' commands.
         latency: action latency in control steps.
         hold: ``(nu,)`` the command the actuators hold until the first delayed one arrives (``record_log``'s
-            ``initial_ctrl``: the env's reset command); default zeros.
+            ``initial_ctrl``, whose default, zeros, is this one's: the check simulates what the log will).
         tick: called after each simulated episode (trials included), e.g. to move a progress bar.
 
     Raises:

@@ -293,15 +293,13 @@ def record(
             obs_latency = delay
     effects = physical
     starts = []
-    holds = []  # the command each episode's actuators hold at reset: until the first delayed command arrives
-    for e in range(episodes if chosen == "current" else 1):
-        if isinstance(env, gym.Env):
-            env.reset(seed=seed + e)
-        elif e == 0 and callable(getattr(env, "reset", None)):
-            env.reset()  # dm_env / TorchRL: their own reset state, the same for every episode
-        starts.append((np.array(handle.data.qpos), np.array(handle.data.qvel)))
-        holds.append(np.array(handle.data.ctrl))
-    hold = np.stack(holds) if chosen == "current" else np.tile(holds[0], (episodes, 1))
+    if chosen == "current":
+        for e in range(episodes):
+            if isinstance(env, gym.Env):
+                env.reset(seed=seed + e)
+            elif e == 0 and callable(getattr(env, "reset", None)):
+                env.reset()  # dm_env / TorchRL: their own reset state, the same for every episode
+            starts.append((np.array(handle.data.qpos), np.array(handle.data.qvel)))
     model = handle.model
     noise_std: float | dict[str, np.ndarray] = float(obs_noise) if noise_spec is None else 0.0
     if noise_spec is not None:
@@ -333,7 +331,7 @@ def record(
             pose = resolve_home(chosen, model)
             plan = plan_excitation(
                 model, pose, policy=policy, amplitude=amplitude, steps=steps, episodes=episodes, substeps=substeps,
-                seed=seed, gravity_comp=gravity_comp, latency=latency, hold=hold[0], tick=lambda: bar.update(1),
+                seed=seed, gravity_comp=gravity_comp, latency=latency, tick=lambda: bar.update(1),
             )
             ctrl = plan.ctrl
             starts = [(plan.home, np.zeros(model.nv))] * episodes
@@ -353,7 +351,6 @@ def record(
         initial_qpos=np.stack([q for q, _ in starts]),
         initial_qvel=np.stack([v for _, v in starts]),
         action_latency=latency,
-        initial_ctrl=hold,
         obs_latency=obs_latency,
         noise_std=noise_std if noisy else None,
         rng=np.random.default_rng([seed, 0x10C]) if noisy else None,

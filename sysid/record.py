@@ -101,9 +101,9 @@ def record_log(
     """Simulates ``model`` open loop under ``ctrl`` (through ``mujoco.rollout``) and logs it.
 
     The physics sees ``ctrl[t - action_latency]`` during control step ``t`` and ``initial_ctrl`` before the first
-    command arrives (what the actuators hold at reset: sim2real's latency wrapper holds the env's own reset
-    command, for an MJCF arm with servos its home keyframe's set points, which ``sim2real record`` passes; the
-    default, zeros, is a suite task's; :func:`sysid.fit` predicts no row from those steps); ``sensordata[t]`` is
+    command arrives (default zeros, a suite task's reset command, and what ``sim2real record`` logs; sim2real's
+    latency wrapper holds the env's own reset command, for an MJCF arm with servos its home keyframe's set points:
+    pass it to log that; :func:`sysid.fit` predicts no row from those steps); ``sensordata[t]`` is
     the reading of the state ``obs_latency`` control steps earlier (the first reading repeats before that). Gaussian noise of ``noise_std`` is added to ``qpos``, ``qvel`` and
     ``sensordata`` after that (``ctrl`` is logged as commanded, without noise).
 

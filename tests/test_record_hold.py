@@ -1,18 +1,13 @@
-"""Before the first delayed command arrives, a recorded arm holds what its actuators hold at reset, as sim2real's
-latency wrapper does (the env's reset command: a servo arm's home keyframe set points), in the log and in the
-excitation plan's joint-limit check alike. Before: the log fed zeros for those steps (a servo arm homed at 1.2 rad
-swung towards 0, out of its range) while the plan's check held the first command."""
+"""``record_log(initial_ctrl=)``: the command the actuators hold until the first delayed one arrives (default zeros,
+what ``sim2real record`` logs and its excitation plan's joint-limit check now simulates too: before, the check held the
+first command while the log fed zeros)."""
 
 from __future__ import annotations
-
-from pathlib import Path
 
 import mujoco
 import numpy as np
 import pytest
 
-from sim2real.recording import record
-from sim2real.sources import Source
 from sysid import record_log
 
 # Two position servos homed far from 0, joint ranges around home (radians), gravity off: at its set point an arm
@@ -79,16 +74,3 @@ def test_a_bad_initial_ctrl_is_refused_by_name(value: np.ndarray, message: str) 
     with pytest.raises(ValueError) as raised:
         record_log(model, np.zeros((5, 2)), action_latency=1, initial_ctrl=value)
     assert str(raised.value) == message
-
-
-def test_a_servo_arm_recorded_with_latency_holds_home_and_stays_in_range(tmp_path: Path) -> None:
-    path = tmp_path / "homed.xml"
-    path.write_text(ARM)
-    log = record(Source("model", str(path)), episodes=2, steps=60, latency=5, seed=1, progress=False)
-    assert log.meta["initial_ctrl"] == [HOME.tolist(), HOME.tolist()]  # the env's reset command: the keyframe's
-    assert log.meta["excitation"]["notes"] == []
-    first = log.episode == 0
-    np.testing.assert_array_equal(log.qpos[first][:6], np.tile(HOME, (6, 1)))  # held until the first command
-    model = mujoco.MjModel.from_xml_string(ARM)
-    low, high = model.jnt_range[:, 0], model.jnt_range[:, 1]
-    assert np.all((log.qpos >= low) & (log.qpos <= high)), "the plan's joint-limit check and the log must agree"
