@@ -194,7 +194,6 @@ def _simulate(
     substeps: int,
     latency: int,
     gravity: GravityCompensation | None,
-    hold: np.ndarray,
     stop_early: bool = False,
     tick: Callable[[], None] | None = None,
 ) -> tuple[np.ndarray, str | None]:
@@ -213,7 +212,8 @@ def _simulate(
         for t in range(steps):
             base = center if gravity is None else np.where(gravity.motors, gravity(data.qpos), center)
             ctrl[e, t] = np.clip(base + deviation[e, t], bounds[0], bounds[1])
-            data.ctrl[:] = ctrl[e, t - latency] if t >= latency else hold  # as record_log's initial_ctrl
+            # Zeros until the first delayed command arrives: what record_log (initial_ctrl's default) will simulate.
+            data.ctrl[:] = ctrl[e, t - latency] if t >= latency else 0.0
             mujoco.mj_step(model, data, nstep=substeps)
             q = data.qpos[adr]
             bad = np.flatnonzero((q < low) | (q > high))
@@ -238,7 +238,6 @@ def plan_excitation(
     seed: int,
     gravity_comp: bool = False,
     latency: int = 0,
-    hold: np.ndarray | None = None,
     tick: Callable[[], None] | None = None,
 ) -> ExcitationPlan:
     """The commands of ``episodes`` excitation episodes around ``home`` that keep every limited joint in range.
@@ -258,9 +257,8 @@ def plan_excitation(
         substeps: physics steps per control step.
         seed: the excitation's seed.
         gravity_comp: add the gravity-holding torque of the current pose to the torque motors' commands.
-        latency: action latency in control steps.
-        hold: ``(nu,)`` the command the actuators hold until the first delayed one arrives (``record_log``'s
-            ``initial_ctrl``, whose default, zeros, is this one's: the check simulates what the log will).
+        latency: action latency in control steps (zeros are sent until the first command arrives, as the log
+            ``record`` makes of the plan will).
         tick: called after each simulated episode (trials included), e.g. to move a progress bar.
 
     Raises:
@@ -270,7 +268,6 @@ def plan_excitation(
 
     if isinstance(amplitude, bool) or not isinstance(amplitude, (int, float)) or not 0 < amplitude <= 1:
         raise ValueError(f"`amplitude` must be in (0, 1]. Received {amplitude!r}.")
-    hold = np.zeros(model.nu) if hold is None else np.asarray(hold, dtype=np.float64)
     data = mujoco.MjData(model)
     data.qpos[:] = home
     mujoco.mj_forward(model, data)
@@ -297,7 +294,7 @@ def plan_excitation(
             f"the home pose lies outside the range of joint(s) {', '.join(off_range)}; if the MJCF's ranges are meant "
             'in radians, add <compiler angle="radian"/> (MuJoCo reads them in degrees by default).'
         )
-    _, still = _simulate(model, home, 0.0 * full, center, bounds, substeps, latency, gravity, hold, True, tick=tick)
+    _, still = _simulate(model, home, 0.0 * full, center, bounds, substeps, latency, gravity, True, tick=tick)
     if still is not None:
         _, low, high, _ = _limited_joints(model)
         k = names.index(still)
@@ -316,18 +313,18 @@ def plan_excitation(
                 f"joint {still!r} leaves its range even without excitation (the arm is not at rest at the home pose"
                 f"{hint}); the amplitude was not reduced."
             )
-        ctrl, _ = _simulate(model, home, amplitude * full, center, bounds, substeps, latency, gravity, hold, tick=tick)
+        ctrl, _ = _simulate(model, home, amplitude * full, center, bounds, substeps, latency, gravity, tick=tick)
         return ExcitationPlan(ctrl, home.copy(), float(amplitude), float(amplitude), tuple(notes))
     used = float(amplitude)
     for _ in range(_HALVINGS + 1):
-        ctrl, outside = _simulate(model, home, used * full, center, bounds, substeps, latency, gravity, hold, True, tick=tick)
+        ctrl, outside = _simulate(model, home, used * full, center, bounds, substeps, latency, gravity, True, tick=tick)
         if outside is None:
             break
         first = outside
         used /= 2
     else:
         used *= 2
-        ctrl, _ = _simulate(model, home, used * full, center, bounds, substeps, latency, gravity, hold, tick=tick)
+        ctrl, _ = _simulate(model, home, used * full, center, bounds, substeps, latency, gravity, tick=tick)
         notes.append(f"joint {first!r} reaches its limit even at amplitude {used:g}; the log touches the limit.")
         return ExcitationPlan(ctrl, home.copy(), used, float(amplitude), tuple(notes))
     if used < amplitude:
